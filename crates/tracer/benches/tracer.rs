@@ -1,0 +1,2 @@
+//! Tracer benchmarks (OWNER: bvh helper).
+fn main() {}

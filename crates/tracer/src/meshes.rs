@@ -1,0 +1,3 @@
+//! Built-in triangle primitives (quad, box, UV sphere, cylinder) as indexed meshes.
+//!
+//! OWNER: scene helper.

@@ -1,0 +1,117 @@
+//! The built, renderable scene: triangles with their shading data, materials,
+//! textures, lights and the BVH over everything.
+//!
+//! A [`Scene`] is made once per scene (by [`crate::load_scene`]) and then shared
+//! read-only by every render thread.
+
+use crate::bvh::Bvh;
+use crate::cameras::Camera;
+use crate::geometry::{Aabb, Ray};
+use crate::lights::Light;
+use crate::materials::Material;
+use crate::render::RenderSettings;
+use crate::shapes::{Hit, Triangle};
+use crate::textures::Texture;
+use glam::{Vec2, Vec3};
+
+/// Per-triangle data needed only once a hit has been found.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriangleShading {
+    /// Vertex normals (unit length). Flat-shaded triangles carry their face
+    /// normal three times.
+    pub normals: [Vec3; 3],
+    /// Vertex texture coordinates (zero where the mesh has none).
+    pub uvs: [Vec2; 3],
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+}
+
+/// Everything [`Scene::new`] needs; the loader fills it.
+#[derive(Clone, Debug, Default)]
+pub struct SceneParts {
+    /// All triangles, in world space.
+    pub triangles: Vec<Triangle>,
+    /// Shading data, one per triangle.
+    pub shading: Vec<TriangleShading>,
+    /// Materials referenced by [`TriangleShading::material`].
+    pub materials: Vec<Material>,
+    /// Textures referenced by materials.
+    pub textures: Vec<Texture>,
+    /// Light sources.
+    pub lights: Vec<Light>,
+    /// Ambient light added to every diffuse surface (linear RGB).
+    pub ambient: Vec3,
+    /// Colour of rays that leave the scene (linear RGB).
+    pub background: Vec3,
+    /// The camera the scene file defines.
+    pub camera: Camera,
+    /// The render settings the scene file defines.
+    pub settings: RenderSettings,
+}
+
+/// A renderable scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Triangles, in world space.
+    pub triangles: Vec<Triangle>,
+    /// Shading data, parallel to `triangles`.
+    pub shading: Vec<TriangleShading>,
+    /// Materials.
+    pub materials: Vec<Material>,
+    /// Textures.
+    pub textures: Vec<Texture>,
+    /// Lights.
+    pub lights: Vec<Light>,
+    /// Ambient term (linear RGB).
+    pub ambient: Vec3,
+    /// Background colour (linear RGB).
+    pub background: Vec3,
+    /// The scene file's camera.
+    pub camera: Camera,
+    /// The scene file's render settings.
+    pub settings: RenderSettings,
+    /// Bounds of all triangles.
+    pub bounds: Aabb,
+    /// Acceleration structure over `triangles`.
+    pub bvh: Bvh,
+}
+
+impl Scene {
+    /// Builds the BVH and assembles the scene. `parts.shading` must be parallel
+    /// to `parts.triangles`.
+    pub fn new(parts: SceneParts) -> Self {
+        assert_eq!(parts.triangles.len(), parts.shading.len(), "one shading record per triangle");
+        let bvh = Bvh::build(&parts.triangles);
+        let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
+        Scene {
+            triangles: parts.triangles,
+            shading: parts.shading,
+            materials: parts.materials,
+            textures: parts.textures,
+            lights: parts.lights,
+            ambient: parts.ambient,
+            background: parts.background,
+            camera: parts.camera,
+            settings: parts.settings,
+            bounds,
+            bvh,
+        }
+    }
+
+    /// Nearest hit with `t_min < t < t_max`.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        self.bvh.intersect(ray, t_min, t_max)
+    }
+
+    /// True when something blocks the ray between `t_min` and `t_max`.
+    #[inline]
+    pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        self.bvh.occluded(ray, t_min, t_max)
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+}

@@ -1,0 +1,45 @@
+//! Reading scene files and their assets from disk.
+
+use anyhow::Context;
+use isin_tracer::{AssetSource, Scene, SceneBundle};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// An [`AssetSource`] that reads files relative to the scene's directory and
+/// remembers every file it read, so the scene can be shipped as a bundle.
+pub struct DiskAssets {
+    base: PathBuf,
+    read: BTreeMap<String, Vec<u8>>,
+}
+
+impl DiskAssets {
+    /// Assets resolved relative to `base`.
+    pub fn new(base: impl Into<PathBuf>) -> Self {
+        Self { base: base.into(), read: BTreeMap::new() }
+    }
+}
+
+impl AssetSource for DiskAssets {
+    fn read(&mut self, path: &str) -> Result<Vec<u8>, String> {
+        if let Some(bytes) = self.read.get(path) {
+            return Ok(bytes.clone());
+        }
+        let full = self.base.join(path);
+        let bytes = std::fs::read(&full).map_err(|e| format!("cannot read {}: {e}", full.display()))?;
+        self.read.insert(path.to_owned(), bytes.clone());
+        Ok(bytes)
+    }
+}
+
+/// Loads a scene file from disk: the built scene and the self-contained bundle
+/// (text + every asset read) that reproduces it elsewhere.
+pub fn load_scene_file(path: &Path) -> anyhow::Result<(Scene, SceneBundle)> {
+    let source = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read scene file {}", path.display()))?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let mut assets = DiskAssets::new(base);
+    let name = path.display().to_string();
+    let scene = isin_tracer::load_scene(&name, &source, &mut assets)?;
+    let bundle = SceneBundle { name, source, assets: assets.read };
+    Ok((scene, bundle))
+}
