@@ -49,7 +49,26 @@ impl Triangle {
     /// Möller–Trumbore: `Some((t, u, v))` when the ray hits the triangle with
     /// `t_min < t < t_max`.
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
-        let _ = (ray, t_min, t_max);
-        todo!("bvh helper")
+        // Placeholder (scalar Möller–Trumbore); the bvh helper owns the final version.
+        let e1 = self.v[1] - self.v[0];
+        let e2 = self.v[2] - self.v[0];
+        let p = ray.dir.cross(e2);
+        let det = e1.dot(p);
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        let inv = 1.0 / det;
+        let s = ray.origin - self.v[0];
+        let u = s.dot(p) * inv;
+        if !(0.0..=1.0).contains(&u) {
+            return None;
+        }
+        let q = s.cross(e1);
+        let v = ray.dir.dot(q) * inv;
+        if v < 0.0 || u + v > 1.0 {
+            return None;
+        }
+        let t = e2.dot(q) * inv;
+        (t > t_min && t < t_max).then_some((t, u, v))
     }
 }
