@@ -1,4 +1,40 @@
 //! # isin-viewer — the interactive window
 //!
 //! A winit + softbuffer window that shows frames as their tiles arrive and turns
-//! keyboard and mouse input into camera moves.
+//! keyboard and mouse input into camera moves, as in the paper: rotate the image
+//! plane about the eye, move it along its normal, plus strafing and mouse-drag
+//! look ([`input`]).
+//!
+//! The pieces, from the window inwards:
+//!
+//! - [`window`]: the winit 0.30 event loop and the softbuffer surface. Draws the
+//!   image scaled to the window, the tile-ownership overlay and the status text
+//!   ([`raster`]); saves screenshots; quits on Escape.
+//! - [`session`]: everything the viewer does without a window — cameras, frame
+//!   requests, progressive refinement of a still view, status counters,
+//!   camera-path recording. Unit-tested with a fake source.
+//! - [`accumulate`]: the displayed image; tiles land in it, passes of one view
+//!   are averaged in linear light, a new view paints over the old one.
+//! - [`source`]: the [`FrameSource`] interface between the window and whatever
+//!   renders. [`LocalSource`] ([`local`]) renders in-process on a rayon pool; a
+//!   cluster-backed source implements the same trait.
+//! - [`path`]: camera paths — recorded by `isin view --record`, replayed by
+//!   `isin fly`.
+
+pub mod accumulate;
+pub mod error;
+pub mod input;
+pub mod local;
+pub mod path;
+pub mod raster;
+pub mod session;
+pub mod source;
+pub mod window;
+
+pub use error::ViewerError;
+pub use input::{Command, Controls, Move};
+pub use local::LocalSource;
+pub use path::{CameraPath, PathFrame, Recorder};
+pub use session::{FrameReport, Quality, Session, SessionConfig};
+pub use source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker};
+pub use window::{ViewerEvent, ViewerOptions, check_display, run};

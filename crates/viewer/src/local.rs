@@ -1,0 +1,168 @@
+//! [`LocalSource`]: renders frames in-process on a rayon pool, so `isin view`
+//! works without a cluster.
+
+use crate::error::ViewerError;
+use crate::source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker};
+use isin_tracer::{Scene, Tile, render_tile};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// Counters shared between the render threads and the status line.
+#[derive(Default)]
+struct Counters {
+    tiles: Mutex<BTreeMap<u32, u64>>,
+    bytes: AtomicU64,
+}
+
+/// A [`FrameSource`] rendering tiles with [`isin_tracer::render_tile`] on its
+/// own rayon pool.
+///
+/// Tiles are rendered centre-out (the middle of the image appears first). Each
+/// tile checks, before it starts, whether its frame is still the latest request;
+/// tiles of superseded frames are skipped, so a new camera waits at most for the
+/// tiles already being rendered. Tile owners are rayon thread indices.
+pub struct LocalSource {
+    scene: Arc<Scene>,
+    pool: Arc<rayon::ThreadPool>,
+    tile_size: u32,
+    latest: Arc<AtomicU64>,
+    tx: Sender<SourceEvent>,
+    rx: Receiver<SourceEvent>,
+    waker: Waker,
+    counters: Arc<Counters>,
+}
+
+impl LocalSource {
+    /// A source rendering `scene` on `threads` threads (0: one per core) in
+    /// tiles of `tile_size × tile_size` pixels.
+    pub fn new(scene: Arc<Scene>, threads: usize, tile_size: u32) -> Result<Self, ViewerError> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("isin-view-render-{i}"))
+            .panic_handler(|_| tracing::error!("a render thread panicked"))
+            .build()?;
+        let (tx, rx) = channel();
+        Ok(Self {
+            scene,
+            pool: Arc::new(pool),
+            tile_size: tile_size.max(1),
+            latest: Arc::new(AtomicU64::new(0)),
+            tx,
+            rx,
+            waker: Waker::noop(),
+            counters: Arc::default(),
+        })
+    }
+
+    /// Number of render threads.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+}
+
+/// The tiles of a `width × height` image, nearest to the centre first.
+pub fn centre_out_tiles(width: u32, height: u32, size: u32) -> Vec<Tile> {
+    let mut tiles = Tile::grid(width, height, size);
+    let (cx, cy) = (width as i64, height as i64);
+    // Twice the tile centre minus the image size: integer distance from the centre.
+    tiles.sort_by_key(|t| {
+        let dx = (2 * t.x as i64 + t.w as i64) - cx;
+        let dy = (2 * t.y as i64 + t.h as i64) - cy;
+        (dx * dx + dy * dy, t.y, t.x)
+    });
+    tiles
+}
+
+impl FrameSource for LocalSource {
+    fn set_waker(&mut self, waker: Waker) {
+        self.waker = waker;
+    }
+
+    fn request(&mut self, request: FrameRequest) {
+        let id: FrameId = request.frame_id;
+        self.latest.fetch_max(id, Ordering::AcqRel);
+        let tiles = centre_out_tiles(request.settings.width, request.settings.height, self.tile_size);
+        let total = tiles.len();
+        let scene = self.scene.clone();
+        let latest = self.latest.clone();
+        let tx = self.tx.clone();
+        let waker = self.waker.clone();
+        let counters = self.counters.clone();
+        let started = Instant::now();
+        let done = Arc::new(AtomicUsize::new(0));
+        self.pool.spawn(move || {
+            tiles.par_iter().for_each(|&tile| {
+                if latest.load(Ordering::Acquire) != id {
+                    return;
+                }
+                let rendered = catch_unwind(AssertUnwindSafe(|| {
+                    render_tile(&scene, &request.camera, &request.settings, tile)
+                }));
+                let rgb = match rendered {
+                    Ok(rgb) => rgb,
+                    Err(panic) => {
+                        let what = panic
+                            .downcast_ref::<&str>()
+                            .map(|s| s.to_string())
+                            .or_else(|| panic.downcast_ref::<String>().cloned())
+                            .unwrap_or_else(|| "unknown panic".into());
+                        let _ = tx.send(SourceEvent::Failed(format!("render_tile panicked: {what}")));
+                        waker.wake();
+                        return;
+                    }
+                };
+                let owner = rayon::current_thread_index().unwrap_or(0) as u32;
+                counters.bytes.fetch_add(rgb.len() as u64, Ordering::Relaxed);
+                *counters.tiles.lock().unwrap_or_else(|e| e.into_inner()).entry(owner).or_default() += 1;
+                let _ = tx.send(SourceEvent::Tile(TileUpdate { frame_id: id, tile, rgb, owner }));
+                if done.fetch_add(1, Ordering::AcqRel) + 1 == total {
+                    let _ = tx.send(SourceEvent::FrameComplete { frame_id: id, elapsed: started.elapsed() });
+                }
+                waker.wake();
+            });
+        });
+    }
+
+    fn try_next(&mut self) -> Option<SourceEvent> {
+        self.rx.try_recv().ok()
+    }
+
+    fn status(&self) -> SourceStatus {
+        let tiles = self.counters.tiles.lock().unwrap_or_else(|e| e.into_inner());
+        SourceStatus {
+            live_slaves: self.pool.current_num_threads(),
+            tiles_per_slave: tiles.iter().map(|(&k, &v)| (k, v)).collect(),
+            bytes_received: self.counters.bytes.load(Ordering::Relaxed),
+            transport: "in-process".into(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centre_out_covers_every_pixel_once_and_starts_in_the_middle() {
+        let tiles = centre_out_tiles(100, 70, 16);
+        let mut seen = vec![0u8; 100 * 70];
+        for t in &tiles {
+            for y in t.y..t.y + t.h {
+                for x in t.x..t.x + t.w {
+                    seen[(y * 100 + x) as usize] += 1;
+                }
+            }
+        }
+        assert!(seen.iter().all(|&n| n == 1));
+        let first = tiles[0];
+        assert!(first.x <= 50 && 50 <= first.x + first.w, "{first:?}");
+        assert!(first.y <= 35 && 35 <= first.y + first.h, "{first:?}");
+        let last = tiles[tiles.len() - 1];
+        assert!(last.x == 0 || last.x + last.w == 100, "a corner tile comes last: {last:?}");
+    }
+}

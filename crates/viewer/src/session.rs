@@ -1,0 +1,507 @@
+//! What the viewer does, without the window: turns input into cameras and
+//! [`FrameRequest`]s, feeds arriving tiles into the [`Accumulator`], refines a
+//! still view pass after pass, and keeps the numbers for the status line.
+//!
+//! Every camera change starts a new *view*. Its first pass is rendered in fast
+//! mode ([`Quality::moving_spp`] samples, [`Quality::moving_light_samples`]
+//! shadow rays); once it completes and no further input came, refinement passes
+//! follow, each with a different [`RenderSettings::seed`] (the pass number), so
+//! each adds new, deterministic samples, averaged in linear light until the
+//! view has [`Quality::max_spp`] samples per pixel. Input at any time supersedes
+//! the pass in flight.
+
+use crate::accumulate::Accumulator;
+use crate::input::{Controls, Move};
+use crate::path::Recorder;
+use crate::source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, Waker};
+use isin_tracer::{Camera, RenderSettings, Tile};
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
+
+/// Samples per pass while moving and while refining.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Quality {
+    /// Camera samples per pixel of the first pass after a move.
+    pub moving_spp: u32,
+    /// Shadow rays per area light in the first pass after a move.
+    pub moving_light_samples: u32,
+    /// Camera samples per pixel of each refinement pass.
+    pub still_spp: u32,
+    /// Shadow rays per area light in refinement passes.
+    pub still_light_samples: u32,
+    /// Refinement stops once a view has this many samples per pixel.
+    pub max_spp: u32,
+}
+
+impl Quality {
+    /// Fast passes of 1 sample and 1 shadow ray; refinement passes of 1 sample
+    /// with the scene's shadow rays, up to 64 samples per pixel.
+    pub fn for_settings(settings: &RenderSettings) -> Self {
+        Self {
+            moving_spp: 1,
+            moving_light_samples: 1,
+            still_spp: 1,
+            still_light_samples: settings.light_samples.max(1),
+            max_spp: 64,
+        }
+    }
+}
+
+/// Everything the session needs to know up front.
+#[derive(Clone, Debug)]
+pub struct SessionConfig {
+    /// Resolution, recursion depth and base seed (spp and light samples come
+    /// from `quality`).
+    pub settings: RenderSettings,
+    /// Samples per pass.
+    pub quality: Quality,
+    /// Navigation speeds.
+    pub controls: Controls,
+    /// The starting camera (also where `Home` goes back to).
+    pub camera: Camera,
+}
+
+/// A completed pass, reported once it is on screen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameReport {
+    /// The request's id.
+    pub frame_id: FrameId,
+    /// The view (camera generation): 0 for the starting camera, +1 per move.
+    pub view: u32,
+    /// Pass within the view: 0 is the fast pass.
+    pub pass: u32,
+    /// Samples per pixel accumulated in the view after this pass.
+    pub spp: u32,
+    /// From the request to its last tile.
+    pub render_time: Duration,
+    /// From the first input the pass shows to its completion (only for the
+    /// first pass after a move).
+    pub latency: Option<Duration>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct InFlight {
+    frame_id: FrameId,
+    view: u32,
+    pass: u32,
+    weight: u32,
+    input_at: Option<Instant>,
+}
+
+/// The viewer's state, independent of any window.
+pub struct Session {
+    source: Box<dyn FrameSource>,
+    config: SessionConfig,
+    camera: Camera,
+    view: u32,
+    /// Samples per pixel of the current view's completed passes.
+    view_spp: u32,
+    /// Time of the first move not yet sent to the source.
+    pending_input: Option<Instant>,
+    dirty: bool,
+    next_id: FrameId,
+    in_flight: Option<InFlight>,
+    accum: Accumulator,
+    owners: BTreeMap<(u32, u32), (Tile, u32)>,
+    recorder: Option<Recorder>,
+    completed: Vec<FrameReport>,
+    completions: VecDeque<Instant>,
+    last_report: Option<FrameReport>,
+    bytes_window: VecDeque<(Instant, u64)>,
+    error: Option<String>,
+}
+
+impl Session {
+    /// A session drawing from `source`; nothing is requested until [`Session::start`].
+    pub fn new(source: Box<dyn FrameSource>, config: SessionConfig) -> Self {
+        let accum = Accumulator::new(config.settings.width, config.settings.height);
+        Self {
+            source,
+            camera: config.camera,
+            config,
+            view: 0,
+            view_spp: 0,
+            pending_input: None,
+            dirty: false,
+            next_id: 1,
+            in_flight: None,
+            accum,
+            owners: BTreeMap::new(),
+            recorder: None,
+            completed: Vec::new(),
+            completions: VecDeque::new(),
+            last_report: None,
+            bytes_window: VecDeque::new(),
+            error: None,
+        }
+    }
+
+    /// Records every camera requested from now on into `recorder`.
+    pub fn record_to(&mut self, recorder: Recorder) {
+        self.recorder = Some(recorder);
+    }
+
+    /// Hands the source the waker to call when tiles arrive.
+    pub fn set_waker(&mut self, waker: Waker) {
+        self.source.set_waker(waker);
+    }
+
+    /// Requests the first frame.
+    pub fn start(&mut self) {
+        self.dirty = true;
+        self.flush();
+    }
+
+    /// The current camera.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// The current view (camera generation).
+    pub fn view(&self) -> u32 {
+        self.view
+    }
+
+    /// Applies a move; the frame is requested at the next [`Session::flush`].
+    pub fn move_camera(&mut self, mv: Move, at: Instant) {
+        let mut camera = self.camera;
+        self.config.controls.apply(mv, &mut camera);
+        self.set_camera(camera, at);
+    }
+
+    /// Mouse-drag look by `(dx, dy)` pixels.
+    pub fn look(&mut self, dx: f64, dy: f64, at: Instant) {
+        let mut camera = self.camera;
+        self.config.controls.look(dx, dy, &mut camera);
+        self.set_camera(camera, at);
+    }
+
+    /// Goes back to the starting camera.
+    pub fn reset_camera(&mut self, at: Instant) {
+        self.set_camera(self.config.camera, at);
+    }
+
+    /// Jumps to `camera` (ignored if it cannot produce rays).
+    pub fn set_camera(&mut self, camera: Camera, at: Instant) {
+        if camera == self.camera && !self.dirty {
+            return;
+        }
+        if let Err(e) = camera.validate() {
+            tracing::warn!("ignoring a move to an unusable camera: {e}");
+            return;
+        }
+        self.camera = camera;
+        self.dirty = true;
+        self.pending_input.get_or_insert(at);
+    }
+
+    /// Sends the request for the latest camera if it changed since the last
+    /// one (call once per batch of input events, so a burst of mouse motion
+    /// becomes one request).
+    pub fn flush(&mut self) {
+        if !self.dirty {
+            return;
+        }
+        self.dirty = false;
+        if self.next_id > 1 {
+            self.view += 1;
+        }
+        self.view_spp = 0;
+        if let Some(r) = &mut self.recorder {
+            r.record(&self.camera);
+        }
+        let input_at = self.pending_input.take();
+        self.request_pass(0, input_at);
+    }
+
+    fn pass_settings(&self, pass: u32) -> RenderSettings {
+        let q = &self.config.quality;
+        let mut s = self.config.settings;
+        if pass == 0 {
+            s.spp = q.moving_spp.max(1);
+            s.light_samples = q.moving_light_samples.max(1);
+        } else {
+            s.spp = q.still_spp.max(1);
+            s.light_samples = q.still_light_samples.max(1);
+        }
+        s.seed = self.config.settings.seed.wrapping_add(pass as u64);
+        s
+    }
+
+    fn request_pass(&mut self, pass: u32, input_at: Option<Instant>) {
+        let settings = self.pass_settings(pass);
+        let frame_id = self.next_id;
+        self.next_id += 1;
+        self.in_flight = Some(InFlight { frame_id, view: self.view, pass, weight: settings.spp, input_at });
+        self.source.request(FrameRequest { frame_id, camera: self.camera, settings });
+    }
+
+    /// Drains the source. Returns true when the displayed image changed.
+    pub fn pump(&mut self, now: Instant) -> bool {
+        let mut changed = false;
+        while let Some(event) = self.source.try_next() {
+            match event {
+                SourceEvent::Tile(t) => {
+                    let Some(f) = self.in_flight.filter(|f| f.frame_id == t.frame_id) else {
+                        continue; // a superseded frame's tile
+                    };
+                    match self.accum.add_tile(f.view, f.weight as f32, t.tile, &t.rgb) {
+                        Ok(()) => {
+                            self.owners.insert((t.tile.x, t.tile.y), (t.tile, t.owner));
+                            changed = true;
+                        }
+                        Err(e) => tracing::warn!("dropping a tile: {e}"),
+                    }
+                }
+                SourceEvent::FrameComplete { frame_id, elapsed } => {
+                    let Some(f) = self.in_flight.filter(|f| f.frame_id == frame_id) else {
+                        continue;
+                    };
+                    self.view_spp += f.weight;
+                    let report = FrameReport {
+                        frame_id,
+                        view: f.view,
+                        pass: f.pass,
+                        spp: self.view_spp,
+                        render_time: elapsed,
+                        latency: f.input_at.map(|t| now.saturating_duration_since(t)),
+                    };
+                    self.completed.push(report);
+                    self.last_report = Some(report);
+                    self.completions.push_back(now);
+                    self.in_flight = None;
+                    changed = true;
+                    if !self.dirty && self.view_spp < self.config.quality.max_spp {
+                        self.request_pass(f.pass + 1, None);
+                    }
+                }
+                SourceEvent::Failed(message) => {
+                    tracing::error!("frame source failed: {message}");
+                    self.error = Some(message);
+                    changed = true;
+                }
+            }
+        }
+        changed
+    }
+
+    /// Passes completed since the last call (call after presenting them).
+    pub fn take_completed(&mut self) -> Vec<FrameReport> {
+        std::mem::take(&mut self.completed)
+    }
+
+    /// True while a pass is being rendered.
+    pub fn busy(&self) -> bool {
+        self.in_flight.is_some() || self.dirty
+    }
+
+    /// The image to show.
+    pub fn image(&self) -> &Accumulator {
+        &self.accum
+    }
+
+    /// The latest tile at each tile position and who rendered it.
+    pub fn tile_owners(&self) -> impl Iterator<Item = &(Tile, u32)> {
+        self.owners.values()
+    }
+
+    /// The source's counters.
+    pub fn source_status(&self) -> SourceStatus {
+        self.source.status()
+    }
+
+    /// The status text, one string per line.
+    pub fn status_lines(&mut self, now: Instant) -> Vec<String> {
+        while self.completions.front().is_some_and(|&t| now.duration_since(t) > Duration::from_secs(1)) {
+            self.completions.pop_front();
+        }
+        let status = self.source.status();
+        self.bytes_window.push_back((now, status.bytes_received));
+        while self.bytes_window.len() > 2
+            && self.bytes_window.get(1).is_some_and(|&(t, _)| now.duration_since(t) >= Duration::from_secs(1))
+        {
+            self.bytes_window.pop_front();
+        }
+        let rate = match (self.bytes_window.front(), self.bytes_window.back()) {
+            (Some(&(t0, b0)), Some(&(t1, b1))) if t1 > t0 => {
+                b1.saturating_sub(b0) as f64 / t1.duration_since(t0).as_secs_f64()
+            }
+            _ => 0.0,
+        };
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        let mut first = format!("{} fps", self.completions.len());
+        if let Some(r) = self.last_report {
+            first += &format!("  frame {:.1} ms  {} spp", ms(r.render_time), r.spp);
+        }
+        if let Some(l) = self.last_report.and_then(|r| r.latency) {
+            first += &format!("  input->frame {:.0} ms", ms(l));
+        }
+        let tiles: Vec<String> = status.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
+        let mut lines = vec![
+            first,
+            format!("{} slaves  {:.2} MB/s  {}", status.live_slaves, rate / 1e6, status.transport),
+            format!("tiles {}", tiles.join(" ")),
+        ];
+        if let Some(e) = &self.error {
+            lines.push(format!("error: {e}"));
+        }
+        lines
+    }
+
+    /// Writes the recorded camera path, if recording.
+    pub fn save_recording(&self) -> Option<Result<std::path::PathBuf, crate::ViewerError>> {
+        self.recorder.as_ref().map(|r| r.save().map(|p| p.to_path_buf()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::source::TileUpdate;
+    use std::sync::{Arc, Mutex};
+
+    /// A source that records requests and lets the test deliver tiles.
+    #[derive(Default, Clone)]
+    struct Fake {
+        requests: Arc<Mutex<Vec<FrameRequest>>>,
+        events: Arc<Mutex<VecDeque<SourceEvent>>>,
+    }
+
+    impl FrameSource for Fake {
+        fn set_waker(&mut self, _: Waker) {}
+        fn request(&mut self, r: FrameRequest) {
+            self.requests.lock().unwrap().push(r);
+        }
+        fn try_next(&mut self) -> Option<SourceEvent> {
+            self.events.lock().unwrap().pop_front()
+        }
+        fn status(&self) -> SourceStatus {
+            SourceStatus { live_slaves: 1, transport: "fake".into(), ..Default::default() }
+        }
+    }
+
+    impl Fake {
+        fn last(&self) -> FrameRequest {
+            *self.requests.lock().unwrap().last().unwrap()
+        }
+        fn count(&self) -> usize {
+            self.requests.lock().unwrap().len()
+        }
+        /// Delivers the whole frame as one solid tile, then completes it.
+        fn deliver(&self, r: &FrameRequest, value: u8) {
+            let tile = Tile { x: 0, y: 0, w: r.settings.width, h: r.settings.height };
+            let mut ev = self.events.lock().unwrap();
+            ev.push_back(SourceEvent::Tile(TileUpdate {
+                frame_id: r.frame_id,
+                tile,
+                rgb: vec![value; tile.pixel_count() * 3],
+                owner: 3,
+            }));
+            ev.push_back(SourceEvent::FrameComplete {
+                frame_id: r.frame_id,
+                elapsed: Duration::from_millis(5),
+            });
+        }
+    }
+
+    fn session(max_spp: u32) -> (Session, Fake) {
+        let fake = Fake::default();
+        let settings = RenderSettings { width: 4, height: 2, spp: 9, light_samples: 8, ..Default::default() };
+        let mut quality = Quality::for_settings(&settings);
+        quality.max_spp = max_spp;
+        let config =
+            SessionConfig { settings, quality, controls: Controls::default(), camera: Camera::default() };
+        let mut s = Session::new(Box::new(fake.clone()), config);
+        s.start();
+        (s, fake)
+    }
+
+    #[test]
+    fn a_still_view_is_refined_with_new_seeds_until_max_spp() {
+        let (mut s, fake) = session(3);
+        let t = Instant::now();
+        let first = fake.last();
+        assert_eq!((first.settings.spp, first.settings.light_samples), (1, 1), "fast first pass");
+        fake.deliver(&first, 0);
+        assert!(s.pump(t));
+        let second = fake.last();
+        assert!(second.frame_id > first.frame_id);
+        assert_eq!(second.camera, first.camera);
+        assert_eq!(second.settings.light_samples, 8, "refinement uses the scene's shadow rays");
+        assert_ne!(second.settings.seed, first.settings.seed, "each pass draws new samples");
+        fake.deliver(&second, 255);
+        s.pump(t);
+        let third = fake.last();
+        assert_ne!(third.settings.seed, second.settings.seed);
+        fake.deliver(&third, 255);
+        s.pump(t);
+        assert_eq!(fake.count(), 3, "no pass after max_spp");
+        assert!(!s.busy());
+        let reports = s.take_completed();
+        assert_eq!(reports.iter().map(|r| (r.pass, r.spp)).collect::<Vec<_>>(), [(0, 1), (1, 2), (2, 3)]);
+        assert!(reports.iter().all(|r| r.view == 0));
+        // One black pass and two white ones, averaged in linear light: 2/3 → sRGB 213.
+        let p = s.image().display()[0] & 0xff;
+        assert!((212..=214).contains(&p), "{p}");
+    }
+
+    #[test]
+    fn a_move_supersedes_the_pass_in_flight_and_restarts_fast() {
+        let (mut s, fake) = session(64);
+        let t0 = Instant::now();
+        let first = fake.last();
+        fake.deliver(&first, 100);
+        s.pump(t0);
+        let refine = fake.last();
+        assert_eq!(refine.settings.light_samples, 8);
+        // Two moves before the next flush become one request.
+        s.move_camera(Move::Forward, t0);
+        s.move_camera(Move::YawLeft, t0 + Duration::from_millis(3));
+        assert_eq!(fake.count(), 2, "requests wait for the flush");
+        s.flush();
+        assert_eq!(fake.count(), 3);
+        let moved = fake.last();
+        assert_eq!(moved.settings.spp, 1);
+        assert_eq!(moved.settings.light_samples, 1);
+        assert_ne!(moved.camera, first.camera);
+        let mut expect = Camera::default();
+        Controls::default().apply(Move::Forward, &mut expect);
+        Controls::default().apply(Move::YawLeft, &mut expect);
+        assert_eq!(moved.camera, expect);
+        // The superseded refinement's tiles arrive late: ignored.
+        fake.deliver(&refine, 255);
+        s.pump(t0);
+        assert_eq!(s.image().display()[0] & 0xff, 100, "stale tiles are not shown");
+        // The new view's tiles replace the old image (no averaging across views).
+        fake.deliver(&moved, 30);
+        s.pump(t0 + Duration::from_millis(20));
+        assert_eq!(s.image().display()[0] & 0xff, 30);
+        let reports = s.take_completed();
+        let last = reports.last().unwrap();
+        assert_eq!((last.view, last.pass, last.spp), (1, 0, 1));
+        assert_eq!(last.latency, Some(Duration::from_millis(20)), "latency counts from the first input");
+        assert_eq!(s.view(), 1);
+    }
+
+    #[test]
+    fn unusable_cameras_are_ignored() {
+        let (mut s, fake) = session(1);
+        let mut broken = Camera::default();
+        broken.eye.x = f32::NAN;
+        s.set_camera(broken, Instant::now());
+        s.flush();
+        assert_eq!(fake.count(), 1);
+        assert_eq!(*s.camera(), Camera::default());
+    }
+
+    #[test]
+    fn status_lines_show_the_source_counters() {
+        let (mut s, fake) = session(1);
+        fake.deliver(&fake.last(), 1);
+        let now = Instant::now();
+        s.pump(now);
+        let lines = s.status_lines(now).join("\n");
+        assert!(lines.contains("1 fps"), "{lines}");
+        assert!(lines.contains("1 slaves") && lines.contains("fake"), "{lines}");
+    }
+}

@@ -1,0 +1,338 @@
+//! The window: winit 0.30 (`ApplicationHandler`) + softbuffer 0.4.
+//!
+//! The image is rendered at a fixed *render resolution* (the session's
+//! settings) and scaled to the window with nearest-neighbour sampling, keeping
+//! its aspect ratio (letterboxed). Resizing the window therefore never restarts
+//! rendering, and the slaves' work does not depend on the window's size; ask
+//! for a larger render resolution (`--width/--height`) for a sharper image.
+//!
+//! The loop sleeps until something happens: input, or the frame source's
+//! [`Waker`] (a winit user event) when tiles arrive. Input events are applied
+//! to the camera as they come and turned into one request per batch (in
+//! `about_to_wait`), so a burst of mouse motion costs one frame, not a queue.
+
+use crate::error::ViewerError;
+use crate::input::{Command, command_for_key};
+use crate::raster::{Canvas, Placement, owner_colour};
+use crate::session::{FrameReport, Session};
+use crate::source::Waker;
+use std::num::NonZeroU32;
+use std::path::PathBuf;
+use std::rc::Rc;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+use winit::application::ApplicationHandler;
+use winit::dpi::{PhysicalPosition, PhysicalSize};
+use winit::event::{ElementState, MouseButton, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
+use winit::keyboard::{ModifiersState, PhysicalKey};
+use winit::window::{Window, WindowId};
+
+/// Something the window did that its owner may want to know about.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ViewerEvent {
+    /// A pass completed and is now on screen.
+    FramePresented(FrameReport),
+    /// A screenshot was written.
+    ScreenshotSaved(PathBuf),
+}
+
+/// Window settings.
+pub struct ViewerOptions {
+    /// Window title.
+    pub title: String,
+    /// Initial inner size of the window (default: the render resolution).
+    pub window_size: Option<(u32, u32)>,
+    /// Where screenshots go.
+    pub screenshot_dir: PathBuf,
+    /// Show the status text at start.
+    pub show_status: bool,
+    /// Called for every [`ViewerEvent`].
+    pub on_event: Box<dyn FnMut(&ViewerEvent)>,
+}
+
+impl Default for ViewerOptions {
+    fn default() -> Self {
+        Self {
+            title: "isin".into(),
+            window_size: None,
+            screenshot_dir: PathBuf::from("."),
+            show_status: true,
+            on_event: Box::new(|_| {}),
+        }
+    }
+}
+
+/// Fails early, with a message pointing at the headless commands, when there
+/// is no display to open a window on.
+pub fn check_display() -> Result<(), ViewerError> {
+    #[cfg(all(unix, not(target_os = "macos")))]
+    {
+        let set = |name: &str| std::env::var_os(name).is_some_and(|v| !v.is_empty());
+        if !set("DISPLAY") {
+            let why = if set("WAYLAND_DISPLAY") {
+                "DISPLAY is not set; the viewer talks X11, which Wayland desktops provide through XWayland"
+            } else {
+                "neither DISPLAY nor WAYLAND_DISPLAY is set"
+            };
+            return Err(ViewerError::NoDisplay(why.into()));
+        }
+    }
+    Ok(())
+}
+
+/// Opens the window and runs until it is closed (Escape or the close button).
+///
+/// Gives the session a waker, starts it, and drives it from the event loop.
+/// Returns an error without opening anything when there is no display.
+pub fn run(session: &mut Session, options: ViewerOptions) -> Result<(), ViewerError> {
+    check_display()?;
+    // winit may panic rather than fail on a broken display connection.
+    let built = std::panic::catch_unwind(|| EventLoop::<Wake>::with_user_event().build());
+    let event_loop = match built {
+        Ok(Ok(el)) => el,
+        Ok(Err(e)) => return Err(ViewerError::NoDisplay(e.to_string())),
+        Err(_) => return Err(ViewerError::NoDisplay("the window system could not be initialised".into())),
+    };
+    let proxy = Mutex::new(event_loop.create_proxy());
+    let waker = Waker::new(move || {
+        if let Ok(p) = proxy.lock() {
+            let _ = p.send_event(Wake);
+        }
+    });
+    session.set_waker(waker.clone());
+    session.start();
+    let mut app = App {
+        show_status: options.show_status,
+        options,
+        session,
+        waker,
+        gfx: None,
+        error: None,
+        modifiers: ModifiersState::empty(),
+        drag: None,
+        cursor: None,
+        overlay: false,
+    };
+    event_loop.run_app(&mut app).map_err(|e| ViewerError::Window(e.to_string()))?;
+    match app.error {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
+/// The user event posted by the frame source's waker.
+#[derive(Debug, Clone, Copy)]
+struct Wake;
+
+struct Gfx {
+    window: Rc<Window>,
+    surface: softbuffer::Surface<Rc<Window>, Rc<Window>>,
+    /// Keeps the display connection alive for the surface.
+    _context: softbuffer::Context<Rc<Window>>,
+}
+
+struct App<'a> {
+    options: ViewerOptions,
+    session: &'a mut Session,
+    waker: Waker,
+    gfx: Option<Gfx>,
+    error: Option<ViewerError>,
+    modifiers: ModifiersState,
+    /// Cursor position at the last drag step while the left button is held.
+    drag: Option<PhysicalPosition<f64>>,
+    cursor: Option<PhysicalPosition<f64>>,
+    overlay: bool,
+    show_status: bool,
+}
+
+impl App<'_> {
+    fn fail(&mut self, event_loop: &ActiveEventLoop, error: ViewerError) {
+        tracing::error!("{error}");
+        self.error.get_or_insert(error);
+        event_loop.exit();
+    }
+
+    fn create_window(&mut self, event_loop: &ActiveEventLoop) -> Result<Gfx, ViewerError> {
+        let img = self.session.image();
+        let (w, h) = self.options.window_size.unwrap_or((img.width(), img.height()));
+        let attributes = Window::default_attributes()
+            .with_title(self.options.title.clone())
+            .with_inner_size(PhysicalSize::new(w.max(1), h.max(1)))
+            .with_resizable(true);
+        let window =
+            Rc::new(event_loop.create_window(attributes).map_err(|e| ViewerError::Window(e.to_string()))?);
+        let context =
+            softbuffer::Context::new(window.clone()).map_err(|e| ViewerError::Window(e.to_string()))?;
+        let surface = softbuffer::Surface::new(&context, window.clone())
+            .map_err(|e| ViewerError::Window(e.to_string()))?;
+        Ok(Gfx { window, surface, _context: context })
+    }
+
+    fn redraw(&mut self) -> Result<(), ViewerError> {
+        let now = Instant::now();
+        self.session.pump(now);
+        let status = if self.show_status { self.session.status_lines(now) } else { Vec::new() };
+        let Some(gfx) = &mut self.gfx else { return Ok(()) };
+        let size = gfx.window.inner_size();
+        let (Some(w), Some(h)) = (NonZeroU32::new(size.width), NonZeroU32::new(size.height)) else {
+            return Ok(()); // minimised
+        };
+        let err = |e: softbuffer::SoftBufferError| ViewerError::Window(e.to_string());
+        gfx.surface.resize(w, h).map_err(err)?;
+        let mut buffer = gfx.surface.buffer_mut().map_err(err)?;
+        let mut canvas = Canvas { pixels: &mut buffer, width: w.get(), height: h.get() };
+        let img = self.session.image();
+        let at = Placement::fit(img.width(), img.height(), w.get(), h.get());
+        canvas.draw_image(img.display(), img.width(), img.height(), at);
+        if self.overlay {
+            for &(tile, owner) in self.session.tile_owners() {
+                let (x0, y0, x1, y1) = at.map_tile(tile, img.width(), img.height());
+                canvas.outline(x0, y0, x1, y1, owner_colour(owner));
+            }
+        }
+        if !status.is_empty() {
+            let scale = if w.get() >= 960 { 2 } else { 1 };
+            let mut y = 2 * scale;
+            for (i, line) in status.iter().enumerate() {
+                // The tiles-per-slave line in the overlay's colours when it is on.
+                if self.overlay && line.starts_with("tiles ") {
+                    let mut x = 2 * scale;
+                    for (j, part) in line.split(' ').enumerate() {
+                        let colour = match part.split(':').next().and_then(|id| id.parse::<u32>().ok()) {
+                            Some(id) if j > 0 => owner_colour(id),
+                            _ => 0x00ff_ffff,
+                        };
+                        let text = format!("{part} ");
+                        canvas.text(x, y, &text, colour, scale);
+                        x += text.len() as u32 * 8 * scale;
+                    }
+                    y += 10 * scale;
+                    continue;
+                }
+                let colour = if i == 0 { 0x00ff_ff80 } else { 0x00ff_ffff };
+                y += canvas.text(2 * scale, y, line, colour, scale);
+            }
+        }
+        gfx.window.pre_present_notify();
+        buffer.present().map_err(err)?;
+        for report in self.session.take_completed() {
+            (self.options.on_event)(&ViewerEvent::FramePresented(report));
+        }
+        Ok(())
+    }
+
+    fn screenshot(&mut self) -> Result<PathBuf, ViewerError> {
+        let dir = &self.options.screenshot_dir;
+        let path = (0..10_000)
+            .map(|i| dir.join(format!("isin-screenshot-{i:04}.png")))
+            .find(|p| !p.exists())
+            .unwrap_or_else(|| dir.join("isin-screenshot.png"));
+        let img = self.session.image();
+        image::save_buffer(&path, &img.to_rgb8(), img.width(), img.height(), image::ColorType::Rgb8)
+            .map_err(|e| ViewerError::Image { path: path.clone(), message: e.to_string() })?;
+        tracing::info!("screenshot saved to {}", path.display());
+        Ok(path)
+    }
+
+    fn command(&mut self, event_loop: &ActiveEventLoop, command: Command) {
+        let now = Instant::now();
+        match command {
+            Command::Move(mv) => self.session.move_camera(mv, now),
+            Command::ResetCamera => self.session.reset_camera(now),
+            Command::Screenshot => match self.screenshot() {
+                Ok(path) => (self.options.on_event)(&ViewerEvent::ScreenshotSaved(path)),
+                Err(e) => tracing::error!("{e}"),
+            },
+            Command::ToggleOverlay => self.overlay = !self.overlay,
+            Command::ToggleStatus => self.show_status = !self.show_status,
+            Command::Quit => event_loop.exit(),
+        }
+        self.request_redraw();
+    }
+
+    fn request_redraw(&self) {
+        if let Some(g) = &self.gfx {
+            g.window.request_redraw();
+        }
+    }
+}
+
+impl ApplicationHandler<Wake> for App<'_> {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.gfx.is_some() {
+            return;
+        }
+        match self.create_window(event_loop) {
+            Ok(gfx) => {
+                gfx.window.request_redraw();
+                self.gfx = Some(gfx);
+            }
+            Err(e) => self.fail(event_loop, e),
+        }
+    }
+
+    fn user_event(&mut self, _: &ActiveEventLoop, _: Wake) {
+        // Re-arm before draining so tiles landing meanwhile wake us again.
+        self.waker.rearm();
+        if self.session.pump(Instant::now()) {
+            self.request_redraw();
+        }
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested => event_loop.exit(),
+            WindowEvent::Resized(_) => self.request_redraw(),
+            WindowEvent::RedrawRequested => {
+                if let Err(e) = self.redraw() {
+                    self.fail(event_loop, e);
+                }
+            }
+            WindowEvent::ModifiersChanged(m) => self.modifiers = m.state(),
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                if let PhysicalKey::Code(code) = event.physical_key
+                    && let Some(command) = command_for_key(code, self.modifiers.shift_key())
+                {
+                    // Key repeat keeps moving; one-shot commands only on the first press.
+                    if event.repeat && !matches!(command, Command::Move(_)) {
+                        return;
+                    }
+                    self.command(event_loop, command);
+                }
+            }
+            WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
+                self.drag = match state {
+                    ElementState::Pressed => self.cursor,
+                    ElementState::Released => None,
+                };
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                self.cursor = Some(position);
+                if let Some(last) = self.drag {
+                    self.session.look(position.x - last.x, position.y - last.y, Instant::now());
+                    self.drag = Some(position);
+                }
+            }
+            WindowEvent::CursorLeft { .. } => self.cursor = None,
+            _ => {}
+        }
+    }
+
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        // One request per batch of input events.
+        self.session.flush();
+        // Keep the status line's counters ticking while frames are rendered.
+        if self.show_status && self.session.busy() {
+            event_loop.set_control_flow(ControlFlow::WaitUntil(Instant::now() + Duration::from_millis(250)));
+        } else {
+            event_loop.set_control_flow(ControlFlow::Wait);
+        }
+    }
+
+    fn new_events(&mut self, _: &ActiveEventLoop, cause: winit::event::StartCause) {
+        if matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) {
+            self.request_redraw();
+        }
+    }
+}
