@@ -1,6 +1,8 @@
 //! Command-line interface.
 
+mod fly;
 mod render;
+mod view;
 
 use clap::{Parser, Subcommand};
 
@@ -16,6 +18,10 @@ pub struct Cli {
 enum Command {
     /// Render a scene to a PNG file.
     Render(render::RenderArgs),
+    /// Fly through a scene in a window (keyboard and mouse navigation).
+    View(view::ViewArgs),
+    /// Replay a camera path headless: one PNG per camera, with frame times.
+    Fly(fly::FlyArgs),
 }
 
 /// Parses the command line and runs the chosen command.
@@ -24,6 +30,8 @@ pub fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Render(args)) => render::run(args),
+        Some(Command::View(args)) => view::run(args),
+        Some(Command::Fly(args)) => fly::run(args),
         None => render::run_default(),
     }
 }

@@ -295,6 +295,13 @@ impl Session {
         self.in_flight.is_some() || self.dirty
     }
 
+    /// True while rendering, or within a second of the last completed pass
+    /// (while the status line's frame rate is still changing).
+    pub fn active(&self, now: Instant) -> bool {
+        self.busy()
+            || self.completions.back().is_some_and(|&t| now.duration_since(t) < Duration::from_millis(1100))
+    }
+
     /// The image to show.
     pub fn image(&self) -> &Accumulator {
         &self.accum

@@ -323,7 +323,7 @@ impl ApplicationHandler<Wake> for App<'_> {
         // One request per batch of input events.
         self.session.flush();
         // Keep the status line's counters ticking while frames are rendered.
-        if self.show_status && self.session.busy() {
+        if self.show_status && self.session.active(Instant::now()) {
             event_loop.set_control_flow(ControlFlow::WaitUntil(Instant::now() + Duration::from_millis(250)));
         } else {
             event_loop.set_control_flow(ControlFlow::Wait);

@@ -1,0 +1,134 @@
+//! `isin view`: the interactive window.
+//!
+//! Today the frames come from an in-process [`LocalSource`]. Any other
+//! [`FrameSource`] (the cluster's) plugs in through [`run_with_source`]: it
+//! needs only the source, the starting camera, the render settings and the
+//! scene's size (for navigation speeds).
+
+use crate::assets::load_scene_file;
+use anyhow::Context;
+use clap::Args;
+use isin_tracer::{Camera, RenderSettings};
+use isin_viewer::{
+    Controls, FrameSource, LocalSource, Quality, Recorder, Session, SessionConfig, ViewerEvent, ViewerOptions,
+};
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Options of the window itself, shared by every way of starting a viewer.
+#[derive(Args, Debug, Clone)]
+pub struct WindowArgs {
+    /// Render width in pixels (default: the scene's). The window scales the image.
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Render height in pixels (default: the scene's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Record the navigation (one camera per move) to this camera-path file (TOML).
+    #[arg(long, value_name = "PATH")]
+    pub record: Option<PathBuf>,
+    /// Stop refining a still view at this many samples per pixel.
+    #[arg(long, default_value_t = 64)]
+    pub max_spp: u32,
+    /// Directory screenshots (F12 / P) are saved to.
+    #[arg(long, default_value = ".")]
+    pub screenshot_dir: PathBuf,
+    /// Print a line "frame N complete: ..." on stdout as each pass is shown
+    /// (for scripts and tests).
+    #[arg(long)]
+    pub print_frames: bool,
+}
+
+/// Arguments of `isin view`.
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Scene file (TOML).
+    pub scene: PathBuf,
+    #[command(flatten)]
+    pub window: WindowArgs,
+    /// Render threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Tile edge in pixels.
+    #[arg(long, default_value_t = 32)]
+    pub tile: u32,
+}
+
+/// Runs `isin view SCENE` with an in-process renderer.
+pub fn run(args: ViewArgs) -> anyhow::Result<()> {
+    // Fail before the (possibly slow) scene load when no window can open.
+    isin_viewer::check_display()?;
+    let (scene, _bundle) = load_scene_file(&args.scene)?;
+    let camera = scene.camera;
+    let settings = scene.settings;
+    let extent = scene_extent(&scene);
+    let source = LocalSource::new(Arc::new(scene), args.threads.unwrap_or(0), args.tile)?;
+    let title = format!("isin — {}", args.scene.display());
+    run_with_source(Box::new(source), camera, settings, extent, &args.window, title)
+}
+
+/// Diagonal of the scene's bounding box (0 for an empty scene).
+pub fn scene_extent(scene: &isin_tracer::Scene) -> f32 {
+    let d = (scene.bounds.max - scene.bounds.min).length();
+    if d.is_finite() { d } else { 0.0 }
+}
+
+/// Opens the viewer on any frame source. `settings` are the scene's (its
+/// resolution is overridden by `--width/--height`, its shadow rays set the
+/// refinement quality); `extent` scales the navigation steps.
+pub fn run_with_source(
+    source: Box<dyn FrameSource>,
+    camera: Camera,
+    mut settings: RenderSettings,
+    extent: f32,
+    window: &WindowArgs,
+    title: String,
+) -> anyhow::Result<()> {
+    if let Some(w) = window.width {
+        settings.width = w;
+    }
+    if let Some(h) = window.height {
+        settings.height = h;
+    }
+    anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
+    let mut quality = Quality::for_settings(&settings);
+    quality.max_spp = window.max_spp.max(1);
+    let config = SessionConfig { settings, quality, controls: Controls::for_scene_extent(extent), camera };
+    let mut session = Session::new(source, config);
+    if let Some(path) = &window.record {
+        session.record_to(Recorder::new(path.clone(), settings.width, settings.height));
+    }
+    let print_frames = window.print_frames;
+    let options = ViewerOptions {
+        title,
+        screenshot_dir: window.screenshot_dir.clone(),
+        on_event: Box::new(move |event| match event {
+            ViewerEvent::FramePresented(r) if print_frames => {
+                let mut line = format!(
+                    "frame {} complete: view {} pass {} spp {} render {:.1} ms",
+                    r.frame_id,
+                    r.view,
+                    r.pass,
+                    r.spp,
+                    r.render_time.as_secs_f64() * 1e3
+                );
+                if let Some(l) = r.latency {
+                    line += &format!(" latency {:.1} ms", l.as_secs_f64() * 1e3);
+                }
+                let mut out = std::io::stdout().lock();
+                let _ = writeln!(out, "{line}");
+                let _ = out.flush();
+            }
+            ViewerEvent::ScreenshotSaved(path) => println!("screenshot {}", path.display()),
+            _ => {}
+        }),
+        ..ViewerOptions::default()
+    };
+    let result = isin_viewer::run(&mut session, options);
+    if let Some(saved) = session.save_recording() {
+        let path = saved.context("cannot save the camera path")?;
+        println!("camera path recorded to {}", path.display());
+    }
+    Ok(result?)
+}

@@ -1,0 +1,305 @@
+//! End to end: `isin view` in a real X server (Xvfb), driven with xdotool,
+//! photographed with ImageMagick's `import`.
+//!
+//! Needs `Xvfb`, `xdpyinfo` (x11-utils), `xdotool` and `import` (imagemagick).
+//! Skipped, with the reason printed, only when Xvfb is missing or cannot start.
+//! Screenshots are kept under `target/test-artifacts/viewer/`.
+//!
+//! Synchronisation is by the viewer's `--print-frames` lines ("frame N
+//! complete: view V pass P spp S ..."), printed after the pass is on screen:
+//! each move key starts exactly one new view, and `--max-spp 4` makes a view's
+//! image final once a line with `spp 4` for it appears.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
+use std::time::{Duration, Instant};
+
+const WAIT: Duration = Duration::from_secs(120);
+const MAX_SPP: u32 = 4;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Kills the child (our own process, by handle) when dropped.
+struct Reaper(Child);
+
+impl Drop for Reaper {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn tool_exists(name: &str) -> bool {
+    Command::new("sh")
+        .args(["-c", &format!("command -v {name}")])
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn display_answers(display: &str) -> bool {
+    Command::new("xdpyinfo")
+        .args(["-display", display])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Starts Xvfb on a free display number and waits until it accepts
+/// connections; `Err` with the reason when it cannot.
+fn start_xvfb() -> Result<(Reaper, String), String> {
+    if !tool_exists("Xvfb") {
+        return Err("Xvfb is not installed".into());
+    }
+    assert!(tool_exists("xdpyinfo"), "xdpyinfo (x11-utils) is needed to wait for Xvfb");
+    let first = 90 + (std::process::id() % 50);
+    for n in (first..first + 40).map(|n| n % 200 + 20) {
+        if Path::new(&format!("/tmp/.X{n}-lock")).exists()
+            || Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
+        {
+            continue;
+        }
+        let display = format!(":{n}");
+        let child = Command::new("Xvfb")
+            .args([&display, "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(|e| format!("cannot run Xvfb: {e}"))?;
+        let mut xvfb = Reaper(child);
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while Instant::now() < deadline {
+            if display_answers(&display) {
+                return Ok((xvfb, display));
+            }
+            if xvfb.0.try_wait().ok().flatten().is_some() {
+                break; // lost a race for this display number: try the next
+            }
+            std::thread::sleep(Duration::from_millis(50)); // polling interval, not synchronisation
+        }
+    }
+    Err("Xvfb did not start on any display number tried".into())
+}
+
+/// A parsed `--print-frames` line.
+#[derive(Debug, Clone, Copy)]
+struct Done {
+    view: u32,
+    spp: u32,
+}
+
+fn parse_done(line: &str) -> Option<Done> {
+    let rest = line.strip_prefix("frame ")?;
+    let (_, rest) = rest.split_once(" complete: ")?;
+    let words: Vec<&str> = rest.split_whitespace().collect();
+    let field =
+        |name: &str| words.iter().position(|w| *w == name).and_then(|i| words.get(i + 1)?.parse().ok());
+    Some(Done { view: field("view")?, spp: field("spp")? })
+}
+
+struct Viewer {
+    child: Reaper,
+    lines: Receiver<String>,
+    log: Vec<String>,
+    display: String,
+    window: String,
+}
+
+impl Viewer {
+    /// Waits for a stdout line accepted by `want`.
+    fn wait_line(&mut self, what: &str, want: impl Fn(&str) -> bool) -> String {
+        let deadline = Instant::now() + WAIT;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(line) => {
+                    self.log.push(line.clone());
+                    if want(&line) {
+                        return line;
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    panic!("timed out waiting for {what}; output:\n{:#?}", self.log)
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    panic!("viewer exited while waiting for {what}; output:\n{:#?}", self.log)
+                }
+            }
+        }
+    }
+
+    /// Waits until view `view` is fully refined (its image no longer changes).
+    fn wait_view_final(&mut self, view: u32) {
+        self.wait_line(&format!("view {view} at {MAX_SPP} spp"), |l| {
+            parse_done(l).is_some_and(|d| d.view == view && d.spp >= MAX_SPP)
+        });
+    }
+
+    fn xdotool(&self, args: &[&str]) {
+        let status = Command::new("xdotool").args(args).env("DISPLAY", &self.display).status().unwrap();
+        assert!(status.success(), "xdotool {args:?} failed");
+    }
+
+    fn press(&self, key: &str) {
+        // XTEST key events go to the focused window (no window manager needed).
+        self.xdotool(&["windowfocus", "--sync", &self.window]);
+        self.xdotool(&["key", key]);
+    }
+
+    fn screenshot(&self, file: &Path) -> image::RgbImage {
+        let status = Command::new("import")
+            .args(["-window", &self.window])
+            .arg(file)
+            .env("DISPLAY", &self.display)
+            .status()
+            .expect("ImageMagick's import is needed for screenshots");
+        assert!(status.success(), "import failed");
+        image::open(file).unwrap().to_rgb8()
+    }
+
+    fn wait_exit(&mut self) -> ExitStatus {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            if let Some(status) = self.child.0.try_wait().unwrap() {
+                return status;
+            }
+            assert!(Instant::now() < deadline, "viewer did not exit after Escape");
+            std::thread::sleep(Duration::from_millis(20)); // polling interval
+        }
+    }
+}
+
+/// Mean and variance of luminance below the status text (top 40 rows).
+fn stats(img: &image::RgbImage) -> (f64, f64) {
+    let lum: Vec<f64> = img
+        .enumerate_pixels()
+        .filter(|(_, y, _)| *y >= 40)
+        .map(|(_, _, p)| 0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64)
+        .collect();
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    let var = lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64;
+    (mean, var)
+}
+
+fn mean_abs_diff(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let sum: u64 =
+        a.as_raw().iter().zip(b.as_raw()).map(|(&x, &y)| (x as i32 - y as i32).unsigned_abs() as u64).sum();
+    sum as f64 / a.as_raw().len() as f64
+}
+
+#[test]
+fn view_moves_on_key_presses_and_quits_on_escape() {
+    let scene = repo().join("scenes/paper.toml");
+    assert!(scene.exists(), "{} is missing", scene.display());
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            println!("SKIPPED view_moves_on_key_presses_and_quits_on_escape: {why}");
+            return;
+        }
+    };
+    for tool in ["xdotool", "import"] {
+        assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
+    }
+    let artefacts = repo().join("target/test-artifacts/viewer");
+    std::fs::create_dir_all(&artefacts).unwrap();
+    let shots = tempfile::tempdir().unwrap();
+
+    let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
+        .arg("view")
+        .arg(&scene)
+        .args(["--width", "320", "--height", "240", "--print-frames", "--max-spp", &MAX_SPP.to_string()])
+        .arg("--screenshot-dir")
+        .arg(shots.path())
+        .env("DISPLAY", &display)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("RUST_LOG", "warn")
+        .current_dir(repo())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("cannot start isin view");
+    let stdout = child.stdout.take().unwrap();
+    let (tx, lines) = channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let child = Reaper(child);
+
+    // The window exists once xdotool finds it by name.
+    let deadline = Instant::now() + WAIT;
+    let window = loop {
+        let out = Command::new("xdotool")
+            .args(["search", "--name", "^isin"])
+            .env("DISPLAY", &display)
+            .output()
+            .unwrap();
+        if let Some(id) = String::from_utf8_lossy(&out.stdout).split_whitespace().next() {
+            break id.to_string();
+        }
+        assert!(Instant::now() < deadline, "the viewer window never appeared");
+        std::thread::sleep(Duration::from_millis(50)); // polling interval
+    };
+    let mut v = Viewer { child, lines, log: Vec::new(), display, window };
+
+    v.wait_view_final(0);
+    let before = v.screenshot(&artefacts.join("before.png"));
+    assert_eq!(before.dimensions(), (320, 240), "the window opens at the render size");
+
+    // One key, one new view: forward along the image-plane normal, then a turn.
+    v.press("w");
+    v.wait_view_final(1);
+    v.press("Left");
+    v.wait_view_final(2);
+    let after = v.screenshot(&artefacts.join("after.png"));
+
+    // The viewer's own screenshot key writes the rendered image.
+    v.press("F12");
+    let line = v.wait_line("a screenshot", |l| l.starts_with("screenshot "));
+    let saved = PathBuf::from(line.trim_start_matches("screenshot "));
+    let own = image::open(&saved).unwrap().to_rgb8();
+    assert_eq!(own.dimensions(), (320, 240));
+    own.save(artefacts.join("f12.png")).unwrap();
+
+    v.press("Escape");
+    let status = v.wait_exit();
+    assert!(status.success(), "exit status {status:?}; output:\n{:#?}", v.log);
+
+    let (mean_b, var_b) = stats(&before);
+    let (mean_a, var_a) = stats(&after);
+    println!("before: mean {mean_b:.1} var {var_b:.1}; after: mean {mean_a:.1} var {var_a:.1}");
+    for (name, mean, var) in [("before", mean_b, var_b), ("after", mean_a, var_a)] {
+        assert!(var > 50.0, "{name} screenshot looks blank (luminance variance {var:.1})");
+        assert!(mean > 5.0 && mean < 250.0, "{name} screenshot is uniformly dark or bright ({mean:.1})");
+    }
+    let diff = mean_abs_diff(&before, &after);
+    println!("mean absolute difference between before and after: {diff:.2}");
+    assert!(diff > 2.0, "the view did not change after moving (difference {diff:.2})");
+    // The F12 image is the rendered frame, which the window shows 1:1 under the status text.
+    let diff_own = mean_abs_diff(&own, &after);
+    assert!(diff_own < diff, "the saved screenshot differs from the window ({diff_own:.2})");
+}
+
+#[test]
+fn view_without_a_display_points_to_isin_render() {
+    let out = Command::new(env!("CARGO_BIN_EXE_isin"))
+        .args(["view", "scenes/paper.toml"])
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no display") && err.contains("isin render"), "stderr: {err}");
+}
