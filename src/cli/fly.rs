@@ -5,6 +5,7 @@ use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
 use isin_viewer::CameraPath;
+use isin_viewer::stats::Summary;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -98,7 +99,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         ms(summary.median),
         ms(summary.p95),
         ms(summary.max),
-        times.len() as f64 / times.iter().sum::<Duration>().as_secs_f64().max(1e-9),
+        summary.rate(),
         wall.as_secs_f64()
     );
     if let Some(dir) = &args.out {
@@ -109,42 +110,4 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
 
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
-}
-
-/// Median, 95th percentile and maximum of a set of durations (nearest rank).
-#[derive(Debug, PartialEq)]
-struct Summary {
-    median: Duration,
-    p95: Duration,
-    max: Duration,
-}
-
-impl Summary {
-    fn of(times: &[Duration]) -> Self {
-        let mut sorted = times.to_vec();
-        sorted.sort();
-        let rank = |p: f64| -> Duration {
-            if sorted.is_empty() {
-                return Duration::ZERO;
-            }
-            let k = ((p * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-            sorted[k - 1]
-        };
-        Summary { median: rank(0.5), p95: rank(0.95), max: rank(1.0) }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn nearest_rank_percentiles() {
-        let t: Vec<Duration> = (1..=20).rev().map(Duration::from_millis).collect();
-        let s = Summary::of(&t);
-        assert_eq!(s.median, Duration::from_millis(10));
-        assert_eq!(s.p95, Duration::from_millis(19));
-        assert_eq!(s.max, Duration::from_millis(20));
-        assert_eq!(Summary::of(&[]).median, Duration::ZERO);
-    }
 }

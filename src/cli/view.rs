@@ -9,12 +9,17 @@ use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
 use isin_tracer::{Camera, RenderSettings};
+use isin_viewer::stats::Summary;
+use isin_viewer::{CameraPath, FrameReport};
 use isin_viewer::{
     Controls, FrameSource, LocalSource, Quality, Recorder, Session, SessionConfig, ViewerEvent, ViewerOptions,
 };
+use std::cell::RefCell;
 use std::io::Write;
 use std::path::PathBuf;
+use std::rc::Rc;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 /// Options of the window itself, shared by every way of starting a viewer.
 #[derive(Args, Debug, Clone)]
@@ -38,6 +43,14 @@ pub struct WindowArgs {
     /// (for scripts and tests).
     #[arg(long)]
     pub print_frames: bool,
+    /// Play a camera path back in the window (each camera as soon as the
+    /// previous one is on screen) and print motion-to-photon latency and
+    /// frames per second while moving.
+    #[arg(long, value_name = "PATH")]
+    pub play: Option<PathBuf>,
+    /// Close the window when the playback is over.
+    #[arg(long, requires = "play")]
+    pub exit_after_play: bool,
 }
 
 /// Arguments of `isin view`.
@@ -99,12 +112,26 @@ pub fn run_with_source(
     if let Some(path) = &window.record {
         session.record_to(Recorder::new(path.clone(), settings.width, settings.height));
     }
+    if let Some(path) = &window.play {
+        let path = CameraPath::load(path)?;
+        session.play(path.frames.iter().map(|f| f.camera()));
+    }
     let print_frames = window.print_frames;
+    let playing = window.play.is_some();
+    let moving: Rc<RefCell<Vec<(Instant, FrameReport)>>> = Rc::default();
+    let log = moving.clone();
     let options = ViewerOptions {
         title,
         screenshot_dir: window.screenshot_dir.clone(),
+        exit_after_playback: window.exit_after_play,
         on_event: Box::new(move |event| match event {
-            ViewerEvent::FramePresented(r) if print_frames => {
+            ViewerEvent::FramePresented(r) => {
+                if r.pass == 0 {
+                    log.borrow_mut().push((Instant::now(), *r));
+                }
+                if !print_frames {
+                    return;
+                }
                 let mut line = format!(
                     "frame {} complete: view {} pass {} spp {} render {:.1} ms",
                     r.frame_id,
@@ -126,9 +153,37 @@ pub fn run_with_source(
         ..ViewerOptions::default()
     };
     let result = isin_viewer::run(&mut session, options);
+    if playing {
+        print_playback_summary(&moving.borrow());
+    }
     if let Some(saved) = session.save_recording() {
         let path = saved.context("cannot save the camera path")?;
         println!("camera path recorded to {}", path.display());
     }
     Ok(result?)
+}
+
+/// Prints latency and frame-rate figures of a playback: every fast pass shown
+/// after the first, i.e. one per camera move.
+fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
+    let latencies: Vec<Duration> = shown.iter().filter_map(|(_, r)| r.latency).collect();
+    let renders: Vec<Duration> = shown.iter().skip(1).map(|(_, r)| r.render_time).collect();
+    let lat = Summary::of(&latencies);
+    let render = Summary::of(&renders);
+    let span = match (shown.first(), shown.last()) {
+        (Some((t0, _)), Some((t1, _))) if shown.len() > 1 => t1.duration_since(*t0).as_secs_f64(),
+        _ => 0.0,
+    };
+    let fps = if span > 0.0 { (shown.len() - 1) as f64 / span } else { 0.0 };
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    println!(
+        "playback: {} moves  motion-to-photon median {:.1} ms  p95 {:.1} ms  render median {:.1} ms  \
+         p95 {:.1} ms  {:.1} fps while moving",
+        lat.count,
+        ms(lat.median),
+        ms(lat.p95),
+        ms(render.median),
+        ms(render.p95),
+        fps
+    );
 }

@@ -29,6 +29,7 @@ pub mod path;
 pub mod raster;
 pub mod session;
 pub mod source;
+pub mod stats;
 pub mod window;
 
 pub use error::ViewerError;

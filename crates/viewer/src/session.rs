@@ -109,6 +109,11 @@ pub struct Session {
     last_report: Option<FrameReport>,
     bytes_window: VecDeque<(Instant, u64)>,
     error: Option<String>,
+    /// Cameras still to play back.
+    playback: VecDeque<Camera>,
+    /// Playback state: `Some(false)` while playing, `Some(true)` once the last
+    /// camera's first pass completed.
+    played: Option<bool>,
 }
 
 impl Session {
@@ -133,12 +138,31 @@ impl Session {
             last_report: None,
             bytes_window: VecDeque::new(),
             error: None,
+            playback: VecDeque::new(),
+            played: None,
         }
     }
 
     /// Records every camera requested from now on into `recorder`.
     pub fn record_to(&mut self, recorder: Recorder) {
         self.recorder = Some(recorder);
+    }
+
+    /// Plays `cameras` back as if they were input: the first replaces the
+    /// starting camera, each next one is applied as soon as the previous
+    /// camera's first (fast) pass completed — a benchmark of the moving
+    /// viewer. Call before [`Session::start`].
+    pub fn play(&mut self, cameras: impl IntoIterator<Item = Camera>) {
+        self.playback = cameras.into_iter().filter(|c| c.validate().is_ok()).collect();
+        if let Some(first) = self.playback.pop_front() {
+            self.camera = first;
+            self.played = Some(false);
+        }
+    }
+
+    /// True once a playback has shown its last camera.
+    pub fn playback_finished(&self) -> bool {
+        self.played == Some(true)
     }
 
     /// Hands the source the waker to call when tiles arrive.
@@ -271,6 +295,12 @@ impl Session {
                     self.completions.push_back(now);
                     self.in_flight = None;
                     changed = true;
+                    if f.pass == 0 && self.played == Some(false) {
+                        match self.playback.pop_front() {
+                            Some(next) => self.set_camera(next, now),
+                            None => self.played = Some(true),
+                        }
+                    }
                     if !self.dirty && self.view_spp < self.config.quality.max_spp {
                         self.request_pass(f.pass + 1, None);
                     }
@@ -283,6 +313,11 @@ impl Session {
             }
         }
         changed
+    }
+
+    /// True when completed passes wait to be reported by [`Session::take_completed`].
+    pub fn has_unreported(&self) -> bool {
+        !self.completed.is_empty()
     }
 
     /// Passes completed since the last call (call after presenting them).
@@ -488,6 +523,42 @@ mod tests {
         assert_eq!((last.view, last.pass, last.spp), (1, 0, 1));
         assert_eq!(last.latency, Some(Duration::from_millis(20)), "latency counts from the first input");
         assert_eq!(s.view(), 1);
+    }
+
+    #[test]
+    fn playback_moves_on_after_each_fast_pass() {
+        let fake = Fake::default();
+        let settings = RenderSettings { width: 2, height: 2, ..Default::default() };
+        let config = SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default(),
+        };
+        let mut s = Session::new(Box::new(fake.clone()), config);
+        let cams: Vec<Camera> = (0..3)
+            .map(|i| {
+                let mut c = Camera::default();
+                c.advance(i as f32);
+                c
+            })
+            .collect();
+        s.play(cams.clone());
+        s.start();
+        let t = Instant::now();
+        for (i, cam) in cams.iter().enumerate() {
+            let r = fake.last();
+            assert_eq!(r.camera, *cam, "camera {i}");
+            assert_eq!(r.settings.spp, 1);
+            assert!(!s.playback_finished());
+            fake.deliver(&r, i as u8);
+            s.pump(t);
+            s.flush();
+        }
+        assert!(s.playback_finished());
+        assert_eq!(fake.count(), 4, "three moving frames, then refinement of the last camera");
+        let views: Vec<(u32, u32)> = s.take_completed().iter().map(|r| (r.view, r.pass)).collect();
+        assert_eq!(views, [(0, 0), (1, 0), (2, 0)]);
     }
 
     #[test]

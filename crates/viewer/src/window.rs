@@ -30,6 +30,7 @@ use winit::window::{Window, WindowId};
 
 /// Something the window did that its owner may want to know about.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum ViewerEvent {
     /// A pass completed and is now on screen.
     FramePresented(FrameReport),
@@ -47,6 +48,8 @@ pub struct ViewerOptions {
     pub screenshot_dir: PathBuf,
     /// Show the status text at start.
     pub show_status: bool,
+    /// Close the window once a playback ([`Session::play`]) has finished.
+    pub exit_after_playback: bool,
     /// Called for every [`ViewerEvent`].
     pub on_event: Box<dyn FnMut(&ViewerEvent)>,
 }
@@ -58,6 +61,7 @@ impl Default for ViewerOptions {
             window_size: None,
             screenshot_dir: PathBuf::from("."),
             show_status: true,
+            exit_after_playback: false,
             on_event: Box::new(|_| {}),
         }
     }
@@ -320,6 +324,13 @@ impl ApplicationHandler<Wake> for App<'_> {
     }
 
     fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        if self.options.exit_after_playback
+            && self.session.playback_finished()
+            && !self.session.has_unreported()
+        {
+            event_loop.exit();
+            return;
+        }
         // One request per batch of input events.
         self.session.flush();
         // Keep the status line's counters ticking while frames are rendered.
