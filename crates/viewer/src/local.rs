@@ -146,6 +146,137 @@ impl FrameSource for LocalSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use isin_tracer::lights::Light;
+    use isin_tracer::materials::Material;
+    use isin_tracer::scene::{SceneParts, TriangleShading};
+    use isin_tracer::shapes::Triangle;
+    use isin_tracer::{Camera, Frame, RenderSettings, Vec2, Vec3};
+    use std::time::Duration;
+
+    /// A floor, an upright triangle casting a shadow, a point and an area light.
+    fn scene() -> Scene {
+        let tri = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| Triangle { v: [a.into(), b.into(), c.into()] };
+        let triangles = vec![
+            tri([-8.0, -3.0, 6.0], [8.0, -3.0, 6.0], [8.0, -3.0, -8.0]),
+            tri([-8.0, -3.0, 6.0], [8.0, -3.0, -8.0], [-8.0, -3.0, -8.0]),
+            tri([-2.0, -3.0, -2.0], [2.0, -3.0, -2.0], [0.0, 2.0, -2.0]),
+        ];
+        let shading = triangles
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                let n = (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).normalize();
+                TriangleShading { normals: [n; 3], uvs: [Vec2::ZERO; 3], material: (i / 2) as u32 }
+            })
+            .collect();
+        Scene::new(SceneParts {
+            triangles,
+            shading,
+            materials: vec![Material::default(), Material::default()],
+            lights: vec![
+                Light::Point { position: Vec3::new(3.0, 6.0, 4.0), intensity: Vec3::splat(40.0) },
+                Light::Area {
+                    vertices: vec![
+                        Vec3::new(-1.0, 7.0, -1.0),
+                        Vec3::new(1.0, 7.0, -1.0),
+                        Vec3::new(1.0, 7.0, 1.0),
+                        Vec3::new(-1.0, 7.0, 1.0),
+                    ],
+                    radiance: Vec3::splat(5.0),
+                },
+            ],
+            ambient: Vec3::splat(0.05),
+            background: Vec3::new(0.2, 0.3, 0.5),
+            camera: Camera::default(),
+            settings: RenderSettings::default(),
+            ..Default::default()
+        })
+    }
+
+    /// A source whose waker signals `rx`.
+    fn source(threads: usize, tile: u32) -> (LocalSource, std::sync::mpsc::Receiver<()>) {
+        let mut s = LocalSource::new(Arc::new(scene()), threads, tile).unwrap();
+        let (tx, rx) = channel();
+        let tx = Mutex::new(tx);
+        s.set_waker(Waker::new(move || {
+            let _ = tx.lock().unwrap().send(());
+        }));
+        (s, rx)
+    }
+
+    /// Collects events until `frame_id` completes.
+    fn until_complete(
+        s: &mut LocalSource,
+        wake: &std::sync::mpsc::Receiver<()>,
+        waker: &Waker,
+        frame_id: FrameId,
+    ) -> Vec<SourceEvent> {
+        let mut events = Vec::new();
+        loop {
+            wake.recv_timeout(Duration::from_secs(60)).expect("the source went quiet");
+            waker.rearm();
+            while let Some(e) = s.try_next() {
+                let done = matches!(e, SourceEvent::FrameComplete { frame_id: f, .. } if f == frame_id);
+                assert!(!matches!(e, SourceEvent::Failed(_)), "{e:?}");
+                events.push(e);
+                if done {
+                    return events;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn local_tiles_assemble_into_the_same_frame_as_render_frame() {
+        let (mut s, wake) = source(2, 16);
+        let waker = s.waker.clone();
+        let settings =
+            RenderSettings { width: 72, height: 40, spp: 2, light_samples: 2, ..Default::default() };
+        let camera = Camera::default();
+        s.request(FrameRequest { frame_id: 1, camera, settings });
+        let events = until_complete(&mut s, &wake, &waker, 1);
+        let mut frame = Frame::new(72, 40);
+        let mut bytes = 0;
+        let mut tiles = 0;
+        for e in &events {
+            if let SourceEvent::Tile(t) = e {
+                assert_eq!(t.frame_id, 1);
+                assert!(t.owner < 2, "owner {} is not a thread of a 2-thread pool", t.owner);
+                frame.blit(t.tile, &t.rgb);
+                bytes += t.rgb.len() as u64;
+                tiles += 1;
+            }
+        }
+        assert!(matches!(events.last(), Some(SourceEvent::FrameComplete { frame_id: 1, .. })));
+        assert_eq!(tiles, Tile::grid(72, 40, 16).len(), "every tile exactly once");
+        let expect = isin_tracer::render_frame(&scene(), &camera, &settings, 32, &|_| {});
+        assert!(frame == expect, "tiles rendered by the source differ from render_frame");
+        let status = s.status();
+        assert_eq!(status.bytes_received, bytes);
+        assert_eq!(status.tiles_per_slave.iter().map(|(_, n)| n).sum::<u64>(), tiles as u64);
+        assert_eq!(status.live_slaves, 2);
+        assert_eq!(status.transport, "in-process");
+    }
+
+    #[test]
+    fn a_newer_request_supersedes_the_one_in_flight() {
+        let (mut s, wake) = source(2, 16);
+        let waker = s.waker.clone();
+        // Seconds of work that the second request must cut short.
+        let slow =
+            RenderSettings { width: 512, height: 512, spp: 64, light_samples: 16, ..Default::default() };
+        let fast = RenderSettings { width: 32, height: 32, spp: 1, light_samples: 1, ..Default::default() };
+        s.request(FrameRequest { frame_id: 1, camera: Camera::default(), settings: slow });
+        s.request(FrameRequest { frame_id: 2, camera: Camera::default(), settings: fast });
+        let events = until_complete(&mut s, &wake, &waker, 2);
+        let old_tiles =
+            events.iter().filter(|e| matches!(e, SourceEvent::Tile(t) if t.frame_id == 1)).count();
+        assert!(old_tiles < Tile::grid(512, 512, 16).len() / 4, "{old_tiles} tiles of the superseded frame");
+        assert!(!events.iter().any(|e| matches!(e, SourceEvent::FrameComplete { frame_id: 1, .. })));
+        let new_tiles =
+            events.iter().filter(|e| matches!(e, SourceEvent::Tile(t) if t.frame_id == 2)).count();
+        assert_eq!(new_tiles, 4);
+    }
 
     #[test]
     fn centre_out_covers_every_pixel_once_and_starts_in_the_middle() {
