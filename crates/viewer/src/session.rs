@@ -5,10 +5,13 @@
 //! Every camera change starts a new *view*. Its first pass is rendered in fast
 //! mode ([`Quality::moving_spp`] samples, [`Quality::moving_light_samples`]
 //! shadow rays); once it completes and no further input came, refinement passes
-//! follow, each with a different [`RenderSettings::seed`] (the pass number), so
-//! each adds new, deterministic samples, averaged in linear light until the
-//! view has [`Quality::max_spp`] samples per pixel. Input at any time supersedes
-//! the pass in flight.
+//! follow, each with [`Quality::still_spp`] stratified, jittered samples, the
+//! scene's shadow rays and a different [`RenderSettings::seed`] (base seed +
+//! pass number), so each adds new, deterministic samples. Refinement passes are
+//! averaged in linear light (the fast pass, rendered at pixel centres with one
+//! shadow ray, is replaced rather than averaged in) until the view has
+//! [`Quality::max_spp`] samples per pixel. Input at any time supersedes the pass
+//! in flight.
 
 use crate::accumulate::Accumulator;
 use crate::input::{Controls, Move};
@@ -34,13 +37,14 @@ pub struct Quality {
 }
 
 impl Quality {
-    /// Fast passes of 1 sample and 1 shadow ray; refinement passes of 1 sample
-    /// with the scene's shadow rays, up to 64 samples per pixel.
+    /// Fast passes of 1 sample (the pixel centre) and 1 shadow ray; refinement
+    /// passes of 4 jittered samples with the scene's shadow rays, up to 64
+    /// samples per pixel.
     pub fn for_settings(settings: &RenderSettings) -> Self {
         Self {
             moving_spp: 1,
             moving_light_samples: 1,
-            still_spp: 1,
+            still_spp: 4,
             still_light_samples: settings.light_samples.max(1),
             max_spp: 64,
         }
@@ -70,7 +74,8 @@ pub struct FrameReport {
     pub view: u32,
     /// Pass within the view: 0 is the fast pass.
     pub pass: u32,
-    /// Samples per pixel accumulated in the view after this pass.
+    /// Samples per pixel in the view's image after this pass (the fast pass's
+    /// one sample is dropped once refinement starts).
     pub spp: u32,
     /// From the request to its last tile.
     pub render_time: Duration,
@@ -269,7 +274,10 @@ impl Session {
                     let Some(f) = self.in_flight.filter(|f| f.frame_id == t.frame_id) else {
                         continue; // a superseded frame's tile
                     };
-                    match self.accum.add_tile(f.view, f.weight as f32, t.tile, &t.rgb) {
+                    // Refinement passes share one accumulation key per view; the
+                    // fast pass has its own, so the first refined tile replaces it.
+                    let key = f.view.wrapping_mul(2).wrapping_add(u32::from(f.pass > 0));
+                    match self.accum.add_tile(key, f.weight as f32, t.tile, &t.rgb) {
                         Ok(()) => {
                             self.owners.insert((t.tile.x, t.tile.y), (t.tile, t.owner));
                             changed = true;
@@ -281,6 +289,9 @@ impl Session {
                     let Some(f) = self.in_flight.filter(|f| f.frame_id == frame_id) else {
                         continue;
                     };
+                    if f.pass == 1 {
+                        self.view_spp = 0; // the fast pass's sample was replaced
+                    }
                     self.view_spp += f.weight;
                     let report = FrameReport {
                         frame_id,
@@ -460,31 +471,33 @@ mod tests {
 
     #[test]
     fn a_still_view_is_refined_with_new_seeds_until_max_spp() {
-        let (mut s, fake) = session(3);
+        let (mut s, fake) = session(8);
         let t = Instant::now();
         let first = fake.last();
         assert_eq!((first.settings.spp, first.settings.light_samples), (1, 1), "fast first pass");
         fake.deliver(&first, 0);
         assert!(s.pump(t));
-        let second = fake.last();
-        assert!(second.frame_id > first.frame_id);
-        assert_eq!(second.camera, first.camera);
-        assert_eq!(second.settings.light_samples, 8, "refinement uses the scene's shadow rays");
-        assert_ne!(second.settings.seed, first.settings.seed, "each pass draws new samples");
-        fake.deliver(&second, 255);
-        s.pump(t);
-        let third = fake.last();
-        assert_ne!(third.settings.seed, second.settings.seed);
-        fake.deliver(&third, 255);
-        s.pump(t);
+        let mut seeds = vec![first.settings.seed];
+        // Two refinement passes of 4 samples each: black, then white.
+        for value in [0, 255] {
+            let r = fake.last();
+            assert!(r.frame_id > first.frame_id);
+            assert_eq!(r.camera, first.camera);
+            assert_eq!(r.settings.spp, 4, "refinement passes anti-alias");
+            assert_eq!(r.settings.light_samples, 8, "refinement uses the scene's shadow rays");
+            assert!(!seeds.contains(&r.settings.seed), "each pass draws new samples");
+            seeds.push(r.settings.seed);
+            fake.deliver(&r, value);
+            s.pump(t);
+        }
         assert_eq!(fake.count(), 3, "no pass after max_spp");
         assert!(!s.busy());
         let reports = s.take_completed();
-        assert_eq!(reports.iter().map(|r| (r.pass, r.spp)).collect::<Vec<_>>(), [(0, 1), (1, 2), (2, 3)]);
+        assert_eq!(reports.iter().map(|r| (r.pass, r.spp)).collect::<Vec<_>>(), [(0, 1), (1, 4), (2, 8)]);
         assert!(reports.iter().all(|r| r.view == 0));
-        // One black pass and two white ones, averaged in linear light: 2/3 → sRGB 213.
+        // Black and white refinement passes averaged in linear light: sRGB 188.
         let p = s.image().display()[0] & 0xff;
-        assert!((212..=214).contains(&p), "{p}");
+        assert!((187..=188).contains(&p), "{p}");
     }
 
     #[test]
