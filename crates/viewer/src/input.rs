@@ -3,6 +3,11 @@
 //! roll around the viewing direction) and move it `k` units along its normal;
 //! plus strafing and mouse-drag look.
 //!
+//! A key press moves one step (the paper's "move by k units"); holding a move
+//! key down keeps moving smoothly after [`Controls::repeat_delay`], at
+//! [`Controls::repeat_rate`] steps per second ([`HeldMoves`]), independent of
+//! the system's key-repeat settings.
+//!
 //! Pure: no window involved. Keys are winit's *physical* key codes, so the
 //! WASD block works on any keyboard layout.
 //!
@@ -25,6 +30,7 @@
 //! | `Escape` | quit |
 
 use isin_tracer::Camera;
+use std::time::{Duration, Instant};
 use winit::keyboard::KeyCode;
 
 /// A camera move.
@@ -113,6 +119,10 @@ pub struct Controls {
     pub turn_step: f32,
     /// Mouse-drag look: radians of rotation per pixel dragged.
     pub look_per_pixel: f32,
+    /// How long a move key must be held before it moves continuously.
+    pub repeat_delay: Duration,
+    /// Steps per second of a held move key.
+    pub repeat_rate: f32,
 }
 
 impl Default for Controls {
@@ -124,6 +134,8 @@ impl Default for Controls {
             strafe_step: 0.5,
             turn_step: 3f32.to_radians(),
             look_per_pixel: 0.2f32.to_radians(),
+            repeat_delay: Duration::from_millis(200),
+            repeat_rate: 15.0,
         }
     }
 }
@@ -141,21 +153,27 @@ impl Controls {
         Self { move_step: step, strafe_step: step, ..d }
     }
 
-    /// Applies one move to `camera`.
+    /// Applies one step of a move to `camera`.
     pub fn apply(&self, mv: Move, camera: &mut Camera) {
+        self.apply_steps(mv, 1.0, camera);
+    }
+
+    /// Applies `steps` (possibly fractional) steps of a move to `camera`.
+    pub fn apply_steps(&self, mv: Move, steps: f32, camera: &mut Camera) {
+        let (m, s, t) = (self.move_step * steps, self.strafe_step * steps, self.turn_step * steps);
         match mv {
-            Move::Forward => camera.advance(self.move_step),
-            Move::Back => camera.advance(-self.move_step),
-            Move::YawLeft => camera.yaw(self.turn_step),
-            Move::YawRight => camera.yaw(-self.turn_step),
-            Move::PitchUp => camera.pitch(self.turn_step),
-            Move::PitchDown => camera.pitch(-self.turn_step),
-            Move::RollCcw => camera.roll(self.turn_step),
-            Move::RollCw => camera.roll(-self.turn_step),
-            Move::StrafeLeft => camera.strafe(-self.strafe_step, 0.0),
-            Move::StrafeRight => camera.strafe(self.strafe_step, 0.0),
-            Move::StrafeUp => camera.strafe(0.0, self.strafe_step),
-            Move::StrafeDown => camera.strafe(0.0, -self.strafe_step),
+            Move::Forward => camera.advance(m),
+            Move::Back => camera.advance(-m),
+            Move::YawLeft => camera.yaw(t),
+            Move::YawRight => camera.yaw(-t),
+            Move::PitchUp => camera.pitch(t),
+            Move::PitchDown => camera.pitch(-t),
+            Move::RollCcw => camera.roll(t),
+            Move::RollCw => camera.roll(-t),
+            Move::StrafeLeft => camera.strafe(-s, 0.0),
+            Move::StrafeRight => camera.strafe(s, 0.0),
+            Move::StrafeUp => camera.strafe(0.0, s),
+            Move::StrafeDown => camera.strafe(0.0, -s),
         }
     }
 
@@ -168,6 +186,54 @@ impl Controls {
         if dy != 0.0 {
             camera.pitch(-(dy as f32) * self.look_per_pixel);
         }
+    }
+}
+
+/// Move keys currently held down, for continuous motion.
+#[derive(Clone, Debug, Default)]
+pub struct HeldMoves {
+    /// Key, its move, and the time up to which its motion has been handed out.
+    held: Vec<(KeyCode, Move, Instant)>,
+}
+
+impl HeldMoves {
+    /// Records that `key` (bound to `mv`) went down at `at`. Returns false if
+    /// it was already held (a system key repeat), which should not move again.
+    pub fn press(&mut self, key: KeyCode, mv: Move, at: Instant, controls: &Controls) -> bool {
+        if self.held.iter().any(|h| h.0 == key) {
+            return false;
+        }
+        // Continuous motion starts after the delay.
+        self.held.push((key, mv, at + controls.repeat_delay));
+        true
+    }
+
+    /// Records that `key` was released.
+    pub fn release(&mut self, key: KeyCode) {
+        self.held.retain(|h| h.0 != key);
+    }
+
+    /// Forgets every key (e.g. when the window loses focus).
+    pub fn release_all(&mut self) {
+        self.held.clear();
+    }
+
+    /// True when no move key is held.
+    pub fn is_empty(&self) -> bool {
+        self.held.is_empty()
+    }
+
+    /// The motion due up to `now`: each held key's steps since it was last
+    /// asked, at [`Controls::repeat_rate`] per second, once its delay passed.
+    pub fn due(&mut self, now: Instant, controls: &Controls) -> Vec<(Move, f32)> {
+        let mut out = Vec::new();
+        for (_, mv, since) in &mut self.held {
+            if now > *since {
+                out.push((*mv, now.duration_since(*since).as_secs_f32() * controls.repeat_rate));
+                *since = now;
+            }
+        }
+        out
     }
 }
 
@@ -191,7 +257,13 @@ mod tests {
     }
 
     fn controls() -> Controls {
-        Controls { move_step: 2.0, strafe_step: 1.5, turn_step: 0.25, look_per_pixel: 0.01 }
+        Controls {
+            move_step: 2.0,
+            strafe_step: 1.5,
+            turn_step: 0.25,
+            look_per_pixel: 0.01,
+            ..Default::default()
+        }
     }
 
     #[test]
@@ -317,5 +389,42 @@ mod tests {
         assert_eq!(c.move_step, 10.0);
         assert_eq!(c.turn_step, Controls::default().turn_step);
         assert_eq!(Controls::for_scene_extent(f32::NAN), Controls::default());
+    }
+
+    #[test]
+    fn held_keys_move_continuously_after_the_delay() {
+        let k = Controls { repeat_delay: Duration::from_millis(200), repeat_rate: 10.0, ..controls() };
+        let t0 = Instant::now();
+        let ms = |n| t0 + Duration::from_millis(n);
+        let mut held = HeldMoves::default();
+        assert!(held.press(KeyCode::KeyW, Move::Forward, t0, &k));
+        assert!(!held.press(KeyCode::KeyW, Move::Forward, ms(50), &k), "a system repeat is not a new press");
+        assert!(held.due(ms(150), &k).is_empty(), "nothing before the delay");
+        let due = held.due(ms(300), &k);
+        assert_eq!(due.len(), 1);
+        assert_eq!(due[0].0, Move::Forward);
+        assert!((due[0].1 - 1.0).abs() < 1e-3, "100 ms at 10 steps/s is one step: {due:?}");
+        let due = held.due(ms(350), &k);
+        assert!((due[0].1 - 0.5).abs() < 1e-3, "{due:?}");
+        held.press(KeyCode::KeyA, Move::YawLeft, ms(350), &k);
+        assert_eq!(held.due(ms(400), &k).len(), 1, "A is still in its delay");
+        held.release(KeyCode::KeyW);
+        assert!(held.due(ms(500), &k).iter().all(|(m, _)| *m == Move::YawLeft));
+        held.release_all();
+        assert!(held.is_empty());
+    }
+
+    #[test]
+    fn fractional_steps_scale_the_move() {
+        let k = controls();
+        let mut a = Camera::default();
+        k.apply_steps(Move::Forward, 0.5, &mut a);
+        assert!(close(a.eye, Camera::default().eye + Vec3::NEG_Z));
+        let mut b = Camera::default();
+        k.apply_steps(Move::YawLeft, 2.0, &mut b);
+        let mut c = Camera::default();
+        k.apply(Move::YawLeft, &mut c);
+        k.apply(Move::YawLeft, &mut c);
+        assert!(close(b.forward(), c.forward()));
     }
 }

@@ -198,6 +198,25 @@ impl Session {
         self.set_camera(camera, at);
     }
 
+    /// Applies `steps` (possibly fractional) steps of a move: continuous
+    /// motion of a held key.
+    pub fn move_steps(&mut self, mv: Move, steps: f32, at: Instant) {
+        let mut camera = self.camera;
+        self.config.controls.apply_steps(mv, steps, &mut camera);
+        self.set_camera(camera, at);
+    }
+
+    /// The navigation speeds.
+    pub fn controls(&self) -> &Controls {
+        &self.config.controls
+    }
+
+    /// True while the latest camera's first (fast) pass is not complete yet:
+    /// continuous motion waits for it, so frames finish while moving.
+    pub fn moving_frame_pending(&self) -> bool {
+        self.dirty || self.in_flight.is_some_and(|f| f.pass == 0)
+    }
+
     /// Mouse-drag look by `(dx, dy)` pixels.
     pub fn look(&mut self, dx: f64, dy: f64, at: Instant) {
         let mut camera = self.camera;

@@ -12,7 +12,7 @@
 //! `about_to_wait`), so a burst of mouse motion costs one frame, not a queue.
 
 use crate::error::ViewerError;
-use crate::input::{Command, command_for_key};
+use crate::input::{Command, HeldMoves, command_for_key};
 use crate::raster::{Canvas, Placement, owner_colour};
 use crate::session::{FrameReport, Session};
 use crate::source::Waker;
@@ -25,7 +25,7 @@ use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::{ElementState, MouseButton, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
-use winit::keyboard::{ModifiersState, PhysicalKey};
+use winit::keyboard::{KeyCode, ModifiersState, PhysicalKey};
 use winit::window::{Window, WindowId};
 
 /// Something the window did that its owner may want to know about.
@@ -117,6 +117,7 @@ pub fn run(session: &mut Session, options: ViewerOptions) -> Result<(), ViewerEr
         drag: None,
         cursor: None,
         overlay: false,
+        held: HeldMoves::default(),
     };
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Window(e.to_string()))?;
     match app.error {
@@ -148,6 +149,7 @@ struct App<'a> {
     cursor: Option<PhysicalPosition<f64>>,
     overlay: bool,
     show_status: bool,
+    held: HeldMoves,
 }
 
 impl App<'_> {
@@ -239,10 +241,15 @@ impl App<'_> {
         Ok(path)
     }
 
-    fn command(&mut self, event_loop: &ActiveEventLoop, command: Command) {
+    fn command(&mut self, event_loop: &ActiveEventLoop, key: KeyCode, command: Command) {
         let now = Instant::now();
         match command {
-            Command::Move(mv) => self.session.move_camera(mv, now),
+            Command::Move(mv) => {
+                // One step per press; holding the key moves on in about_to_wait.
+                if self.held.press(key, mv, now, self.session.controls()) {
+                    self.session.move_camera(mv, now);
+                }
+            }
             Command::ResetCamera => self.session.reset_camera(now),
             Command::Screenshot => match self.screenshot() {
                 Ok(path) => (self.options.on_event)(&ViewerEvent::ScreenshotSaved(path)),
@@ -294,17 +301,17 @@ impl ApplicationHandler<Wake> for App<'_> {
                 }
             }
             WindowEvent::ModifiersChanged(m) => self.modifiers = m.state(),
-            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
-                if let PhysicalKey::Code(code) = event.physical_key
-                    && let Some(command) = command_for_key(code, self.modifiers.shift_key())
+            WindowEvent::KeyboardInput { event, .. } => {
+                let PhysicalKey::Code(code) = event.physical_key else { return };
+                if event.state == ElementState::Released {
+                    self.held.release(code);
+                } else if let Some(command) = command_for_key(code, self.modifiers.shift_key())
+                    && !event.repeat
                 {
-                    // Key repeat keeps moving; one-shot commands only on the first press.
-                    if event.repeat && !matches!(command, Command::Move(_)) {
-                        return;
-                    }
-                    self.command(event_loop, command);
+                    self.command(event_loop, code, command);
                 }
             }
+            WindowEvent::Focused(false) => self.held.release_all(),
             WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
                 self.drag = match state {
                     ElementState::Pressed => self.cursor,
@@ -331,10 +338,20 @@ impl ApplicationHandler<Wake> for App<'_> {
             event_loop.exit();
             return;
         }
+        let now = Instant::now();
+        // Held keys move on once the last move's frame is complete, by as much
+        // as the time since asks for: speed follows the clock, not the frame rate.
+        if !self.held.is_empty() && !self.session.moving_frame_pending() {
+            for (mv, steps) in self.held.due(now, self.session.controls()) {
+                self.session.move_steps(mv, steps, now);
+            }
+        }
         // One request per batch of input events.
         self.session.flush();
-        // Keep the status line's counters ticking while frames are rendered.
-        if self.show_status && self.session.active(Instant::now()) {
+        if !self.held.is_empty() {
+            event_loop.set_control_flow(ControlFlow::WaitUntil(now + Duration::from_millis(5)));
+        } else if self.show_status && self.session.active(now) {
+            // Keep the status line's counters ticking while frames are rendered.
             event_loop.set_control_flow(ControlFlow::WaitUntil(Instant::now() + Duration::from_millis(250)));
         } else {
             event_loop.set_control_flow(ControlFlow::Wait);
@@ -342,7 +359,8 @@ impl ApplicationHandler<Wake> for App<'_> {
     }
 
     fn new_events(&mut self, _: &ActiveEventLoop, cause: winit::event::StartCause) {
-        if matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) {
+        // The status line's timer (held keys' timer redraws when tiles land).
+        if matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) && self.held.is_empty() {
             self.request_redraw();
         }
     }
