@@ -119,7 +119,7 @@ impl Light {
             Light::Point { position, intensity } => {
                 let d = *position - p;
                 let d2 = d.length_squared();
-                if !(d2 > 0.0) {
+                if d2.is_nan() || d2 <= 0.0 {
                     return None;
                 }
                 let dist = d2.sqrt();
@@ -130,7 +130,7 @@ impl Light {
                 let (q, density) = self.point_on(u)?;
                 let d = q - p;
                 let d2 = d.length_squared();
-                if !(d2 > 0.0) {
+                if d2.is_nan() || d2 <= 0.0 {
                     return None;
                 }
                 let dist = d2.sqrt();

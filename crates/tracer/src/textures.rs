@@ -131,7 +131,7 @@ impl MipMap {
         let Some(base) = self.levels.first() else { return Vec3::ZERO };
         let size = base.width.max(base.height) as f32;
         let texels_wide = width * size;
-        if !(texels_wide > 1.0) {
+        if texels_wide.is_nan() || texels_wide <= 1.0 {
             return base.bilinear(uv);
         }
         let lod = math::log2(texels_wide).min((self.levels.len() - 1) as f32);

@@ -358,7 +358,7 @@ fn showcase(width: u32, height: u32, sphere_detail: u32) -> Scene {
         shininess: 1.0,
         reflectivity: 0.0,
     });
-    let lamp = b.material(Material::Emissive { radiance: Vec3::splat(8.0) });
+    let lamp = b.material(Material::Emissive { radiance: Vec3::splat(6.0) });
 
     let f = 300.0;
     b.quad(
@@ -381,16 +381,16 @@ fn showcase(width: u32, height: u32, sphere_detail: u32) -> Scene {
     );
     // Area light above the box, facing down, with its visible lamp just above
     // (the shortened shadow rays keep it from shadowing its own samples).
-    let (lx, lz, ly, h) = (1.5, 0.5, 4.0, 0.6);
+    let (lx, lz, ly, h) = (-0.6, 0.2, 3.4, 0.5);
     let lv = [
         Vec3::new(lx - h, ly, lz - h),
         Vec3::new(lx + h, ly, lz - h),
         Vec3::new(lx + h, ly, lz + h),
         Vec3::new(lx - h, ly, lz + h),
     ];
-    b.parts.lights.push(Light::Area { vertices: lv.to_vec(), radiance: Vec3::splat(8.0) });
+    b.parts.lights.push(Light::Area { vertices: lv.to_vec(), radiance: Vec3::splat(6.0) });
     b.quad(lv, 1.0, lamp);
-    b.parts.lights.push(Light::Point { position: Vec3::new(-5.0, 7.0, 5.0), intensity: Vec3::splat(60.0) });
+    b.parts.lights.push(Light::Point { position: Vec3::new(5.0, 6.0, -4.0), intensity: Vec3::splat(50.0) });
     b.parts.ambient = Vec3::splat(0.05);
     b.parts.background = Vec3::new(0.35, 0.5, 0.8);
     let settings = RenderSettings { width, height, spp: 1, light_samples: 16, max_depth: 6, seed: 7 };
