@@ -210,6 +210,7 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     let artefacts = repo().join("target/test-artifacts/viewer");
     std::fs::create_dir_all(&artefacts).unwrap();
     let shots = tempfile::tempdir().unwrap();
+    let recording = shots.path().join("recorded.path.toml");
 
     let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
         .arg("view")
@@ -217,6 +218,8 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
         .args(["--width", "320", "--height", "240", "--print-frames", "--max-spp", &MAX_SPP.to_string()])
         .arg("--screenshot-dir")
         .arg(shots.path())
+        .arg("--record")
+        .arg(&recording)
         .env("DISPLAY", &display)
         .env_remove("WAYLAND_DISPLAY")
         .env("RUST_LOG", "warn")
@@ -275,6 +278,20 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     let status = v.wait_exit();
     assert!(status.success(), "exit status {status:?}; output:\n{:#?}", v.log);
 
+    // The recording holds the three cameras: start, one step forward along the
+    // plane's normal, then a turn to the left about the eye.
+    let path = isin_viewer::CameraPath::load(&recording).unwrap();
+    assert_eq!(path.frames.len(), 3, "{path:?}");
+    let cams: Vec<isin_tracer::Camera> = path.frames.iter().map(|f| f.camera()).collect();
+    let step = cams[1].eye - cams[0].eye;
+    assert!(
+        step.length() > 0.0 && step.normalize().dot(cams[0].forward()) > 0.9999,
+        "W moves forward: {step:?}"
+    );
+    assert!((cams[2].eye - cams[1].eye).length() < 1e-4, "a turn keeps the eye");
+    let turned = cams[1].forward().cross(cams[2].forward());
+    assert!(turned.dot(cams[1].up()) > 1e-3, "Left turns left (about up): {turned:?}");
+
     let (mean_b, var_b) = stats(&before);
     let (mean_a, var_a) = stats(&after);
     println!("before: mean {mean_b:.1} var {var_b:.1}; after: mean {mean_a:.1} var {var_a:.1}");
@@ -302,4 +319,38 @@ fn view_without_a_display_points_to_isin_render() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no display") && err.contains("isin render"), "stderr: {err}");
+}
+
+#[test]
+fn fly_replays_the_shipped_path_into_pngs() {
+    let scene = repo().join("scenes/paper.toml");
+    let path_file = repo().join("scenes/paper.path.toml");
+    let path = isin_viewer::CameraPath::load(&path_file).unwrap();
+    assert!(path.frames.len() >= 10, "the example path should be a real flight");
+    let out = tempfile::tempdir().unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_isin"))
+        .arg("fly")
+        .arg(&scene)
+        .arg("--path")
+        .arg(&path_file)
+        .arg("--out")
+        .arg(out.path())
+        .args(["--width", "48", "--height", "36", "--fast"])
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "isin fly failed: {}", String::from_utf8_lossy(&run.stderr));
+    assert!(stdout.contains("median") && stdout.contains("p95"), "{stdout}");
+    let frames: Vec<image::RgbImage> = (0..path.frames.len())
+        .map(|i| image::open(out.path().join(format!("frame_{i:04}.png"))).unwrap().to_rgb8())
+        .collect();
+    assert!(frames.iter().all(|f| f.dimensions() == (48, 36)));
+    assert!(!out.path().join(format!("frame_{:04}.png", path.frames.len())).exists());
+    let changes = frames.windows(2).filter(|w| w[0] != w[1]).count();
+    assert!(
+        changes * 2 >= frames.len(),
+        "only {changes} of {} frames differ from the previous",
+        frames.len()
+    );
 }

@@ -24,7 +24,7 @@
 
 use crate::error::ViewerError;
 use isin_tracer::{Camera, Vec3};
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -35,7 +35,7 @@ pub const PATH_VERSION: u32 = 1;
 pub const MAX_PATH_FILE_BYTES: u64 = 256 << 20;
 
 /// One camera of a path.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PathFrame {
     /// Seconds since the start of the recording.
@@ -54,16 +54,16 @@ impl PathFrame {
 }
 
 /// A recorded navigation.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraPath {
     /// Format version, [`PATH_VERSION`].
     pub version: u32,
     /// Width the path was recorded at, if known.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default)]
     pub width: Option<u32>,
     /// Height the path was recorded at, if known.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default)]
     pub height: Option<u32>,
     /// The cameras, in order.
     #[serde(rename = "frame", default)]
@@ -108,10 +108,29 @@ impl CameraPath {
         Self::parse(path, &text)
     }
 
-    /// The path as TOML text.
+    /// The path as TOML text. Numbers are written in their shortest form that
+    /// reads back to the same `f32`, so the file is both exact and readable.
     pub fn to_toml(&self) -> String {
-        let body = toml::to_string(self).unwrap_or_else(|e| format!("# cannot serialise: {e}\n"));
-        format!("# isin camera path (see isin_viewer::path for the format)\n{body}")
+        use std::fmt::Write;
+        let v = |p: Vec3| format!("[{:?}, {:?}, {:?}]", p.x, p.y, p.z);
+        let mut out = String::from("# isin camera path (format: see the isin_viewer::path docs)\n");
+        let _ = writeln!(out, "version = {}", self.version);
+        if let Some(w) = self.width {
+            let _ = writeln!(out, "width = {w}");
+        }
+        if let Some(h) = self.height {
+            let _ = writeln!(out, "height = {h}");
+        }
+        for f in &self.frames {
+            let [a, b, c, d] = f.corners.map(v);
+            let _ = write!(
+                out,
+                "\n[[frame]]\nt = {:?}\neye = {}\ncorners = [{a}, {b}, {c}, {d}]\n",
+                f.t,
+                v(f.eye)
+            );
+        }
+        out
     }
 
     /// Writes the path as TOML.
@@ -140,7 +159,8 @@ impl Recorder {
         if self.path.frames.last().is_some_and(|f| f.camera() == *camera) {
             return;
         }
-        let t = self.start.elapsed().as_secs_f64();
+        // Microseconds are plenty, and keep the file readable.
+        let t = (self.start.elapsed().as_secs_f64() * 1e6).round() / 1e6;
         self.path.frames.push(PathFrame { t, eye: camera.eye, corners: camera.corners });
     }
 
@@ -171,11 +191,14 @@ mod tests {
         cam.yaw(0.3);
         cam.advance(1.25);
         rec.record(&cam);
-        assert_eq!(rec.path().frames.len(), 2);
+        cam.pitch(1e-7); // tiny and huge numbers survive too
+        cam.strafe(3e7, 0.0);
+        rec.record(&cam);
+        assert_eq!(rec.path().frames.len(), 3);
         rec.save().unwrap();
         let back = CameraPath::load(&file).unwrap();
         assert_eq!(back, *rec.path());
-        assert_eq!(back.frames[1].camera(), cam);
+        assert_eq!(back.frames[2].camera(), cam);
         assert_eq!(back.width, Some(320));
         assert!(back.frames[1].t >= back.frames[0].t);
     }
