@@ -36,6 +36,10 @@ pub struct WindowArgs {
     /// Stop refining a still view at this many samples per pixel.
     #[arg(long, default_value_t = 64)]
     pub max_spp: u32,
+    /// While moving, render at 1/N of the resolution in each direction (shown
+    /// enlarged); refinement of a still view is always at full resolution.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub moving_scale: u32,
     /// Directory screenshots (F12 / P) are saved to.
     #[arg(long, default_value = ".")]
     pub screenshot_dir: PathBuf,
@@ -107,6 +111,7 @@ pub fn run_with_source(
     anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
     let mut quality = Quality::for_settings(&settings);
     quality.max_spp = window.max_spp.max(1);
+    quality.moving_scale = window.moving_scale;
     let config = SessionConfig { settings, quality, controls: Controls::for_scene_extent(extent), camera };
     let mut session = Session::new(source, config);
     if let Some(path) = &window.record {

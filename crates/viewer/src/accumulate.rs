@@ -139,6 +139,42 @@ impl Accumulator {
         Ok(())
     }
 
+    /// Adds a tile of an image rendered at `1/scale` of this one's resolution
+    /// (each side rounded up): every pixel of the tile covers a `scale × scale`
+    /// block here, clipped at the image's edges. `scale` 1 is [`Accumulator::add_tile`].
+    pub fn add_scaled_tile(
+        &mut self,
+        view: u32,
+        weight: f32,
+        tile: Tile,
+        rgb: &[u8],
+        scale: u32,
+    ) -> Result<(), TileError> {
+        if scale <= 1 {
+            return self.add_tile(view, weight, tile, rgb);
+        }
+        let (lw, lh) = (self.width.div_ceil(scale), self.height.div_ceil(scale));
+        let fits = tile.x.checked_add(tile.w).is_some_and(|r| r <= lw)
+            && tile.y.checked_add(tile.h).is_some_and(|b| b <= lh);
+        if !fits {
+            return Err(TileError::OutOfBounds(tile, lw, lh));
+        }
+        let expected = tile.pixel_count() * 3;
+        if rgb.len() != expected {
+            return Err(TileError::WrongLength { tile, got: rgb.len(), expected });
+        }
+        let big = scale_tile(tile, scale, self.width, self.height);
+        let mut up = Vec::with_capacity(big.pixel_count() * 3);
+        for y in big.y..big.y + big.h {
+            let row = (y / scale - tile.y) as usize * tile.w as usize;
+            for x in big.x..big.x + big.w {
+                let i = (row + (x / scale - tile.x) as usize) * 3;
+                up.extend_from_slice(&rgb[i..i + 3]);
+            }
+        }
+        self.add_tile(view, weight, big, &up)
+    }
+
     /// The encoded pixels, row-major `0x00RRGGBB`.
     pub fn display(&self) -> &[u32] {
         &self.display
@@ -153,6 +189,16 @@ impl Accumulator {
     pub fn to_rgb8(&self) -> Vec<u8> {
         self.display.iter().flat_map(|&p| [(p >> 16) as u8, (p >> 8) as u8, p as u8]).collect()
     }
+}
+
+/// The region of a `width × height` image covered by `tile` of the same image
+/// rendered at `1/scale` resolution.
+pub fn scale_tile(tile: Tile, scale: u32, width: u32, height: u32) -> Tile {
+    let x = (tile.x.saturating_mul(scale)).min(width);
+    let y = (tile.y.saturating_mul(scale)).min(height);
+    let r = (tile.x.saturating_add(tile.w)).saturating_mul(scale).min(width);
+    let b = (tile.y.saturating_add(tile.h)).saturating_mul(scale).min(height);
+    Tile { x, y, w: r - x, h: b - y }
 }
 
 #[cfg(test)]
@@ -221,5 +267,22 @@ mod tests {
         let t = Tile { x: 0, y: 0, w: 2, h: 2 };
         assert!(matches!(a.add_tile(0, 1.0, t, &[0; 11]), Err(TileError::WrongLength { .. })));
         assert!(a.display().iter().all(|&p| p == 0));
+    }
+
+    #[test]
+    fn low_resolution_tiles_cover_blocks_clipped_at_the_edge() {
+        // 5 × 3 at scale 2 is rendered as 3 × 2.
+        let mut a = Accumulator::new(5, 3);
+        let t = Tile { x: 1, y: 0, w: 2, h: 2 };
+        let rgb: Vec<u8> = [10u8, 20, 30, 40].iter().flat_map(|&v| [v, v, v]).collect();
+        a.add_scaled_tile(0, 1.0, t, &rgb, 2).unwrap();
+        let grey = |v: u8| pack_rgb(v, v, v);
+        let d = a.display();
+        assert_eq!(&d[0..5], [0, 0, grey(10), grey(10), grey(20)]);
+        assert_eq!(&d[5..10], [0, 0, grey(10), grey(10), grey(20)]);
+        assert_eq!(&d[10..15], [0, 0, grey(30), grey(30), grey(40)], "last row clipped");
+        let out = Tile { x: 2, y: 1, w: 2, h: 1 };
+        assert!(matches!(a.add_scaled_tile(0, 1.0, out, &[0; 6], 2), Err(TileError::OutOfBounds(..))));
+        assert_eq!(scale_tile(Tile { x: 2, y: 1, w: 1, h: 1 }, 2, 5, 3), Tile { x: 4, y: 2, w: 1, h: 1 });
     }
 }

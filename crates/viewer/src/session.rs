@@ -13,7 +13,7 @@
 //! [`Quality::max_spp`] samples per pixel. Input at any time supersedes the pass
 //! in flight.
 
-use crate::accumulate::Accumulator;
+use crate::accumulate::{Accumulator, scale_tile};
 use crate::input::{Controls, Move};
 use crate::path::Recorder;
 use crate::source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, Waker};
@@ -28,6 +28,9 @@ pub struct Quality {
     pub moving_spp: u32,
     /// Shadow rays per area light in the first pass after a move.
     pub moving_light_samples: u32,
+    /// The first pass after a move renders at `1/moving_scale` of the
+    /// resolution in each direction (1: full resolution), shown enlarged.
+    pub moving_scale: u32,
     /// Camera samples per pixel of each refinement pass.
     pub still_spp: u32,
     /// Shadow rays per area light in refinement passes.
@@ -44,6 +47,7 @@ impl Quality {
         Self {
             moving_spp: 1,
             moving_light_samples: 1,
+            moving_scale: 1,
             still_spp: 4,
             still_light_samples: settings.light_samples.max(1),
             max_spp: 64,
@@ -90,6 +94,8 @@ struct InFlight {
     view: u32,
     pass: u32,
     weight: u32,
+    /// Resolution divisor of the pass.
+    scale: u32,
     input_at: Option<Instant>,
 }
 
@@ -108,6 +114,8 @@ pub struct Session {
     in_flight: Option<InFlight>,
     accum: Accumulator,
     owners: BTreeMap<(u32, u32), (Tile, u32)>,
+    /// Resolution divisor of the tiles in `owners`.
+    owners_scale: u32,
     recorder: Option<Recorder>,
     completed: Vec<FrameReport>,
     completions: VecDeque<Instant>,
@@ -137,6 +145,7 @@ impl Session {
             in_flight: None,
             accum,
             owners: BTreeMap::new(),
+            owners_scale: 1,
             recorder: None,
             completed: Vec::new(),
             completions: VecDeque::new(),
@@ -268,6 +277,9 @@ impl Session {
         if pass == 0 {
             s.spp = q.moving_spp.max(1);
             s.light_samples = q.moving_light_samples.max(1);
+            let scale = q.moving_scale.max(1);
+            s.width = s.width.div_ceil(scale);
+            s.height = s.height.div_ceil(scale);
         } else {
             s.spp = q.still_spp.max(1);
             s.light_samples = q.still_light_samples.max(1);
@@ -280,7 +292,9 @@ impl Session {
         let settings = self.pass_settings(pass);
         let frame_id = self.next_id;
         self.next_id += 1;
-        self.in_flight = Some(InFlight { frame_id, view: self.view, pass, weight: settings.spp, input_at });
+        let scale = if pass == 0 { self.config.quality.moving_scale.max(1) } else { 1 };
+        self.in_flight =
+            Some(InFlight { frame_id, view: self.view, pass, weight: settings.spp, scale, input_at });
         self.source.request(FrameRequest { frame_id, camera: self.camera, settings });
     }
 
@@ -296,9 +310,16 @@ impl Session {
                     // Refinement passes share one accumulation key per view; the
                     // fast pass has its own, so the first refined tile replaces it.
                     let key = f.view.wrapping_mul(2).wrapping_add(u32::from(f.pass > 0));
-                    match self.accum.add_tile(key, f.weight as f32, t.tile, &t.rgb) {
+                    match self.accum.add_scaled_tile(key, f.weight as f32, t.tile, &t.rgb, f.scale) {
                         Ok(()) => {
-                            self.owners.insert((t.tile.x, t.tile.y), (t.tile, t.owner));
+                            let (w, h) = (self.accum.width(), self.accum.height());
+                            let tile = scale_tile(t.tile, f.scale, w, h);
+                            if f.scale != self.owners_scale {
+                                // Tiles of another size: the old borders no longer apply.
+                                self.owners.clear();
+                                self.owners_scale = f.scale;
+                            }
+                            self.owners.insert((tile.x, tile.y), (tile, t.owner));
                             changed = true;
                         }
                         Err(e) => tracing::warn!("dropping a tile: {e}"),
@@ -591,6 +612,25 @@ mod tests {
         assert_eq!(fake.count(), 4, "three moving frames, then refinement of the last camera");
         let views: Vec<(u32, u32)> = s.take_completed().iter().map(|r| (r.view, r.pass)).collect();
         assert_eq!(views, [(0, 0), (1, 0), (2, 0)]);
+    }
+
+    #[test]
+    fn moving_frames_can_render_at_lower_resolution() {
+        let fake = Fake::default();
+        let settings = RenderSettings { width: 5, height: 3, ..Default::default() };
+        let quality = Quality { moving_scale: 2, ..Quality::for_settings(&settings) };
+        let config =
+            SessionConfig { settings, quality, controls: Controls::default(), camera: Camera::default() };
+        let mut s = Session::new(Box::new(fake.clone()), config);
+        s.start();
+        let fast = fake.last();
+        assert_eq!((fast.settings.width, fast.settings.height), (3, 2));
+        fake.deliver(&fast, 90);
+        s.pump(Instant::now());
+        assert!(s.image().display().iter().all(|&p| p == 0x5a5a5a), "the small frame fills the window");
+        assert_eq!(s.tile_owners().next().map(|o| o.0), Some(Tile { x: 0, y: 0, w: 5, h: 3 }));
+        let refine = fake.last();
+        assert_eq!((refine.settings.width, refine.settings.height), (5, 3), "refinement at full size");
     }
 
     #[test]
