@@ -19,7 +19,13 @@
 //!   renders. [`LocalSource`] ([`local`]) renders in-process on a rayon pool; a
 //!   cluster-backed source implements the same trait.
 //! - [`path`]: camera paths — recorded by `isin view --record`, replayed by
-//!   `isin fly`.
+//!   `isin fly` (headless) and `isin view --play` (in the window, measuring
+//!   motion-to-photon latency); [`stats`] summarises the timings.
+//!
+//! The window renders at a fixed resolution and scales the image to fit;
+//! while the camera moves, passes are fast (1 sample, 1 shadow ray, optionally
+//! lower resolution), and while it is still, passes with new seeds are averaged
+//! in until [`Quality::max_spp`] — see [`session`].
 
 pub mod accumulate;
 pub mod error;

@@ -9,6 +9,20 @@
 //! the cluster-backed source (in the binary's cluster wiring) forwards requests
 //! to the master and relays the tiles its slaves return. Both look the same to
 //! the window, which is all the window knows about.
+//!
+//! # Writing a source
+//!
+//! The window runs on the main thread and must never block, so a networked
+//! source runs its async side (e.g. an actix system) on a thread of its own:
+//!
+//! - [`FrameSource::request`] only posts the request to that thread (e.g.
+//!   `Addr::do_send`) and remembers `frame_id` so replies can be tagged with it;
+//! - the thread pushes [`SourceEvent`]s into a `std::sync::mpsc` channel and
+//!   calls [`Waker::wake`] after each (wakes are coalesced, so once per tile is
+//!   fine); [`FrameSource::try_next`] is `try_recv` on that channel;
+//! - [`FrameSource::status`] reads counters the thread keeps in an
+//!   `Arc<Mutex<SourceStatus>>`; [`TileUpdate::owner`] is the slave's id, which
+//!   colours the tile-ownership overlay.
 
 use isin_tracer::{Camera, RenderSettings, Tile};
 use std::fmt;
