@@ -65,9 +65,9 @@ fn prim_info(pre: &PreTriangle, tri: &Triangle) -> PrimInfo {
 /// leaf order) to `out`, depth-first. Indices stored in the new nodes are
 /// relative to the start of `out`.
 fn build_node(prims: &[PrimInfo], refs: &mut [u32], first: u32, depth: usize, out: &mut Vec<Node>) {
-    let bounds = refs.iter().fold(Aabb::EMPTY, |b, &r| b.union(&prims[r as usize].bounds));
+    let (bounds, centroids) = bounds_and_centroids(prims, refs);
     let at = out.len();
-    let Some(mid) = choose_split(prims, refs, &bounds, depth) else {
+    let Some(mid) = choose_split(prims, refs, &bounds, &centroids, depth) else {
         out.push(Node::leaf(&bounds, first, refs.len() as u32));
         return;
     };
@@ -87,6 +87,18 @@ fn build_node(prims: &[PrimInfo], refs: &mut [u32], first: u32, depth: usize, ou
         out[at].offset = out.len() as u32;
         build_node(prims, right, right_first, depth + 1, out);
     }
+}
+
+/// The union of the primitives' boxes and the box around their centroids, in one pass.
+fn bounds_and_centroids(prims: &[PrimInfo], refs: &[u32]) -> (Aabb, Aabb) {
+    let mut bounds = Aabb::EMPTY;
+    let mut centroids = Aabb::EMPTY;
+    for &r in refs {
+        let p = &prims[r as usize];
+        bounds = bounds.union(&p.bounds);
+        centroids.grow(p.centroid);
+    }
+    (bounds, centroids)
 }
 
 /// A subtree in its own vector (node indices relative to its start).
@@ -111,25 +123,29 @@ fn append_relocated(out: &mut Vec<Node>, sub: &[Node]) {
 /// Decides how to split `refs`; on a split, partitions `refs` in place and
 /// returns the size of the first part (always in `1..refs.len()`). `None` means
 /// make a leaf.
-fn choose_split(prims: &[PrimInfo], refs: &mut [u32], bounds: &Aabb, depth: usize) -> Option<usize> {
+fn choose_split(
+    prims: &[PrimInfo],
+    refs: &mut [u32],
+    bounds: &Aabb,
+    centroids: &Aabb,
+    depth: usize,
+) -> Option<usize> {
     let n = refs.len();
     if n <= 1 {
         return None;
     }
     if depth >= MEDIAN_DEPTH {
-        return (n > MAX_LEAF_SIZE).then(|| median_split(prims, refs));
+        return (n > MAX_LEAF_SIZE).then(|| median_split(prims, refs, centroids));
     }
-    let centroids =
-        refs.iter().fold(Aabb::EMPTY, |b, &r| b.union(&Aabb::from_point(prims[r as usize].centroid)));
-    let best = best_binned_split(prims, refs, &centroids);
+    let best = best_binned_split(prims, refs, centroids);
     // Costs are SAH costs multiplied by the node's area, so that zero-area
     // nodes (all triangles degenerate and in one spot) compare without NaNs.
     let leaf_cost = n as f32 * bounds.area();
     match best {
         Some(split) if n > MAX_LEAF_SIZE || split.cost < leaf_cost => {
-            Some(partition(prims, refs, &split, &centroids))
+            Some(partition(prims, refs, &split, centroids))
         }
-        _ if n > MAX_LEAF_SIZE => Some(median_split(prims, refs)),
+        _ if n > MAX_LEAF_SIZE => Some(median_split(prims, refs, centroids)),
         _ => None,
     }
 }
@@ -165,38 +181,63 @@ fn bin_scale(centroids: &Aabb, axis: usize) -> Option<f32> {
 
 /// The cheapest bin-boundary split over all three axes (ties go to the lower
 /// axis, then the lower bin), or `None` when no axis can separate the centroids.
+/// One pass over the primitives fills the bins of all three axes.
 fn best_binned_split(prims: &[PrimInfo], refs: &[u32], centroids: &Aabb) -> Option<Split> {
+    let scales = [0, 1, 2].map(|axis| bin_scale(centroids, axis));
+    if scales.iter().all(Option::is_none) {
+        return None;
+    }
+    let mut bins = [[Bin { bounds: Aabb::EMPTY, count: 0 }; BINS]; 3];
+    for &r in refs {
+        let p = &prims[r as usize];
+        for (axis, scale) in scales.iter().enumerate() {
+            if let Some(scale) = *scale {
+                let b = &mut bins[axis][bin_index(p.centroid[axis], centroids.min[axis], scale)];
+                b.bounds = b.bounds.union(&p.bounds);
+                b.count += 1;
+            }
+        }
+    }
     let mut best: Option<Split> = None;
-    for axis in 0..3 {
-        let Some(scale) = bin_scale(centroids, axis) else { continue };
-        let mut bins = [Bin { bounds: Aabb::EMPTY, count: 0 }; BINS];
-        for &r in refs {
-            let p = &prims[r as usize];
-            let b = &mut bins[bin_index(p.centroid[axis], centroids.min[axis], scale)];
-            b.bounds = b.bounds.union(&p.bounds);
-            b.count += 1;
+    for (axis, axis_bins) in bins.iter().enumerate() {
+        if scales[axis].is_none() {
+            continue;
         }
-        // right_cost[i]: area * count of bins i+1.. (the right side of boundary i).
-        let mut right_cost = [0.0f32; BINS];
-        let (mut acc, mut cnt) = (Aabb::EMPTY, 0u32);
-        for i in (1..BINS).rev() {
-            acc = acc.union(&bins[i].bounds);
-            cnt += bins[i].count;
-            right_cost[i - 1] = if cnt == 0 { f32::NAN } else { acc.area() * cnt as f32 };
-        }
-        let (mut acc, mut cnt) = (Aabb::EMPTY, 0u32);
-        let node_area = bins.iter().fold(Aabb::EMPTY, |a, b| a.union(&b.bounds)).area();
-        for (i, bin) in bins.iter().enumerate().take(BINS - 1) {
-            acc = acc.union(&bin.bounds);
-            cnt += bin.count;
-            let right = right_cost[i];
-            if cnt == 0 || right.is_nan() {
-                continue;
-            }
-            let cost = TRAVERSAL_COST * node_area + acc.area() * cnt as f32 + right;
+        if let Some((bin, cost)) = sweep(axis_bins) {
             if best.is_none_or(|b| cost < b.cost) {
-                best = Some(Split { axis, bin: i, cost });
+                best = Some(Split { axis, bin, cost });
             }
+        }
+    }
+    best
+}
+
+/// The cheapest boundary of one axis's bins: `(last bin of the left side, cost)`,
+/// ties going to the lower bin; only boundaries with primitives on both sides.
+fn sweep(bins: &[Bin; BINS]) -> Option<(usize, f32)> {
+    // right_cost[i]: area * count of bins i+1.. (the right side of boundary i).
+    let mut right_cost = [f32::NAN; BINS];
+    let (mut acc, mut cnt) = (Aabb::EMPTY, 0u32);
+    for i in (1..BINS).rev() {
+        acc = acc.union(&bins[i].bounds);
+        cnt += bins[i].count;
+        if cnt > 0 {
+            right_cost[i - 1] = acc.area() * cnt as f32;
+        }
+    }
+    let node_area = acc.union(&bins[0].bounds).area();
+    let (mut acc, mut cnt) = (Aabb::EMPTY, 0u32);
+    let mut best: Option<(usize, f32)> = None;
+    for (i, bin) in bins.iter().enumerate().take(BINS - 1) {
+        acc = acc.union(&bin.bounds);
+        cnt += bin.count;
+        let right = right_cost[i];
+        if cnt == 0 || right.is_nan() {
+            continue;
+        }
+        let cost = TRAVERSAL_COST * node_area + acc.area() * cnt as f32 + right;
+        if best.is_none_or(|(_, c)| cost < c) {
+            best = Some((i, cost));
         }
     }
     best
@@ -223,9 +264,7 @@ fn partition(prims: &[PrimInfo], refs: &mut [u32], split: &Split, centroids: &Aa
 /// Splits at the median along the centroids' widest axis, ordering by
 /// (centroid, input index): a total order, so the result is deterministic even
 /// when centroids coincide or are NaN.
-fn median_split(prims: &[PrimInfo], refs: &mut [u32]) -> usize {
-    let centroids =
-        refs.iter().fold(Aabb::EMPTY, |b, &r| b.union(&Aabb::from_point(prims[r as usize].centroid)));
+fn median_split(prims: &[PrimInfo], refs: &mut [u32], centroids: &Aabb) -> usize {
     let extent = centroids.extent();
     let axis = if extent.x >= extent.y && extent.x >= extent.z {
         0
@@ -259,7 +298,8 @@ mod tests {
         let p = PrimInfo { bounds: Aabb::from_point(Vec3::ONE), centroid: Vec3::ONE };
         let prims = vec![p; 9];
         let mut refs: Vec<u32> = (0..9).rev().collect();
-        let mid = median_split(&prims, &mut refs);
+        let centroids = Aabb::from_point(Vec3::ONE);
+        let mid = median_split(&prims, &mut refs, &centroids);
         assert_eq!(mid, 4);
         let mut left = refs[..mid].to_vec();
         left.sort();
