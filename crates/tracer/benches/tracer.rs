@@ -478,7 +478,7 @@ fn trace_mrays(
     median(runs)
 }
 
-fn bench_mesh(name: &str, tris: &[Triangle], report: &mut Report) {
+fn bench_mesh(name: &str, tris: &[Triangle], isin_only: bool, report: &mut Report) {
     println!("== {name}: {} triangles", tris.len());
     let pools = [(1, pool(1)), (2, pool(2))];
     let mut isin = None;
@@ -486,12 +486,17 @@ fn bench_mesh(name: &str, tris: &[Triangle], report: &mut Report) {
     let mut obv = None;
     for (n, p) in &pools {
         let (ti, b) = time_build(p, || Bvh::build(tris));
-        let (ts, s) = time_build(p, || svenstaro::build(tris));
-        let (to, o) = time_build(p, || ob::build(tris));
-        report_row(report, &format!("{name} build {n}T"), Unit::Millis, ti, Some(ts), Some(to));
-        (isin, sv, obv) = (Some(b), Some(s), Some(o));
+        report_row(report, &format!("{name} build {n}T"), Unit::Millis, ti, None, None);
+        isin = Some(b);
+        if !isin_only {
+            let (ts, s) = time_build(p, || svenstaro::build(tris));
+            let (to, o) = time_build(p, || ob::build(tris));
+            let row = report.rows.last_mut().expect("row just added");
+            (row.bvh, row.obvhs) = (Some(ts), Some(to));
+            (sv, obv) = (Some(s), Some(o));
+        }
     }
-    let (isin, sv, obv) = (isin.expect("built"), sv.expect("built"), obv.expect("built"));
+    let isin = isin.expect("built");
     if let Err(e) = isin.validate() {
         panic!("isin BVH invalid: {e}");
     }
@@ -507,17 +512,20 @@ fn bench_mesh(name: &str, tris: &[Triangle], report: &mut Report) {
         ("shadow", &shadow, Query::AnyHit),
     ];
 
-    let tracers: [(&str, &dyn Tracer); 3] = [("isin", &isin), ("bvh", &sv), ("obvhs", &obv)];
+    let mut tracers: Vec<(&str, &dyn Tracer)> = vec![("isin", &isin)];
+    if let (Some(sv), Some(obv)) = (&sv, &obv) {
+        tracers.push(("bvh", sv));
+        tracers.push(("obvhs", obv));
+    }
     for (kind, rays, q) in sets {
         // All three must agree on how many rays hit (same rays, same question).
         let counts: Vec<usize> =
             tracers.iter().map(|(_, t)| trace_once(&pools[1].1, *t, rays, q).1).collect();
+        let counts: Vec<String> = counts.iter().map(usize::to_string).collect();
         report.notes.push(format!(
-            "{name} {kind}: {} rays; hits isin/bvh/obvhs = {}/{}/{}",
+            "{name} {kind}: {} rays; hits isin/bvh/obvhs = {}",
             rays.len(),
-            counts[0],
-            counts[1],
-            counts[2]
+            counts.join("/")
         ));
         for (n, p) in &pools {
             let label = format!("{name} {kind} {n}T");
@@ -525,7 +533,7 @@ fn bench_mesh(name: &str, tris: &[Triangle], report: &mut Report) {
                 .iter()
                 .map(|(lib, t)| trace_mrays(p, *t, rays, q, &format!("{label} {lib}"), report))
                 .collect();
-            report_row(report, &label, Unit::MraysPerSec, m[0], Some(m[1]), Some(m[2]));
+            report_row(report, &label, Unit::MraysPerSec, m[0], m.get(1).copied(), m.get(2).copied());
         }
     }
 }
@@ -544,8 +552,11 @@ fn machine() -> String {
 }
 
 fn main() {
-    // `cargo bench` passes `--bench`; any other argument filters meshes by name.
-    let filter: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
+    // `cargo bench` passes `--bench`; `isin-only` skips the other libraries and any
+    // other argument filters meshes by name (`cargo bench ... -- isin-only bunny`).
+    let mut filter: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
+    let isin_only = filter.iter().any(|a| a == "isin-only");
+    filter.retain(|a| a != "isin-only");
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let meshes = root.join("../../../shared/meshes");
     let mut report = Report::default();
@@ -555,7 +566,7 @@ fn main() {
             continue;
         }
         if let Some(tris) = load_mesh(&meshes.join(rel)) {
-            bench_mesh(name, &tris, &mut report);
+            bench_mesh(name, &tris, isin_only, &mut report);
         }
     }
     let machine = machine();

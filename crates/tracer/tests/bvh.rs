@@ -184,8 +184,8 @@ fn bunny_matches_brute_force() {
     let bvh = Bvh::build(&tris);
     bvh.validate().expect("valid bvh");
     let b = bounds_of(&tris);
-    let inc = incoherent_rays(&b, 1500, 1);
-    let cam = camera_rays(&b, 1500, 2);
+    let inc = incoherent_rays(&b, 1000, 1);
+    let cam = camera_rays(&b, 1000, 2);
     let axis = axis_rays(&b, 300, 3);
     let hits = check_against_brute(&tris, &bvh, &inc);
     assert!(hits > 300, "incoherent rays should often hit the bunny ({hits})");

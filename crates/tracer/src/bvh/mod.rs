@@ -1,10 +1,10 @@
 //! Bounding volume hierarchy over all triangles of a scene, built with the binned
 //! surface-area heuristic.
 //!
-//! * [`build`] — top-down binned SAH builder (parallel with rayon, yet the tree
+//! * `build` — top-down binned SAH builder (parallel with rayon, yet the tree
 //!   is a pure function of the input triangles: any thread count, any machine,
 //!   the same bytes).
-//! * [`traverse`] — nearest-hit and any-hit traversal: ordered by box entry
+//! * `traverse` — nearest-hit and any-hit traversal: ordered by box entry
 //!   distance, early-out against the current best hit, fixed-size stack.
 //!
 //! # Memory layout
