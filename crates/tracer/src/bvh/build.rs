@@ -53,12 +53,29 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
 
 /// Bounds over both the input vertices and the ones the intersection test
 /// reconstructs (`v0 + e1`, `v0 + e2`), so leaf boxes contain either exactly.
+///
+/// The result is free of NaNs — NaN coordinates are ignored (such a triangle can
+/// never be hit) and an axis with no number at all collapses to 0 — because the
+/// box unions that follow are only order-independent (hence deterministic and
+/// properly nested) on NaN-free boxes.
 fn prim_info(pre: &PreTriangle, tri: &Triangle) -> PrimInfo {
-    let mut bounds = tri.bounds();
-    for p in pre.vertices() {
-        bounds.grow(p);
+    let mut min = Vec3::INFINITY;
+    let mut max = Vec3::NEG_INFINITY;
+    for p in tri.v.into_iter().chain(pre.vertices()) {
+        // f32::min/max return the other operand when one is NaN.
+        min = Vec3::new(min.x.min(p.x), min.y.min(p.y), min.z.min(p.z));
+        max = Vec3::new(max.x.max(p.x), max.y.max(p.y), max.z.max(p.z));
     }
-    PrimInfo { bounds, centroid: bounds.center() }
+    for axis in 0..3 {
+        if min[axis] > max[axis] {
+            (min[axis], max[axis]) = (0.0, 0.0);
+        }
+    }
+    let bounds = Aabb { min, max };
+    // (+inf) + (-inf) is NaN: such a centroid goes to 0 on that axis.
+    let centroid = bounds.center();
+    let centroid = Vec3::select(centroid.is_nan_mask(), Vec3::ZERO, centroid);
+    PrimInfo { bounds, centroid }
 }
 
 /// Appends the subtree over `refs` (whose first element is triangle `first` in

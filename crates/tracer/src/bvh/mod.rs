@@ -175,7 +175,8 @@ impl Bvh {
     /// * an interior node's first child is the next node and its second child comes
     ///   after the first child's subtree; both children's boxes lie inside the parent's;
     /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles, their ranges cover the triangle
-    ///   array exactly once, and each leaf's box contains its triangles' vertices;
+    ///   array exactly once, and each leaf's box contains its triangles' vertices
+    ///   (NaN coordinates, which can never be hit, are not checked);
     /// * the triangle-to-input map is a permutation (every primitive exactly once).
     pub fn validate(&self) -> Result<(), InvalidBvh> {
         let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
@@ -258,8 +259,10 @@ impl Bvh {
     }
 }
 
+/// Containment that only fails on a definite "outside": a NaN coordinate (a
+/// triangle that can never be hit) does not count as sticking out.
 fn contains_point(b: &Aabb, p: Vec3) -> bool {
-    b.min.cmple(p).all() && p.cmple(b.max).all()
+    !(p.cmplt(b.min).any() || p.cmpgt(b.max).any())
 }
 
 fn contains_box(outer: &Aabb, inner: &Aabb) -> bool {
