@@ -483,3 +483,40 @@ fn showcase_picture() {
     let sky = px(w / 2, 0);
     assert!(sky[2] > sky[0], "sky is blue: {sky:?}");
 }
+
+#[test]
+fn distant_checker_floor_converges_to_the_average_colour() {
+    // Lit only by a unit ambient term, a pixel shows the filtered texture itself.
+    let mut b = Builder::default();
+    let tex = b.texture(Texture::Checker { even: Vec3::ONE, odd: Vec3::ZERO, scale: 4.0 });
+    let floor = b.material(Material::Phong {
+        albedo: Albedo::Texture { texture: tex, tint: Vec3::ONE },
+        specular: Vec3::ZERO,
+        shininess: 1.0,
+        reflectivity: 0.0,
+    });
+    let f = 1000.0;
+    b.quad(
+        [Vec3::new(-f, 0.0, f), Vec3::new(f, 0.0, f), Vec3::new(f, 0.0, -f), Vec3::new(-f, 0.0, -f)],
+        2.0 * f,
+        floor,
+    );
+    b.parts.ambient = Vec3::ONE;
+    let settings = RenderSettings { width: 96, height: 64, ..Default::default() };
+    let camera = Camera::look_at(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 0.0, -10.0), Vec3::Y, 60.0, 1.5);
+    let scene = b.build(camera, settings);
+    let frame = render_frame(&scene, &scene.camera, &settings, 16, &|_| {});
+    let row = |q: Vec3| (project(&scene.camera, q).1 * settings.height as f32) as usize;
+    let mean = isin_tracer::render::encode_srgb8(0.5) as i32;
+    // Far away (hundreds of squares per pixel): every pixel of the row is the
+    // average grey, not a moiré of black and white.
+    let far = row(Vec3::new(0.0, 0.0, -150.0));
+    for x in 0..settings.width as usize {
+        let v = frame.rgb[(far * settings.width as usize + x) * 3] as i32;
+        assert!((v - mean).abs() <= 6, "far pixel {x}: {v} vs {mean}");
+    }
+    // Close by (several pixels per square) the squares are still crisp.
+    let near = row(Vec3::new(0.0, 0.0, -2.13));
+    let line = &frame.rgb[near * settings.width as usize * 3..(near + 1) * settings.width as usize * 3];
+    assert!(line.iter().any(|&v| v > 240) && line.iter().any(|&v| v < 15), "near row keeps its contrast");
+}
