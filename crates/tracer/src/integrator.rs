@@ -37,7 +37,7 @@ use crate::geometry::Ray;
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
-use crate::sampling::{Sampler, stratified_square};
+use crate::sampling::{Sampler, ceil_sqrt, stratified_square_grid};
 use crate::scene::Scene;
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
@@ -375,16 +375,19 @@ impl<'a> Integrator<'a> {
         let mirrored_view = reflect(view_dir, sp.ns);
         let origin = sp.above();
         let depth_sampler = sampler.child(depth);
+        let grid = ceil_sqrt(self.light_samples);
         let mut total = Vec3::ZERO;
         for (index, light) in scene.lights.iter().enumerate() {
-            let (n, light_sampler) = if light.is_area() {
+            let area = light.is_area();
+            let (n, light_sampler) = if area {
+                // Every area light gets its own stratified, jittered set.
                 (self.light_samples, depth_sampler.child(index as u32))
             } else {
                 (1, depth_sampler)
             };
             let mut sum = Vec3::ZERO;
             for j in 0..n {
-                let u = if n > 1 { stratified_square(j, n, &light_sampler) } else { Vec2::splat(0.5) };
+                let u = if area { stratified_square_grid(j, grid, &light_sampler) } else { Vec2::splat(0.5) };
                 let Some(ls) = light.sample(sp.p, u) else { continue };
                 let cos = sp.ns.dot(ls.dir);
                 if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
