@@ -397,7 +397,7 @@ impl<'a> Integrator<'a> {
                 if has_spec {
                     let rv = mirrored_view.dot(ls.dir);
                     if rv > 0.0 {
-                        f += spec * math::powf(rv, shininess);
+                        f += spec * phong_lobe(rv, shininess);
                     }
                 }
                 counts.shadow += 1;
@@ -409,6 +409,27 @@ impl<'a> Integrator<'a> {
             total += sum / n as f32;
         }
         total
+    }
+}
+
+/// `x^s` for the Phong lobe: exponentiation by squaring for integer exponents
+/// up to 4096 (the common case, a handful of multiplications), `powf`
+/// otherwise. Both are deterministic.
+#[inline]
+pub fn phong_lobe(x: f32, s: f32) -> f32 {
+    if (0.0..=4096.0).contains(&s) && s == s.floor() {
+        let mut n = s as u32;
+        let (mut base, mut acc) = (x, 1.0f32);
+        while n > 0 {
+            if n & 1 == 1 {
+                acc *= base;
+            }
+            base *= base;
+            n >>= 1;
+        }
+        acc
+    } else {
+        math::powf(x, s)
     }
 }
 
@@ -471,6 +492,16 @@ mod tests {
         assert_eq!(sp.ng, Vec3::NEG_Z);
         assert_eq!(sp.ns, Vec3::NEG_Z);
         assert!(sp.above().z < sp.p.z && sp.below().z > sp.p.z);
+    }
+
+    #[test]
+    fn phong_lobe_matches_powf() {
+        for s in [0.0f32, 1.0, 2.0, 7.0, 32.0, 100.0, 12.5, 4097.0] {
+            for x in [0.0f32, 0.3, 0.9, 0.999, 1.0] {
+                let (a, b) = (phong_lobe(x, s), math::powf(x, s));
+                assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
+            }
+        }
     }
 
     #[test]

@@ -103,12 +103,50 @@ pub fn linear_to_srgb(c: f32) -> f32 {
     if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * math::powf(c, 1.0 / 2.4) - 0.055 }
 }
 
-/// Encodes a linear value as an sRGB byte: clamped to `[0, 1]` (NaN → 0) and
-/// rounded to nearest.
+/// Encodes a linear value as an sRGB byte: clamped to `[0, 1]` (NaN → 0),
+/// passed through [`linear_to_srgb`] and rounded to nearest. This is the
+/// reference definition; the renderer uses the equivalent, faster
+/// [`encode_srgb8_fast`].
 #[inline]
 pub fn encode_srgb8(c: f32) -> u8 {
     let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
     (linear_to_srgb(c) * 255.0 + 0.5).min(255.0) as u8
+}
+
+/// `THRESHOLDS[k - 1]` is the smallest linear value that [`encode_srgb8`] maps
+/// to `k` or more, found by bisection over the bit patterns of non-negative
+/// floats (whose order is the order of their values).
+fn srgb8_thresholds() -> &'static [f32; 255] {
+    static TABLE: std::sync::OnceLock<[f32; 255]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = [0.0f32; 255];
+        for (k, slot) in t.iter_mut().enumerate() {
+            let target = (k + 1) as u8;
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+            // Invariant: encode(lo) < target <= encode(hi).
+            while hi - lo > 1 {
+                let mid = lo + (hi - lo) / 2;
+                if encode_srgb8(f32::from_bits(mid)) >= target {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            *slot = f32::from_bits(hi);
+        }
+        t
+    })
+}
+
+/// [`encode_srgb8`] by binary search in a table of its 255 thresholds: the
+/// same bytes (the reference is monotonic), without a `powf` per channel.
+#[inline]
+pub fn encode_srgb8_fast(c: f32) -> u8 {
+    if c.is_nan() {
+        return 0;
+    }
+    // Number of thresholds <= c.
+    srgb8_thresholds().partition_point(|&t| t <= c) as u8
 }
 
 /// The sub-pixel offset of camera sample `sample` of `spp` for pixel `(x, y)`:
@@ -160,7 +198,7 @@ pub fn render_tile_stats(
                 sum += integrator.trace(&ray, cone, &sampler, &mut counts);
             }
             let c = sum * inv_spp;
-            out.extend_from_slice(&[encode_srgb8(c.x), encode_srgb8(c.y), encode_srgb8(c.z)]);
+            out.extend_from_slice(&[encode_srgb8_fast(c.x), encode_srgb8_fast(c.y), encode_srgb8_fast(c.z)]);
         }
     }
     (out, counts)
@@ -231,6 +269,23 @@ mod tests {
         // Round trip with the decoder of the texture module.
         for b in 0..=255u8 {
             assert_eq!(encode_srgb8(crate::textures::srgb_to_linear(b as f32 / 255.0)), b);
+        }
+    }
+
+    #[test]
+    fn fast_srgb_encoding_equals_the_reference() {
+        let t = srgb8_thresholds();
+        for &c in t.iter() {
+            for x in [c, f32::from_bits(c.to_bits() - 1), f32::from_bits(c.to_bits() + 1)] {
+                assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
+            }
+        }
+        for i in 0..=200_000 {
+            let x = i as f32 / 200_000.0 * 1.1 - 0.05;
+            assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
+        }
+        for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 1e-30, 1e30] {
+            assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
         }
     }
 

@@ -520,3 +520,56 @@ fn distant_checker_floor_converges_to_the_average_colour() {
     let line = &frame.rgb[near * settings.width as usize * 3..(near + 1) * settings.width as usize * 3];
     assert!(line.iter().any(|&v| v > 240) && line.iter().any(|&v| v < 15), "near row keeps its contrast");
 }
+
+/// Throughput of the shading code itself on a scene so small that
+/// intersection costs little (run with `--ignored --nocapture`).
+#[test]
+#[ignore = "timing, not a check"]
+fn shading_throughput() {
+    let mut b = Builder::default();
+    let tex = b.texture(Texture::Checker { even: Vec3::ONE, odd: Vec3::splat(0.2), scale: 1.0 });
+    let floor = b.material(Material::Phong {
+        albedo: Albedo::Texture { texture: tex, tint: Vec3::ONE },
+        specular: Vec3::splat(0.2),
+        shininess: 20.0,
+        reflectivity: 0.2,
+    });
+    let boxm = b.material(grey(0.6));
+    let f = 50.0;
+    b.quad(
+        [Vec3::new(-f, 0.0, f), Vec3::new(f, 0.0, f), Vec3::new(f, 0.0, -f), Vec3::new(-f, 0.0, -f)],
+        2.0 * f,
+        floor,
+    );
+    b.cuboid(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0), boxm);
+    b.parts.lights.push(Light::Point { position: Vec3::new(3.0, 6.0, 3.0), intensity: Vec3::splat(50.0) });
+    b.parts.lights.push(Light::Area {
+        vertices: vec![
+            Vec3::new(-3.0, 5.0, -0.5),
+            Vec3::new(-2.0, 5.0, -0.5),
+            Vec3::new(-2.0, 5.0, 0.5),
+            Vec3::new(-3.0, 5.0, 0.5),
+        ],
+        radiance: Vec3::splat(10.0),
+    });
+    let settings = RenderSettings { width: 320, height: 240, spp: 1, light_samples: 4, ..Default::default() };
+    let camera =
+        Camera::look_at(Vec3::new(0.0, 3.0, 8.0), Vec3::new(0.0, 0.5, 0.0), Vec3::Y, 50.0, 4.0 / 3.0);
+    let scene = b.build(camera, settings);
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let t = std::time::Instant::now();
+        let runs = 5;
+        let mut counts = isin_tracer::integrator::RayCounts::default();
+        for _ in 0..runs {
+            counts = pool.install(|| render_frame_stats(&scene, &scene.camera, &settings, 16, &|_| {})).1;
+        }
+        let secs = t.elapsed().as_secs_f64() / runs as f64;
+        println!(
+            "{threads} thread(s): {:.2} ms/frame, {} rays/frame, {:.1} Mrays/s",
+            secs * 1e3,
+            counts.total(),
+            counts.total() as f64 / secs / 1e6
+        );
+    }
+}
