@@ -204,27 +204,52 @@ impl SurfacePoint {
     }
 }
 
+/// Which camera sample of which pixel a ray serves: the key of its random
+/// numbers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SampleId {
+    /// The pixel's sampler ([`Sampler::pixel`]).
+    pub pixel: Sampler,
+    /// Camera sample index within the pixel, `0..spp`.
+    pub index: u32,
+}
+
 /// A Whitted ray tracer over one scene.
+///
+/// Area-light samples are stratified over the whole pixel: camera sample `s`
+/// takes samples `s·N .. s·N + N` of one stratified set of `spp·N` points per
+/// (pixel, depth, light), so supersampling refines the penumbra as a single,
+/// larger stratified pattern rather than `spp` independent ones.
 #[derive(Clone, Copy, Debug)]
 pub struct Integrator<'a> {
     scene: &'a Scene,
     max_depth: u32,
     light_samples: u32,
+    /// Side of the stratum grid of one pixel's area-light samples.
+    light_grid: u32,
 }
 
 impl<'a> Integrator<'a> {
     /// An integrator with the recursion depth and light sample count of
     /// `settings`.
     pub fn new(scene: &'a Scene, settings: &RenderSettings) -> Self {
-        Self { scene, max_depth: settings.max_depth, light_samples: settings.light_samples.max(1) }
+        let light_samples = settings.light_samples.max(1);
+        let per_pixel = light_samples.saturating_mul(settings.spp.max(1)).min(1 << 24);
+        Self { scene, max_depth: settings.max_depth, light_samples, light_grid: ceil_sqrt(per_pixel) }
+    }
+
+    /// Point `j` of the pixel's stratified set of area-light samples.
+    #[inline]
+    fn light_sample(&self, j: u32, sampler: &Sampler) -> Vec2 {
+        stratified_square_grid(j % (self.light_grid * self.light_grid), self.light_grid, sampler)
     }
 
     /// Radiance (linear RGB) arriving along the camera ray `ray`, whose cone
     /// and random numbers are given.
     #[inline]
-    pub fn trace(&self, ray: &Ray, cone: RayCone, sampler: &Sampler, counts: &mut RayCounts) -> Vec3 {
+    pub fn trace(&self, ray: &Ray, cone: RayCone, sample: &SampleId, counts: &mut RayCounts) -> Vec3 {
         counts.primary += 1;
-        self.radiance(ray, cone, 0, Vec3::ONE, sampler, counts)
+        self.radiance(ray, cone, 0, Vec3::ONE, sample, counts)
     }
 
     /// Radiance along `ray` at recursion depth `depth`; `weight` is the
@@ -235,7 +260,7 @@ impl<'a> Integrator<'a> {
         cone: RayCone,
         depth: u32,
         weight: Vec3,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
@@ -255,7 +280,7 @@ impl<'a> Integrator<'a> {
                     },
                 };
                 let mut c = scene.ambient * albedo;
-                c += self.direct(&sp, ray.dir, albedo, *specular, *shininess, depth, sampler, counts);
+                c += self.direct(&sp, ray.dir, albedo, *specular, *shininess, depth, sample, counts);
                 let r = reflectivity.clamp(0.0, 1.0);
                 if r > 0.0 {
                     let dir = sp.reflect(ray.dir);
@@ -265,7 +290,7 @@ impl<'a> Integrator<'a> {
                         depth,
                         weight,
                         r,
-                        sampler,
+                        sample,
                         counts,
                     ) * r;
                 }
@@ -279,7 +304,7 @@ impl<'a> Integrator<'a> {
                     depth,
                     weight,
                     *tint,
-                    sampler,
+                    sample,
                     counts,
                 )
             }
@@ -289,19 +314,19 @@ impl<'a> Integrator<'a> {
                 let next = cone.after(hit.t);
                 let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
                 match refract(ray.dir, sp.ns, n1 / n2) {
-                    None => self.secondary(refl, next, depth, weight, 1.0, sampler, counts),
+                    None => self.secondary(refl, next, depth, weight, 1.0, sample, counts),
                     Some(t) => {
                         let cos = if n1 <= n2 { -ray.dir.dot(sp.ns) } else { -t.dot(sp.ns) };
                         let f = schlick(cos, n1, n2);
                         let tint = if sp.front { *tint } else { Vec3::ONE };
-                        let reflected = self.secondary(refl, next, depth, weight, f, sampler, counts) * f;
+                        let reflected = self.secondary(refl, next, depth, weight, f, sample, counts) * f;
                         let transmitted = self.secondary_tinted(
                             Ray::new(sp.below(), t),
                             next,
                             depth,
                             weight,
                             tint * (1.0 - f),
-                            sampler,
+                            sample,
                             counts,
                         );
                         reflected + transmitted
@@ -322,7 +347,7 @@ impl<'a> Integrator<'a> {
         depth: u32,
         weight: Vec3,
         factor: f32,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let w = weight * factor;
@@ -330,7 +355,7 @@ impl<'a> Integrator<'a> {
             return Vec3::ZERO;
         }
         counts.secondary += 1;
-        self.radiance(&ray, cone, depth + 1, w, sampler, counts)
+        self.radiance(&ray, cone, depth + 1, w, sample, counts)
     }
 
     /// Traces a secondary ray and multiplies the result by `tint`.
@@ -343,7 +368,7 @@ impl<'a> Integrator<'a> {
         depth: u32,
         weight: Vec3,
         tint: Vec3,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let w = weight * tint;
@@ -351,7 +376,7 @@ impl<'a> Integrator<'a> {
             return Vec3::ZERO;
         }
         counts.secondary += 1;
-        tint * self.radiance(&ray, cone, depth + 1, w, sampler, counts)
+        tint * self.radiance(&ray, cone, depth + 1, w, sample, counts)
     }
 
     /// Direct light from every light source at a Phong surface.
@@ -364,7 +389,7 @@ impl<'a> Integrator<'a> {
         specular: Vec3,
         shininess: f32,
         depth: u32,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
@@ -374,8 +399,8 @@ impl<'a> Integrator<'a> {
         let spec = specular * ((shininess + 2.0) / (2.0 * PI));
         let mirrored_view = reflect(view_dir, sp.ns);
         let origin = sp.above();
-        let depth_sampler = sampler.child(depth);
-        let grid = ceil_sqrt(self.light_samples);
+        let depth_sampler = sample.pixel.child(depth);
+        let first = sample.index.wrapping_mul(self.light_samples);
         let mut total = Vec3::ZERO;
         for (index, light) in scene.lights.iter().enumerate() {
             let area = light.is_area();
@@ -387,7 +412,11 @@ impl<'a> Integrator<'a> {
             };
             let mut sum = Vec3::ZERO;
             for j in 0..n {
-                let u = if area { stratified_square_grid(j, grid, &light_sampler) } else { Vec2::splat(0.5) };
+                let u = if area {
+                    self.light_sample(first.wrapping_add(j), &light_sampler)
+                } else {
+                    Vec2::splat(0.5)
+                };
                 let Some(ls) = light.sample(sp.p, u) else { continue };
                 let cos = sp.ns.dot(ls.dir);
                 if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
@@ -492,6 +521,24 @@ mod tests {
         assert_eq!(sp.ng, Vec3::NEG_Z);
         assert_eq!(sp.ns, Vec3::NEG_Z);
         assert!(sp.above().z < sp.p.z && sp.below().z > sp.p.z);
+    }
+
+    #[test]
+    fn light_samples_are_stratified_over_the_whole_pixel() {
+        let scene = one_triangle([Vec3::Z; 3]);
+        let settings = RenderSettings { spp: 4, light_samples: 4, ..Default::default() };
+        let integrator = Integrator::new(&scene, &settings);
+        let sampler = Sampler::pixel(5, 6, 7).child(0).child(0);
+        // The 4 camera samples × 4 shadow rays fill the 4 × 4 strata once each.
+        let mut seen = [false; 16];
+        for camera_sample in 0..4 {
+            for j in 0..4 {
+                let u = integrator.light_sample(camera_sample * 4 + j, &sampler);
+                let cell = (u.y * 4.0) as usize * 4 + (u.x * 4.0) as usize;
+                assert!(!seen[cell], "stratum {cell} twice");
+                seen[cell] = true;
+            }
+        }
     }
 
     #[test]

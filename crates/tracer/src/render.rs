@@ -4,7 +4,7 @@
 //! OWNER: shading helper.
 
 use crate::cameras::Camera;
-use crate::integrator::{Integrator, RayCone, RayCounts};
+use crate::integrator::{Integrator, RayCone, RayCounts, SampleId};
 use crate::math;
 use crate::sampling::{Sampler, ceil_sqrt, stratified_square};
 use crate::scene::Scene;
@@ -190,12 +190,12 @@ pub fn render_tile_stats(
     let inv_spp = 1.0 / spp as f32;
     for y in tile.y..tile.y + tile.h {
         for x in tile.x..tile.x + tile.w {
+            let pixel = Sampler::pixel(x, y, settings.seed);
             let mut sum = Vec3::ZERO;
             for s in 0..spp {
                 let o = pixel_offset(x, y, s, spp, settings.seed);
                 let ray = camera.ray((x as f32 + o.x) / w, (y as f32 + o.y) / h);
-                let sampler = Sampler::new(x, y, s, settings.seed);
-                sum += integrator.trace(&ray, cone, &sampler, &mut counts);
+                sum += integrator.trace(&ray, cone, &SampleId { pixel, index: s }, &mut counts);
             }
             let c = sum * inv_spp;
             out.extend_from_slice(&[encode_srgb8_fast(c.x), encode_srgb8_fast(c.y), encode_srgb8_fast(c.z)]);
