@@ -79,6 +79,17 @@ impl RayCone {
         (self.width + self.spread * t).abs()
     }
 
+    /// The cone of a mirror-reflected ray leaving a hit at distance `t` on a
+    /// surface of curvature `k`: across a footprint of width `w` the normal
+    /// turns by about `k·w`, so reflected directions fan out by `2·k·w` more.
+    /// (Concave and convex surfaces are treated alike, erring on the side of
+    /// blur rather than aliasing.)
+    #[inline]
+    pub fn reflected(&self, t: f32, k: f32) -> Self {
+        let w = self.width_at(t);
+        Self { width: w, spread: self.spread + 2.0 * k * w }
+    }
+
     /// The cone of a secondary ray leaving a hit at distance `t`.
     #[inline]
     pub fn after(&self, t: f32) -> Self {
@@ -238,6 +249,13 @@ impl<'a> Integrator<'a> {
         Self { scene, max_depth: settings.max_depth, light_samples, light_grid: ceil_sqrt(per_pixel) }
     }
 
+    /// Curvature estimate of triangle `prim` (see [`triangle_curvature`]).
+    #[inline]
+    fn curvature(&self, prim: u32) -> f32 {
+        let i = prim as usize;
+        triangle_curvature(&self.scene.triangles[i].v, &self.scene.shading[i].normals)
+    }
+
     /// Point `j` of the pixel's stratified set of area-light samples.
     #[inline]
     fn light_sample(&self, j: u32, sampler: &Sampler) -> Vec2 {
@@ -286,7 +304,7 @@ impl<'a> Integrator<'a> {
                     let dir = sp.reflect(ray.dir);
                     c += self.secondary(
                         Ray::new(sp.above(), dir),
-                        cone.after(hit.t),
+                        cone.reflected(hit.t, self.curvature(hit.prim)),
                         depth,
                         weight,
                         r,
@@ -300,7 +318,7 @@ impl<'a> Integrator<'a> {
                 let dir = sp.reflect(ray.dir);
                 self.secondary_tinted(
                     Ray::new(sp.above(), dir),
-                    cone.after(hit.t),
+                    cone.reflected(hit.t, self.curvature(hit.prim)),
                     depth,
                     weight,
                     *tint,
@@ -312,14 +330,15 @@ impl<'a> Integrator<'a> {
                 let ior = if *ior > 0.0 && ior.is_finite() { *ior } else { 1.0 };
                 let (n1, n2) = if sp.front { (1.0, ior) } else { (ior, 1.0) };
                 let next = cone.after(hit.t);
+                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
                 let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
                 match refract(ray.dir, sp.ns, n1 / n2) {
-                    None => self.secondary(refl, next, depth, weight, 1.0, sample, counts),
+                    None => self.secondary(refl, mirrored, depth, weight, 1.0, sample, counts),
                     Some(t) => {
                         let cos = if n1 <= n2 { -ray.dir.dot(sp.ns) } else { -t.dot(sp.ns) };
                         let f = schlick(cos, n1, n2);
                         let tint = if sp.front { *tint } else { Vec3::ONE };
-                        let reflected = self.secondary(refl, next, depth, weight, f, sample, counts) * f;
+                        let reflected = self.secondary(refl, mirrored, depth, weight, f, sample, counts) * f;
                         let transmitted = self.secondary_tinted(
                             Ray::new(sp.below(), t),
                             next,
@@ -441,6 +460,21 @@ impl<'a> Integrator<'a> {
     }
 }
 
+/// Curvature of a smooth-shaded triangle estimated from its vertex normals:
+/// the largest change of normal per unit length along an edge (0 for flat
+/// shading, `1/r` on a sphere of radius `r`).
+#[inline]
+pub fn triangle_curvature(v: &[Vec3; 3], normals: &[Vec3; 3]) -> f32 {
+    let mut k = 0.0f32;
+    for (a, b) in [(0, 1), (1, 2), (2, 0)] {
+        let len = (v[a] - v[b]).length();
+        if len > 0.0 {
+            k = k.max((normals[a] - normals[b]).length() / len);
+        }
+    }
+    if k.is_finite() { k } else { 0.0 }
+}
+
 /// `x^s` for the Phong lobe: exponentiation by squaring for integer exponents
 /// up to 4096 (the common case, a handful of multiplications), `powf`
 /// otherwise. Both are deterministic.
@@ -549,6 +583,25 @@ mod tests {
                 assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
             }
         }
+    }
+
+    #[test]
+    fn curved_mirrors_widen_the_reflected_cone() {
+        // A small triangle on a sphere of radius 2.
+        let n = [
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(0.1, 0.0, 1.0).normalize(),
+            Vec3::new(0.0, 0.1, 1.0).normalize(),
+        ];
+        let v = n.map(|d| d * 2.0);
+        let k = triangle_curvature(&v, &n);
+        assert!((k - 0.5).abs() < 0.01, "curvature {k}");
+        assert_eq!(triangle_curvature(&v, &[Vec3::Z; 3]), 0.0, "flat shading");
+        let c = RayCone::primary(0.01);
+        let flat = c.reflected(10.0, 0.0);
+        assert_eq!(flat, c.after(10.0));
+        let curved = c.reflected(10.0, k);
+        assert!((curved.spread - (0.01 + 2.0 * 0.5 * 0.1)).abs() < 1e-3);
     }
 
     #[test]
