@@ -80,13 +80,58 @@ pub struct Frame {
     pub rgb: Vec<u8>,
 }
 
+/// Why a tile's pixels cannot be copied into a frame.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BlitError {
+    /// The tile reaches outside the frame.
+    #[error("tile {tile:?} does not fit in a {width}×{height} frame")]
+    OutOfBounds {
+        /// The offending tile.
+        tile: Tile,
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+    },
+    /// The pixel data does not hold `w × h × 3` bytes.
+    #[error("tile {tile:?} needs {expected} bytes, got {got}")]
+    WrongLength {
+        /// The tile.
+        tile: Tile,
+        /// `w × h × 3`.
+        expected: usize,
+        /// Bytes supplied.
+        got: usize,
+    },
+}
+
 impl Frame {
+    /// Like [`Frame::blit`], but checks the tile and the data first (for tiles
+    /// received over the network) and copies nothing when they do not fit.
+    pub fn try_blit(&mut self, tile: Tile, rgb: &[u8]) -> Result<(), BlitError> {
+        let fits_x = tile.x.checked_add(tile.w).is_some_and(|e| e <= self.width);
+        let fits_y = tile.y.checked_add(tile.h).is_some_and(|e| e <= self.height);
+        if !fits_x || !fits_y {
+            return Err(BlitError::OutOfBounds { tile, width: self.width, height: self.height });
+        }
+        let expected = tile.pixel_count() * 3;
+        if rgb.len() != expected {
+            return Err(BlitError::WrongLength { tile, expected, got: rgb.len() });
+        }
+        self.blit(tile, rgb);
+        Ok(())
+    }
+
     /// A black frame.
     pub fn new(width: u32, height: u32) -> Self {
         Self { width, height, rgb: vec![0; width as usize * height as usize * 3] }
     }
 
     /// Copies a tile's pixels (as returned by [`render_tile`]) into place.
+    ///
+    /// # Panics
+    /// If the tile does not lie inside the frame or `rgb` has the wrong length;
+    /// use [`Frame::try_blit`] for tiles that arrive from elsewhere.
     pub fn blit(&mut self, tile: Tile, rgb: &[u8]) {
         let row = tile.w as usize * 3;
         for j in 0..tile.h as usize {
@@ -287,6 +332,21 @@ mod tests {
         for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 1e-30, 1e30] {
             assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
         }
+    }
+
+    #[test]
+    fn try_blit_rejects_tiles_that_do_not_fit() {
+        let mut f = Frame::new(4, 3);
+        let t = Tile { x: 2, y: 1, w: 2, h: 2 };
+        assert_eq!(f.try_blit(t, &[7; 12]), Ok(()));
+        assert_eq!(f.rgb[(4 + 2) * 3], 7);
+        assert_eq!(f.rgb[0], 0);
+        assert!(matches!(f.try_blit(Tile { x: 3, ..t }, &[0; 12]), Err(BlitError::OutOfBounds { .. })));
+        assert!(matches!(
+            f.try_blit(Tile { x: u32::MAX, ..t }, &[0; 12]),
+            Err(BlitError::OutOfBounds { .. })
+        ));
+        assert!(matches!(f.try_blit(t, &[0; 11]), Err(BlitError::WrongLength { .. })));
     }
 
     #[test]
