@@ -46,6 +46,10 @@ use std::f32::consts::PI;
 /// Branches whose contribution to the pixel falls below this are not traced.
 pub const MIN_THROUGHPUT: f32 = 1e-3;
 
+/// Recursion depth is capped here whatever the settings say, so a scene file
+/// cannot overflow the stack.
+pub const MAX_DEPTH_LIMIT: u32 = 64;
+
 /// Shadow rays stop this fraction short of the light sample.
 const SHADOW_SHORTEN: f32 = 1.0 - 1e-3;
 
@@ -241,12 +245,13 @@ pub struct Integrator<'a> {
 }
 
 impl<'a> Integrator<'a> {
-    /// An integrator with the recursion depth and light sample count of
-    /// `settings`.
+    /// An integrator with the recursion depth (at most [`MAX_DEPTH_LIMIT`])
+    /// and light sample count of `settings`.
     pub fn new(scene: &'a Scene, settings: &RenderSettings) -> Self {
         let light_samples = settings.light_samples.max(1);
         let per_pixel = light_samples.saturating_mul(settings.spp.max(1)).min(1 << 24);
-        Self { scene, max_depth: settings.max_depth, light_samples, light_grid: ceil_sqrt(per_pixel) }
+        let max_depth = settings.max_depth.min(MAX_DEPTH_LIMIT);
+        Self { scene, max_depth, light_samples, light_grid: ceil_sqrt(per_pixel) }
     }
 
     /// Curvature estimate of triangle `prim` (see [`triangle_curvature`]).

@@ -573,3 +573,35 @@ fn shading_throughput() {
         );
     }
 }
+
+#[test]
+fn facing_mirrors_with_unbounded_depth_terminate() {
+    let mut b = Builder::default();
+    let m = b.material(Material::Mirror { tint: Vec3::ONE });
+    for z in [-5.0, 15.0] {
+        b.quad(
+            [
+                Vec3::new(-5e3, -5e3, z),
+                Vec3::new(5e3, -5e3, z),
+                Vec3::new(5e3, 5e3, z),
+                Vec3::new(-5e3, 5e3, z),
+            ],
+            1.0,
+            m,
+        );
+    }
+    b.parts.background = Vec3::ONE;
+    let settings = RenderSettings { width: 8, height: 6, max_depth: u32::MAX, ..Default::default() };
+    let scene = b.build(Camera::default(), settings);
+    let (rgb, counts) = isin_tracer::render::render_tile_stats(
+        &scene,
+        &scene.camera,
+        &settings,
+        Tile { x: 1, y: 1, w: 2, h: 2 },
+    );
+    // The ray bounces between the mirrors until the depth cap, then sees black.
+    // (The pixels are chosen off the quads' diagonal, the edge shared by their
+    // two triangles.)
+    assert_eq!(rgb, vec![0; 12]);
+    assert_eq!(counts.secondary, 4 * isin_tracer::integrator::MAX_DEPTH_LIMIT as u64);
+}
