@@ -428,20 +428,22 @@ impl<'a> Integrator<'a> {
         let mut total = Vec3::ZERO;
         for (index, light) in scene.lights.iter().enumerate() {
             let area = light.is_area();
-            let (n, light_sampler) = if area {
-                // Every area light gets its own stratified, jittered set.
-                (self.light_samples, depth_sampler.child(index as u32))
+            // Area lights: skip them when the point is behind the emitter, and
+            // give each its own stratified, jittered set of samples.
+            let (n, light_sampler, normal) = if area {
+                let Some(normal) = light.area_normal_towards(sp.p) else { continue };
+                (self.light_samples, depth_sampler.child(index as u32), normal)
             } else {
-                (1, depth_sampler)
+                (1, depth_sampler, Vec3::ZERO)
             };
             let mut sum = Vec3::ZERO;
             for j in 0..n {
-                let u = if area {
-                    self.light_sample(first.wrapping_add(j), &light_sampler)
+                let ls = if area {
+                    light.sample_area(sp.p, self.light_sample(first.wrapping_add(j), &light_sampler), normal)
                 } else {
-                    Vec2::splat(0.5)
+                    light.sample(sp.p, Vec2::splat(0.5))
                 };
-                let Some(ls) = light.sample(sp.p, u) else { continue };
+                let Some(ls) = ls else { continue };
                 let cos = sp.ns.dot(ls.dir);
                 if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
                     continue;
