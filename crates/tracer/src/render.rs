@@ -1,7 +1,18 @@
 //! Tiles and frames: [`render_tile`] is the unit of work the cluster hands out;
 //! [`render_frame`] renders a whole image on a rayon thread pool.
 //!
-//! OWNER: shading helper.
+//! Pixel `(x, y)` of a `W × H` image averages `spp` camera rays through
+//! `camera.ray((x + jx)/W, (y + jy)/H)`: with one sample `(jx, jy)` is the pixel
+//! centre (the paper's mapping); with more they are stratified, jittered points
+//! of the pixel ([`crate::sampling`]). Each ray carries a texture-filtering cone
+//! whose spread is one pixel's angle divided by `⌈√spp⌉`, the side of a
+//! sample's stratum. The average (linear RGB) is clamped to `[0, 1]` and
+//! encoded with the exact sRGB transfer function to RGB8.
+//!
+//! The random numbers of a pixel are keyed by the pixel, the sample index and
+//! [`RenderSettings::seed`] only, so any tiling on any number of threads or
+//! machines produces the same bytes. The `_stats` variants also count the rays
+//! traced, for Mrays/s figures.
 
 use crate::cameras::Camera;
 use crate::integrator::{Integrator, RayCone, RayCounts, SampleId};
@@ -206,7 +217,8 @@ pub fn pixel_offset(x: u32, y: u32, sample: u32, spp: u32, seed: u64) -> Vec2 {
     }
 }
 
-/// Sub-stream tag of the camera jitter (integrator streams use the sample index).
+/// Sub-stream tag of the camera jitter (the integrator's streams are tagged
+/// with the recursion depth, far below this).
 const CAMERA_STREAM: u32 = u32::MAX;
 
 /// Renders the pixels of `tile` (which must lie inside the `settings` image):
