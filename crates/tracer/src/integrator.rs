@@ -30,8 +30,15 @@
 //! **Texture footprints (ray cones).** A primary ray carries a cone whose
 //! spread is the angle of a pixel (`Camera::pixel_spread`); its width grows
 //! linearly with the distance travelled, through mirror bounces and refraction
-//! alike (surface curvature is ignored). At a hit the UV footprint is
-//! `width / |cos θ| × √(uv area / world area)` of the triangle.
+//! alike; mirror reflection off a curved surface (curvature estimated from the
+//! vertex normals) widens it further. At a hit the cone cuts an ellipse out of
+//! the surface, `width` across and `width / |cos θ|` along the view direction;
+//! the bounding box of that ellipse in UV space (through the gradients of `u`
+//! and `v` over the triangle) is the footprint the texture is filtered over —
+//! exactly, per axis, for the checker; by its larger side for mip-mapped
+//! images. (For an isotropic UV mapping the larger side is
+//! `width / |cos θ| × √(uv area / world area)`.) So a receding checker floor
+//! stays sharp across the view while blurring to its mean colour with depth.
 
 use crate::geometry::Ray;
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
@@ -199,6 +206,38 @@ impl SurfacePoint {
         cone_width / self.cos_view.max(1e-4) * self.uv_per_world
     }
 
+    /// The UV footprint of a ray cone of width `cone_width` arriving along
+    /// unit direction `dir`, as the `(u, v)` extents of the bounding box of
+    /// the ellipse the cone cuts out of the triangle's plane: its minor axis
+    /// (perpendicular to the ray) is `cone_width` long, its major axis (along
+    /// the ray's projection) `cone_width / |cos θ|`. Both are mapped to UV
+    /// through the gradients of `u` and `v` over the triangle `v` with
+    /// texture coordinates `uvs`. For isotropic UV mappings the larger extent
+    /// equals [`SurfacePoint::uv_width`].
+    pub fn uv_footprint(&self, v: &[Vec3; 3], uvs: &[Vec2; 3], dir: Vec3, cone_width: f32) -> Vec2 {
+        let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
+        let n = e1.cross(e2);
+        let n2 = n.length_squared();
+        if n2 <= 0.0 || !n2.is_finite() {
+            return Vec2::ZERO;
+        }
+        let (d1, d2) = (uvs[1] - uvs[0], uvs[2] - uvs[0]);
+        // Gradient of a linear function with increments f1, f2 along e1, e2.
+        let (a, b) = (e2.cross(n), n.cross(e1));
+        let grad_u = (a * d1.x + b * d2.x) / n2;
+        let grad_v = (a * d1.y + b * d2.y) / n2;
+        // In-plane ellipse axes: minor ⟂ ray, major along its projection.
+        let minor = dir.cross(self.ng);
+        let minor = if minor.length_squared() > 1e-12 { minor.normalize() } else { e1.normalize() };
+        let major = self.ng.cross(minor);
+        let stretch = 1.0 / self.cos_view.max(1e-4);
+        let extent = |g: Vec3| {
+            let (ga, gb) = (g.dot(major) * stretch, g.dot(minor));
+            cone_width * (ga * ga + gb * gb).sqrt()
+        };
+        Vec2::new(extent(grad_u), extent(grad_v))
+    }
+
     /// Origin for a ray leaving on the side the incoming ray came from.
     #[inline]
     fn above(&self) -> Vec3 {
@@ -298,7 +337,16 @@ impl<'a> Integrator<'a> {
                 let albedo = match *albedo {
                     Albedo::Constant(c) => c,
                     Albedo::Texture { texture, tint } => match scene.textures.get(texture as usize) {
-                        Some(t) => tint * t.eval(sp.uv, sp.uv_width(cone_width)),
+                        Some(t) => {
+                            let i = hit.prim as usize;
+                            let fp = sp.uv_footprint(
+                                &scene.triangles[i].v,
+                                &scene.shading[i].uvs,
+                                ray.dir,
+                                cone_width,
+                            );
+                            tint * t.eval_rect(sp.uv, fp)
+                        }
                         None => tint,
                     },
                 };
@@ -590,6 +638,38 @@ mod tests {
                 assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
             }
         }
+    }
+
+    #[test]
+    fn uv_footprints_stretch_along_the_view_direction() {
+        // A triangle in the z = 0 plane whose UVs are its x and y coordinates.
+        let v = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let uvs = [Vec2::ZERO, Vec2::X, Vec2::Y];
+        let scene = Scene::new(SceneParts {
+            triangles: vec![Triangle { v }],
+            shading: vec![TriangleShading { normals: [Vec3::Z; 3], uvs, material: 0 }],
+            ..Default::default()
+        });
+        // Seen at a grazing angle while looking along +y: stretched in v only.
+        let dir = Vec3::new(0.0, 1.0, -0.25).normalize();
+        let ray = Ray::new(Vec3::new(0.2, 0.2, 0.0) - dir * 3.0, dir);
+        let hit = scene.intersect(&ray, 0.0, f32::INFINITY).unwrap();
+        let sp = SurfacePoint::new(&scene, &ray, &hit);
+        let cos = 0.25 / (1.0f32 + 0.0625).sqrt();
+        assert!((sp.cos_view - cos).abs() < 1e-5);
+        let fp = sp.uv_footprint(&v, &uvs, dir, 0.01);
+        assert!((fp.x - 0.01).abs() < 1e-6, "{fp:?}");
+        assert!((fp.y - 0.01 / cos).abs() < 1e-4, "{fp:?}");
+        assert!((fp.y - sp.uv_width(0.01)).abs() < 1e-4, "the major extent is the isotropic width");
+        // Looking straight down: a circle.
+        let ray = Ray::new(Vec3::new(0.2, 0.2, 1.0), Vec3::NEG_Z);
+        let hit = scene.intersect(&ray, 0.0, f32::INFINITY).unwrap();
+        let sp = SurfacePoint::new(&scene, &ray, &hit);
+        let fp = sp.uv_footprint(&v, &uvs, ray.dir, 0.01);
+        assert!((fp - Vec2::splat(0.01)).abs().max_element() < 1e-6, "{fp:?}");
+        // UVs twice as dense in u: twice the u extent.
+        let fp = sp.uv_footprint(&v, &[Vec2::ZERO, Vec2::new(2.0, 0.0), Vec2::Y], ray.dir, 0.01);
+        assert!((fp - Vec2::new(0.02, 0.01)).abs().max_element() < 1e-6, "{fp:?}");
     }
 
     #[test]
