@@ -117,7 +117,8 @@ pub struct Session {
     /// Resolution divisor of the tiles in `owners`.
     owners_scale: u32,
     recorder: Option<Recorder>,
-    completed: Vec<FrameReport>,
+    /// Completed passes not yet reported, with the input time of fast passes.
+    completed: Vec<(FrameReport, Option<Instant>)>,
     completions: VecDeque<Instant>,
     last_report: Option<FrameReport>,
     bytes_window: VecDeque<(Instant, u64)>,
@@ -339,9 +340,9 @@ impl Session {
                         pass: f.pass,
                         spp: self.view_spp,
                         render_time: elapsed,
-                        latency: f.input_at.map(|t| now.saturating_duration_since(t)),
+                        latency: None, // measured when it is on screen
                     };
-                    self.completed.push(report);
+                    self.completed.push((report, f.input_at));
                     self.last_report = Some(report);
                     self.completions.push_back(now);
                     self.in_flight = None;
@@ -371,9 +372,20 @@ impl Session {
         !self.completed.is_empty()
     }
 
-    /// Passes completed since the last call (call after presenting them).
-    pub fn take_completed(&mut self) -> Vec<FrameReport> {
-        std::mem::take(&mut self.completed)
+    /// Passes completed since the last call; call right after presenting
+    /// them, at `now`, which ends their motion-to-photon latency.
+    pub fn take_completed(&mut self, now: Instant) -> Vec<FrameReport> {
+        let reports: Vec<FrameReport> = std::mem::take(&mut self.completed)
+            .into_iter()
+            .map(|(r, input_at)| FrameReport {
+                latency: input_at.map(|t| now.saturating_duration_since(t)),
+                ..r
+            })
+            .collect();
+        if let Some(last) = reports.last() {
+            self.last_report = Some(*last);
+        }
+        reports
     }
 
     /// True while a pass is being rendered.
@@ -532,7 +544,7 @@ mod tests {
         }
         assert_eq!(fake.count(), 3, "no pass after max_spp");
         assert!(!s.busy());
-        let reports = s.take_completed();
+        let reports = s.take_completed(t);
         assert_eq!(reports.iter().map(|r| (r.pass, r.spp)).collect::<Vec<_>>(), [(0, 1), (1, 4), (2, 8)]);
         assert!(reports.iter().all(|r| r.view == 0));
         // Black and white refinement passes averaged in linear light: sRGB 188.
@@ -571,10 +583,14 @@ mod tests {
         fake.deliver(&moved, 30);
         s.pump(t0 + Duration::from_millis(20));
         assert_eq!(s.image().display()[0] & 0xff, 30);
-        let reports = s.take_completed();
+        let reports = s.take_completed(t0 + Duration::from_millis(25));
         let last = reports.last().unwrap();
         assert_eq!((last.view, last.pass, last.spp), (1, 0, 1));
-        assert_eq!(last.latency, Some(Duration::from_millis(20)), "latency counts from the first input");
+        assert_eq!(
+            last.latency,
+            Some(Duration::from_millis(25)),
+            "latency runs from the first input to the frame on screen"
+        );
         assert_eq!(s.view(), 1);
     }
 
@@ -610,7 +626,7 @@ mod tests {
         }
         assert!(s.playback_finished());
         assert_eq!(fake.count(), 4, "three moving frames, then refinement of the last camera");
-        let views: Vec<(u32, u32)> = s.take_completed().iter().map(|r| (r.view, r.pass)).collect();
+        let views: Vec<(u32, u32)> = s.take_completed(t).iter().map(|r| (r.view, r.pass)).collect();
         assert_eq!(views, [(0, 0), (1, 0), (2, 0)]);
     }
 

@@ -222,7 +222,7 @@ impl App<'_> {
         }
         gfx.window.pre_present_notify();
         buffer.present().map_err(err)?;
-        for report in self.session.take_completed() {
+        for report in self.session.take_completed(Instant::now()) {
             (self.options.on_event)(&ViewerEvent::FramePresented(report));
         }
         Ok(())
