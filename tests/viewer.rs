@@ -200,7 +200,10 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     let (_xvfb, display) = match start_xvfb() {
         Ok(x) => x,
         Err(why) => {
-            println!("SKIPPED view_moves_on_key_presses_and_quits_on_escape: {why}");
+            // Written to the real stderr so the reason shows without --nocapture.
+            use std::io::Write;
+            let _ =
+                writeln!(std::io::stderr(), "SKIPPED view_moves_on_key_presses_and_quits_on_escape: {why}");
             return;
         }
     };
