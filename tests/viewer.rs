@@ -23,11 +23,19 @@ fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Kills the child (our own process, by handle) when dropped.
+/// Stops the child (our own process, by handle) when dropped: SIGTERM first,
+/// so an X server removes its lock file, then SIGKILL if it lingers.
 struct Reaper(Child);
 
 impl Drop for Reaper {
     fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = Command::new("kill").args(["-TERM", &self.0.id().to_string()]).status();
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while Instant::now() < deadline && matches!(self.0.try_wait(), Ok(None)) {
+                std::thread::sleep(Duration::from_millis(20)); // polling interval
+            }
+        }
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
@@ -50,40 +58,34 @@ fn display_answers(display: &str) -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// Starts Xvfb on a free display number and waits until it accepts
-/// connections; `Err` with the reason when it cannot.
+/// Starts Xvfb on a display number it picks itself (`-displayfd`: it writes
+/// the number once it accepts connections); `Err` with the reason when it cannot.
 fn start_xvfb() -> Result<(Reaper, String), String> {
     if !tool_exists("Xvfb") {
         return Err("Xvfb is not installed".into());
     }
-    assert!(tool_exists("xdpyinfo"), "xdpyinfo (x11-utils) is needed to wait for Xvfb");
-    let first = 90 + (std::process::id() % 50);
-    for n in (first..first + 40).map(|n| n % 200 + 20) {
-        if Path::new(&format!("/tmp/.X{n}-lock")).exists()
-            || Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
-        {
-            continue;
-        }
-        let display = format!(":{n}");
-        let child = Command::new("Xvfb")
-            .args([&display, "-screen", "0", "640x480x24", "-nolisten", "tcp"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .map_err(|e| format!("cannot run Xvfb: {e}"))?;
-        let mut xvfb = Reaper(child);
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while Instant::now() < deadline {
-            if display_answers(&display) {
-                return Ok((xvfb, display));
-            }
-            if xvfb.0.try_wait().ok().flatten().is_some() {
-                break; // lost a race for this display number: try the next
-            }
-            std::thread::sleep(Duration::from_millis(50)); // polling interval, not synchronisation
-        }
+    let mut child = Command::new("Xvfb")
+        .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .map_err(|e| format!("cannot run Xvfb: {e}"))?;
+    let stdout = child.stdout.take().ok_or("no pipe to Xvfb")?;
+    let xvfb = Reaper(child);
+    let (tx, rx) = channel();
+    std::thread::spawn(move || {
+        let mut line = String::new();
+        let _ = BufReader::new(stdout).read_line(&mut line);
+        let _ = tx.send(line);
+    });
+    let line =
+        rx.recv_timeout(Duration::from_secs(30)).map_err(|_| "Xvfb did not report a display".to_string())?;
+    let n: u32 = line.trim().parse().map_err(|_| format!("Xvfb could not start (it said {line:?})"))?;
+    let display = format!(":{n}");
+    if tool_exists("xdpyinfo") && !display_answers(&display) {
+        return Err(format!("Xvfb reported {display} but it does not answer"));
     }
-    Err("Xvfb did not start on any display number tried".into())
+    Ok((xvfb, display))
 }
 
 /// A parsed `--print-frames` line.
@@ -240,7 +242,7 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
             }
         }
     });
-    let child = Reaper(child);
+    let mut child = Reaper(child);
 
     // The window exists once xdotool finds it by name.
     let deadline = Instant::now() + WAIT;
@@ -253,7 +255,15 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
         if let Some(id) = String::from_utf8_lossy(&out.stdout).split_whitespace().next() {
             break id.to_string();
         }
-        assert!(Instant::now() < deadline, "the viewer window never appeared");
+        if let Some(status) = child.0.try_wait().unwrap() {
+            let said: Vec<String> = lines.try_iter().collect();
+            panic!("the viewer exited ({status}) before its window appeared on {display}: {said:#?}");
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the viewer window never appeared on {display}; xdotool said {:?}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         std::thread::sleep(Duration::from_millis(50)); // polling interval
     };
     let mut v = Viewer { child, lines, log: Vec::new(), display, window };
