@@ -16,8 +16,9 @@
 //! - [`accumulate`]: the displayed image; tiles land in it, passes of one view
 //!   are averaged in linear light, a new view paints over the old one.
 //! - [`source`]: the [`FrameSource`] interface between the window and whatever
-//!   renders. [`LocalSource`] ([`local`]) renders in-process on a rayon pool; a
-//!   cluster-backed source implements the same trait.
+//!   renders. [`LocalSource`] ([`local`]) renders in-process on a rayon pool;
+//!   [`ChannelSource`] ([`channel`]) is fed from another thread — the adapter
+//!   for the cluster's viewer actor.
 //! - [`path`]: camera paths — recorded by `isin view --record`, replayed by
 //!   `isin fly` (headless) and `isin view --play` (in the window, measuring
 //!   motion-to-photon latency); [`stats`] summarises the timings.
@@ -28,6 +29,7 @@
 //! in until [`Quality::max_spp`] — see [`session`].
 
 pub mod accumulate;
+pub mod channel;
 pub mod error;
 pub mod input;
 pub mod local;
@@ -38,6 +40,7 @@ pub mod source;
 pub mod stats;
 pub mod window;
 
+pub use channel::{ChannelSource, SourceFeed, channel_source};
 pub use error::ViewerError;
 pub use input::{Command, Controls, Move};
 pub use local::LocalSource;

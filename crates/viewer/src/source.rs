@@ -13,7 +13,8 @@
 //! # Writing a source
 //!
 //! The window runs on the main thread and must never block, so a networked
-//! source runs its async side (e.g. an actix system) on a thread of its own:
+//! source runs its async side (e.g. an actix system) on a thread of its own.
+//! [`crate::channel_source`] packages the pattern below; by hand:
 //!
 //! - [`FrameSource::request`] only posts the request to that thread (e.g.
 //!   `Addr::do_send`) and remembers `frame_id` so replies can be tagged with it;
