@@ -3,7 +3,7 @@
 //!
 //! OWNER: scene helper.
 //!
-//! The format is described in [`format`]; `scenes/paper.toml` opens with a
+//! The format is described in [`format`](mod@format); `scenes/paper.toml` opens with a
 //! commented example of every section.
 //!
 //! Loading never touches the file system: files a scene refers to (meshes,
