@@ -831,6 +831,42 @@ fn malformed_gltf_accessors_are_errors_not_panics() {
     let mut assets = Mem::default().with("models/quad.gltf", quad_gltf(PLAIN, &buffer, ""));
     let e = err(GLTF_SCENE, &mut assets);
     assert_mentions(&e, &["test.toml:3", "models/quad.gltf"]);
+
+    let (data, _) = quad_buffer();
+    let buffer = format!(
+        r#"{{"byteLength": {}, "uri": "data:application/octet-stream;base64,{}"}}"#,
+        data.len(),
+        b64(&data)
+    );
+    let good = quad_gltf(PLAIN, &buffer, "");
+    let mutations = [
+        (r#""count": 4, "type": "VEC3", "min""#, r#""count": 4, "type": "VEC2", "min""#),
+        (
+            r#""componentType": 5126, "count": 4, "type": "VEC3", "min""#,
+            r#""componentType": 5121, "count": 4, "type": "VEC3", "min""#,
+        ),
+        (r#""componentType": 5123, "count": 6"#, r#""componentType": 5123, "count": 600"#),
+        (r#""componentType": 5123, "count": 6"#, r#""componentType": 5123, "count": 18446744073709551615"#),
+        (r#""byteOffset": 0, "byteLength""#, r#""byteOffset": 0, "byteStride": 4, "byteLength""#),
+        (r#""nodes": [0]}"#, r#""nodes": [7]}"#),
+    ];
+    for (from, to) in mutations {
+        assert!(good.contains(from), "{from}");
+        let mut assets = Mem::default().with("models/quad.gltf", good.replacen(from, to, 1));
+        let e = err(GLTF_SCENE, &mut assets);
+        assert_mentions(&e, &["test.toml:3", "models/quad.gltf"]);
+    }
+    // Indices beyond the vertex count.
+    let mut data = data;
+    let n = data.len();
+    data[n - 2..].copy_from_slice(&9u16.to_le_bytes());
+    let buffer = format!(
+        r#"{{"byteLength": {}, "uri": "data:application/octet-stream;base64,{}"}}"#,
+        data.len(),
+        b64(&data)
+    );
+    let mut assets = Mem::default().with("models/quad.gltf", quad_gltf(PLAIN, &buffer, ""));
+    assert_mentions(&err(GLTF_SCENE, &mut assets), &["out of range"]);
 }
 
 fn png_2x2() -> Vec<u8> {

@@ -194,6 +194,14 @@ impl<'a> Builder<'a> {
         if self.parts.triangles.is_empty() {
             return Err(SceneError::Empty { file: self.map.file.to_owned() });
         }
+        tracing::debug!(
+            file = self.map.file,
+            triangles = self.parts.triangles.len(),
+            materials = self.parts.materials.len(),
+            textures = self.parts.textures.len(),
+            lights = self.parts.lights.len(),
+            "scene parsed"
+        );
         Ok(self.parts)
     }
 
