@@ -901,8 +901,8 @@ fn gltf_base_colour_textures_load() {
 #[test]
 #[ignore = "needs MipMap from the shading branch"]
 fn image_textures_are_shared_between_references() {
-    let src = "[textures.a]\nkind = \"image\"\npath = \"t.png\"\n\n[materials.m]\nkind = \"phong\"\ntexture = \"a\"\n\n\
-               [[objects]]\nkind = \"quad\"\nmaterial = \"m\"\n";
+    let src = "[textures.a]\nkind = \"image\"\npath = \"t.png\"\n\n[textures.b]\nkind = \"image\"\npath = \"./t.png\"\n\n\
+               [materials.m]\nkind = \"phong\"\ntexture = \"b\"\n\n[[objects]]\nkind = \"quad\"\nmaterial = \"m\"\n";
     let p = load(src, &mut Mem::default().with("t.png", png_2x2())).unwrap();
     assert_eq!(p.textures.len(), 1);
     assert_eq!(
