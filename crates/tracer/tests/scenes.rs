@@ -122,7 +122,6 @@ fn check_scene(p: &SceneParts, name: &str) {
 /// Shipped scenes are read from `scenes/`; image textures need the shading
 /// branch's MipMap.
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn every_shipped_scene_loads() {
     let mut names: Vec<String> = std::fs::read_dir(scenes_dir())
         .unwrap()
@@ -138,7 +137,6 @@ fn every_shipped_scene_loads() {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn paper_scene_has_the_papers_ingredients() {
     let (p, read) = load_shipped("paper.toml");
     check_scene(&p, "paper");
@@ -157,7 +155,6 @@ fn paper_scene_has_the_papers_ingredients() {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn mesh_scene_loads_its_obj_and_gltf() {
     let (p, read) = load_shipped("mesh.toml");
     check_scene(&p, "mesh");
@@ -169,15 +166,11 @@ fn mesh_scene_loads_its_obj_and_gltf() {
     assert!(has_material(&p, |m| matches!(m, Material::Mirror { tint } if tint.x > tint.z)));
 }
 
-/// The shipped scenes' geometry, lights and cameras, loadable before image
-/// textures exist: image textures are swapped for checkers.
+/// The shipped scenes' geometry, lights and cameras.
 #[test]
-fn shipped_scenes_load_with_images_swapped_for_checkers() {
+fn shipped_scene_layouts() {
     for name in ["paper.toml", "cornell.toml", "mesh.toml"] {
         let text = std::fs::read_to_string(scenes_dir().join(name)).unwrap();
-        let text = text.replace("kind = \"image\"", "kind = \"checker\"");
-        let text: String =
-            text.lines().filter(|l| !l.starts_with("path = \"textures/")).collect::<Vec<_>>().join("\n");
         let mut assets = Dir { base: scenes_dir(), read: BTreeMap::new() };
         let p = parse_scene(name, &text, &mut assets).unwrap_or_else(|e| panic!("{e}"));
         check_scene(&p, name);
@@ -877,7 +870,6 @@ fn png_2x2() -> Vec<u8> {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn gltf_base_colour_textures_load() {
     let (data, _) = quad_buffer();
     let buffer = format!(
@@ -899,7 +891,6 @@ fn gltf_base_colour_textures_load() {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn image_textures_are_shared_between_references() {
     let src = "[textures.a]\nkind = \"image\"\npath = \"t.png\"\n\n[textures.b]\nkind = \"image\"\npath = \"./t.png\"\n\n\
                [materials.m]\nkind = \"phong\"\ntexture = \"b\"\n\n[[objects]]\nkind = \"quad\"\nmaterial = \"m\"\n";
