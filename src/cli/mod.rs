@@ -19,6 +19,7 @@ enum Command {
     /// Render a scene to a PNG file.
     Render(render::RenderArgs),
     /// Fly through a scene in a window (keyboard and mouse navigation).
+    #[command(after_help = view::KEYS_HELP)]
     View(view::ViewArgs),
     /// Replay a camera path headless: one PNG per camera, with frame times.
     Fly(fly::FlyArgs),

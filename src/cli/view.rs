@@ -21,6 +21,23 @@ use std::rc::Rc;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+/// The key bindings, shown by `isin view --help`.
+pub const KEYS_HELP: &str = "\
+Keys:
+  W / S, Up / Down          move forward / back along the view direction
+  A / D, Left / Right       turn left / right
+  R / F, PageUp / PageDown  tilt up / down
+  Q / E                     roll counter-clockwise / clockwise
+  Z / C, Shift+A / Shift+D  strafe left / right
+  Shift+W / Shift+S         strafe up / down
+  left mouse drag           look around
+  Home                      back to the scene's camera
+  F12 / P                   save a screenshot PNG (the rendered image)
+  O / Tab                   tile-ownership overlay (tile borders coloured per slave)
+  H                         status text (fps, frame time, slaves, tiles, bytes/s, transport)
+  Escape                    quit
+A held move key keeps moving; a still view refines until --max-spp samples per pixel.";
+
 /// Options of the window itself, shared by every way of starting a viewer.
 #[derive(Args, Debug, Clone)]
 pub struct WindowArgs {
