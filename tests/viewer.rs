@@ -287,14 +287,30 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     assert_eq!(own.dimensions(), (320, 240));
     own.save(artefacts.join("f12.png")).unwrap();
 
+    // The ownership overlay: tile borders (32-pixel tiles, drawn 1:1) in the
+    // colour of the render thread that made each tile. Shown from the next frame on.
+    v.press("o");
+    v.press("s");
+    v.wait_view_final(3);
+    let overlay = v.screenshot(&artefacts.join("overlay.png"));
+    let owners: Vec<[u8; 3]> = (0..2)
+        .map(|i| {
+            let c = isin_viewer::raster::owner_colour(i);
+            [(c >> 16) as u8, (c >> 8) as u8, c as u8]
+        })
+        .collect();
+    let on_border = |x: u32| (40..240).filter(|&y| owners.contains(&overlay.get_pixel(x, y).0)).count();
+    assert!(on_border(32) > 150 && on_border(63) > 150, "tile borders at x = 32 and 63 are not drawn");
+    assert!(on_border(48) < 20, "a tile's middle column is not a border ({})", on_border(48));
+
     v.press("Escape");
     let status = v.wait_exit();
     assert!(status.success(), "exit status {status:?}; output:\n{:#?}", v.log);
 
-    // The recording holds the three cameras: start, one step forward along the
-    // plane's normal, then a turn to the left about the eye.
+    // The recording holds the cameras: start, one step forward along the
+    // plane's normal, a turn to the left about the eye, a step back.
     let path = isin_viewer::CameraPath::load(&recording).unwrap();
-    assert_eq!(path.frames.len(), 3, "{path:?}");
+    assert_eq!(path.frames.len(), 4, "{path:?}");
     let cams: Vec<isin_tracer::Camera> = path.frames.iter().map(|f| f.camera()).collect();
     let step = cams[1].eye - cams[0].eye;
     assert!(
