@@ -39,7 +39,7 @@ Keys:
 A held move key keeps moving; a still view refines until --max-spp samples per pixel.";
 
 /// Options of the window itself, shared by every way of starting a viewer.
-#[derive(Args, Debug, Clone)]
+#[derive(Args, Debug, Clone, PartialEq)]
 pub struct WindowArgs {
     /// Render width in pixels (default: the scene's). The window scales the image.
     #[arg(long)]
@@ -72,6 +72,24 @@ pub struct WindowArgs {
     /// Close the window when the playback is over.
     #[arg(long, requires = "play")]
     pub exit_after_play: bool,
+}
+
+impl Default for WindowArgs {
+    /// The same as an empty command line (for callers that open a viewer
+    /// without `isin view`, such as the default `isin`).
+    fn default() -> Self {
+        Self {
+            width: None,
+            height: None,
+            record: None,
+            max_spp: 64,
+            moving_scale: 1,
+            screenshot_dir: PathBuf::from("."),
+            print_frames: false,
+            play: None,
+            exit_after_play: false,
+        }
+    }
 }
 
 /// Arguments of `isin view`.
@@ -208,4 +226,21 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
         ms(render.p95),
         fps
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Wrapper {
+        #[command(flatten)]
+        window: WindowArgs,
+    }
+
+    #[test]
+    fn default_window_args_match_an_empty_command_line() {
+        assert_eq!(Wrapper::parse_from(["isin"]).window, WindowArgs::default());
+    }
 }
