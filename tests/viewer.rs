@@ -353,7 +353,7 @@ fn view_without_a_display_points_to_isin_render() {
 #[test]
 fn fly_replays_the_shipped_path_into_pngs() {
     let scene = repo().join("scenes/paper.toml");
-    let path_file = repo().join("scenes/paper.path.toml");
+    let path_file = repo().join("scenes/paths/paper.toml");
     let path = isin_viewer::CameraPath::load(&path_file).unwrap();
     assert!(path.frames.len() >= 10, "the example path should be a real flight");
     let out = tempfile::tempdir().unwrap();
