@@ -14,3 +14,4 @@
 pub mod auth;
 pub mod protocol;
 pub mod scheduler;
+pub mod transport;

@@ -84,6 +84,8 @@ pub enum Output {
         frame: FrameId,
         /// The tiles, in the order they should be rendered.
         tiles: Vec<TileJob>,
+        /// How many of them had belonged to a slave that died.
+        reassigned: u32,
     },
     /// Tell `slave` to drop these tiles if it has not started them.
     Cancel {
@@ -190,6 +192,8 @@ struct TileRec {
     state: TileState,
     holders: Vec<SlaveId>,
     assigned_at: Duration,
+    /// Put back in the queue by a death and not handed out since.
+    requeued: bool,
 }
 
 #[derive(Debug)]
@@ -326,7 +330,13 @@ impl Scheduler {
         self.abandon_frame();
         let tiles: Vec<TileRec> = Tile::grid(width, height, self.config.tile_size)
             .into_iter()
-            .map(|tile| TileRec { tile, state: TileState::Queued, holders: Vec::new(), assigned_at: now })
+            .map(|tile| TileRec {
+                tile,
+                state: TileState::Queued,
+                holders: Vec::new(),
+                assigned_at: now,
+                requeued: false,
+            })
             .collect();
         self.frame = Some(FrameState {
             id: frame,
@@ -456,6 +466,7 @@ impl Scheduler {
                 rec.holders.retain(|&h| h != slave);
                 if rec.state == TileState::InFlight && rec.holders.is_empty() {
                     rec.state = TileState::Queued;
+                    rec.requeued = true;
                     f.queue.push_front(tile);
                     requeued += 1;
                 }
@@ -476,6 +487,7 @@ impl Scheduler {
             (s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize, *id)
         });
         let mut batches: BTreeMap<SlaveId, Vec<TileJob>> = BTreeMap::new();
+        let mut reassigned: BTreeMap<SlaveId, u32> = BTreeMap::new();
         'rounds: loop {
             let mut progressed = false;
             for id in &order {
@@ -488,6 +500,9 @@ impl Scheduler {
                 rec.state = TileState::InFlight;
                 rec.holders.push(*id);
                 rec.assigned_at = now;
+                if std::mem::take(&mut rec.requeued) {
+                    *reassigned.entry(*id).or_default() += 1;
+                }
                 s.in_flight.insert(tile);
                 batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
                 progressed = true;
@@ -523,7 +538,8 @@ impl Scheduler {
             }
         }
         for (slave, tiles) in batches {
-            self.outputs.push_back(Output::Assign { slave, frame: f.id, tiles });
+            let reassigned = reassigned.get(&slave).copied().unwrap_or(0);
+            self.outputs.push_back(Output::Assign { slave, frame: f.id, tiles, reassigned });
         }
     }
 }
@@ -540,11 +556,11 @@ fn next_tile(f: &mut FrameState, cfg: &SchedulerConfig, total_threads: usize) ->
         let splittable = t.w > cfg.min_tile_size || t.h > cfg.min_tile_size;
         if splittable && f.queue.len() < total_threads {
             let children = split(t, cfg.min_tile_size);
+            let requeued = rec.requeued;
             f.tiles[id as usize].state = TileState::Split;
             let first = f.tiles.len() as TileId;
-            for (i, c) in children.iter().enumerate().rev() {
+            for i in (0..children.len()).rev() {
                 f.queue.push_front(first + i as TileId);
-                let _ = c;
             }
             for c in children {
                 f.tiles.push(TileRec {
@@ -552,6 +568,7 @@ fn next_tile(f: &mut FrameState, cfg: &SchedulerConfig, total_threads: usize) ->
                     state: TileState::Queued,
                     holders: Vec::new(),
                     assigned_at: Duration::ZERO,
+                    requeued,
                 });
             }
             continue;

@@ -30,7 +30,6 @@ enum Mode {
 }
 
 struct SimSlave {
-    threads: u32,
     /// Microseconds of virtual time per pixel.
     us_per_pixel: u64,
     mode: Mode,
@@ -46,6 +45,7 @@ struct Log {
     accepted: HashMap<FrameId, Vec<Tile>>,
     done: Vec<(FrameId, FrameStats)>,
     dead: Vec<(SlaveId, DeathCause, u32, Duration)>,
+    reassigned: u32,
 }
 
 struct Sim {
@@ -75,7 +75,6 @@ impl Sim {
         self.slaves.insert(
             id,
             SimSlave {
-                threads,
                 us_per_pixel,
                 mode: Mode::Alive,
                 queue: VecDeque::new(),
@@ -98,10 +97,11 @@ impl Sim {
     fn drain(&mut self) {
         while let Some(out) = self.sched.poll_output(self.now) {
             match out {
-                Output::Assign { slave, frame, tiles } => {
+                Output::Assign { slave, frame, tiles, reassigned } => {
                     let s = self.slaves.get_mut(&slave).expect("assigned to a known slave");
                     assert_ne!(s.mode, Mode::Gone, "work sent to a disconnected slave");
                     s.received += tiles.len() as u32;
+                    self.log.reassigned += reassigned;
                     s.queue.extend(tiles.into_iter().map(|t| (frame, t)));
                 }
                 Output::Cancel { slave, frame, tiles } => {
@@ -284,6 +284,7 @@ fn disconnected_slave_tiles_go_back_to_the_front_of_the_queue() {
     sim.disconnect(b);
     assert_eq!(sim.log.dead[0].1, DeathCause::Disconnected);
     assert_eq!(sim.log.dead[0].2, 3);
+    assert_eq!(sim.log.reassigned, 0);
     // a gets b's tiles as soon as it has room, before the rest of the queue.
     sim.run_until(Duration::from_secs(5), |s| s.slaves[&a].received >= 6);
     let sa = &sim.slaves[&a];
@@ -295,6 +296,7 @@ fn disconnected_slave_tiles_go_back_to_the_front_of_the_queue() {
             "tile {id} of the dead slave not reassigned first: {next:?}"
         );
     }
+    assert_eq!(sim.log.reassigned, 3, "the survivor reports taking over the dead slave's tiles");
     sim.run_until(Duration::from_secs(120), |s| s.frame_done(1));
     sim.assert_exact_cover(1);
 }
