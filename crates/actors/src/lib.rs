@@ -12,6 +12,10 @@
 //! implements: connections as a pair of frame channels), and the actors.
 
 pub mod auth;
+pub mod client;
+pub mod master;
 pub mod protocol;
 pub mod scheduler;
+pub mod slave;
 pub mod transport;
+pub mod viewer;
