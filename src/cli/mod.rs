@@ -1,6 +1,9 @@
 //! Command-line interface.
 
+mod cluster;
+mod master;
 mod render;
+mod slave;
 
 use clap::{Parser, Subcommand};
 
@@ -14,8 +17,12 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Render a scene to a PNG file.
+    /// Render a scene to a PNG file (locally, or through a cluster with --cluster).
     Render(render::RenderArgs),
+    /// Serve a scene to slaves and viewers; prints a join ticket.
+    Master(master::MasterArgs),
+    /// Render tiles for a master.
+    Slave(slave::SlaveArgs),
 }
 
 /// Parses the command line and runs the chosen command.
@@ -24,12 +31,19 @@ pub fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Render(args)) => render::run(args),
-        None => render::run_default(),
+        Some(Command::Master(args)) => master::run(args),
+        Some(Command::Slave(args)) => slave::run(args),
+        None => cluster::run_default(),
     }
 }
 
 fn init_logging() {
     use tracing_subscriber::EnvFilter;
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(ansi)
+        .with_writer(std::io::stderr)
+        .try_init();
 }
