@@ -4,7 +4,12 @@
 //! OWNER: shading helper.
 
 use crate::cameras::Camera;
+use crate::integrator::{Integrator, RayCone, RayCounts};
+use crate::math;
+use crate::sampling::{Sampler, ceil_sqrt, stratified_square};
 use crate::scene::Scene;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How to render: resolution, sampling and recursion limits.
@@ -91,12 +96,74 @@ impl Frame {
     }
 }
 
+/// The sRGB opto-electronic transfer function (linear → encoded), exact and
+/// deterministic: `12.92·c` below 0.0031308, else `1.055·c^(1/2.4) − 0.055`.
+#[inline]
+pub fn linear_to_srgb(c: f32) -> f32 {
+    if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * math::powf(c, 1.0 / 2.4) - 0.055 }
+}
+
+/// Encodes a linear value as an sRGB byte: clamped to `[0, 1]` (NaN → 0) and
+/// rounded to nearest.
+#[inline]
+pub fn encode_srgb8(c: f32) -> u8 {
+    let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
+    (linear_to_srgb(c) * 255.0 + 0.5).min(255.0) as u8
+}
+
+/// The sub-pixel offset of camera sample `sample` of `spp` for pixel `(x, y)`:
+/// the pixel centre when `spp == 1` (the paper's mapping), otherwise a
+/// stratified, jittered point (see [`crate::sampling`]).
+#[inline]
+pub fn pixel_offset(x: u32, y: u32, sample: u32, spp: u32, seed: u64) -> Vec2 {
+    if spp <= 1 {
+        Vec2::splat(0.5)
+    } else {
+        stratified_square(sample, spp, &Sampler::pixel(x, y, seed).child(CAMERA_STREAM))
+    }
+}
+
+/// Sub-stream tag of the camera jitter (integrator streams use the sample index).
+const CAMERA_STREAM: u32 = u32::MAX;
+
 /// Renders the pixels of `tile` (which must lie inside the `settings` image):
 /// `tile.w * tile.h * 3` bytes of sRGB RGB8, row-major. Bit-identical for a
 /// pixel whatever the tiling, thread or machine.
 pub fn render_tile(scene: &Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8> {
-    let _ = (scene, camera, settings, tile);
-    todo!("shading helper")
+    render_tile_stats(scene, camera, settings, tile).0
+}
+
+/// [`render_tile`], also returning how many rays of each kind it traced.
+pub fn render_tile_stats(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile: Tile,
+) -> (Vec<u8>, RayCounts) {
+    let mut out = Vec::with_capacity(tile.pixel_count() * 3);
+    let mut counts = RayCounts::default();
+    let integrator = Integrator::new(scene, settings);
+    let spp = settings.spp.max(1);
+    let (w, h) = (settings.width.max(1) as f32, settings.height.max(1) as f32);
+    // With several samples each one stands for a stratum ⌈√spp⌉ times smaller
+    // than the pixel, and so does its texture-filtering cone.
+    let spread = camera.pixel_spread(settings.width) / ceil_sqrt(spp) as f32;
+    let cone = RayCone::primary(spread);
+    let inv_spp = 1.0 / spp as f32;
+    for y in tile.y..tile.y + tile.h {
+        for x in tile.x..tile.x + tile.w {
+            let mut sum = Vec3::ZERO;
+            for s in 0..spp {
+                let o = pixel_offset(x, y, s, spp, settings.seed);
+                let ray = camera.ray((x as f32 + o.x) / w, (y as f32 + o.y) / h);
+                let sampler = Sampler::new(x, y, s, settings.seed);
+                sum += integrator.trace(&ray, cone, &sampler, &mut counts);
+            }
+            let c = sum * inv_spp;
+            out.extend_from_slice(&[encode_srgb8(c.x), encode_srgb8(c.y), encode_srgb8(c.z)]);
+        }
+    }
+    (out, counts)
 }
 
 /// Renders a whole frame, tiles spread over the current rayon pool; `progress`
@@ -108,6 +175,87 @@ pub fn render_frame(
     tile_size: u32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Frame {
-    let _ = (scene, camera, settings, tile_size, progress);
-    todo!("shading helper")
+    render_frame_stats(scene, camera, settings, tile_size, progress).0
+}
+
+/// [`render_frame`], also returning how many rays of each kind were traced.
+pub fn render_frame_stats(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile_size: u32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Frame, RayCounts) {
+    let tiles = Tile::grid(settings.width, settings.height, tile_size);
+    let rendered: Vec<(Tile, Vec<u8>, RayCounts)> = tiles
+        .par_iter()
+        .map(|&tile| {
+            let (rgb, counts) = render_tile_stats(scene, camera, settings, tile);
+            progress(tile.pixel_count() as u64);
+            (tile, rgb, counts)
+        })
+        .collect();
+    let mut frame = Frame::new(settings.width, settings.height);
+    let mut counts = RayCounts::default();
+    for (tile, rgb, c) in &rendered {
+        frame.blit(*tile, rgb);
+        counts.add(c);
+    }
+    (frame, counts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_encoding_endpoints_and_monotonic() {
+        assert_eq!(encode_srgb8(0.0), 0);
+        assert_eq!(encode_srgb8(1.0), 255);
+        assert_eq!(encode_srgb8(-3.0), 0);
+        assert_eq!(encode_srgb8(7.0), 255);
+        assert_eq!(encode_srgb8(f32::NAN), 0);
+        // Linear 0.5 is sRGB 188 (0.7354 × 255 = 187.5…).
+        assert_eq!(encode_srgb8(0.5), 188);
+        // Linear segment: 0.002 × 12.92 × 255 = 6.59.
+        assert_eq!(encode_srgb8(0.002), 7);
+        let mut prev = 0.0;
+        for i in 0..=10_000 {
+            let v = linear_to_srgb(i as f32 / 10_000.0);
+            assert!(v >= prev, "monotonic at {i}");
+            prev = v;
+        }
+        // The two segments meet continuously.
+        let k = 0.003_130_8f32;
+        assert!((linear_to_srgb(k) - linear_to_srgb(k + 1e-7)).abs() < 1e-5);
+        // Round trip with the decoder of the texture module.
+        for b in 0..=255u8 {
+            assert_eq!(encode_srgb8(crate::textures::srgb_to_linear(b as f32 / 255.0)), b);
+        }
+    }
+
+    #[test]
+    fn tile_grid_covers_the_image_once() {
+        let tiles = Tile::grid(23, 17, 5);
+        let mut hits = vec![0; 23 * 17];
+        for t in &tiles {
+            for y in t.y..t.y + t.h {
+                for x in t.x..t.x + t.w {
+                    hits[(y * 23 + x) as usize] += 1;
+                }
+            }
+        }
+        assert!(hits.iter().all(|&h| h == 1));
+    }
+
+    #[test]
+    fn pixel_offsets_are_centred_for_one_sample_and_stratified_for_more() {
+        assert_eq!(pixel_offset(3, 4, 0, 1, 9), Vec2::splat(0.5));
+        let mut cells: Vec<(u32, u32)> = (0..4)
+            .map(|s| pixel_offset(3, 4, s, 4, 9))
+            .map(|o| ((o.x * 2.0) as u32, (o.y * 2.0) as u32))
+            .collect();
+        cells.sort();
+        assert_eq!(cells, vec![(0, 0), (0, 1), (1, 0), (1, 1)]);
+    }
 }

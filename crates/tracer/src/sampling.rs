@@ -1,4 +1,251 @@
 //! Deterministic random numbers: every sample is a hash of (pixel, sample
 //! index, dimension, seed), never thread state.
 //!
-//! OWNER: shading helper.
+//! A [`Sampler`] is a 64-bit key derived from `(pixel x, pixel y, camera sample
+//! index, seed)` with the splitmix64 finaliser; asking it for dimension `d`
+//! hashes `(key, d)` once more. It is `Copy` and holds no mutable state, so the
+//! value of any sample depends only on its coordinates — whatever tile, thread
+//! or machine computes it.
+//!
+//! **Stratification.** Both camera samples and area-light samples use the same
+//! scheme ([`stratified_square`]): `N` samples over the unit square are placed
+//! in an `m × m` grid of strata with `m = ⌈√N⌉`; sample `i` takes stratum
+//! `π(i)` of a hashed permutation `π` of the `m²` strata (Kensler's
+//! cycle-walking permutation, no allocation) and is jittered uniformly inside
+//! it. When `N` is a square every stratum holds exactly one sample; otherwise
+//! `N` distinct, randomly chosen strata are used.
+
+use glam::Vec2;
+
+/// The splitmix64 finaliser: a bijective, well-mixing 64-bit hash.
+#[inline]
+pub fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Maps a 32-bit hash to a float in `[0, 1)` using its top 24 bits.
+#[inline]
+pub fn to_unit(bits: u32) -> f32 {
+    (bits >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+/// A stateless source of samples for one camera sample of one pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sampler {
+    key: u64,
+}
+
+impl Sampler {
+    /// The key of pixel `(x, y)` under `seed`, shared by all its camera samples.
+    #[inline]
+    pub fn pixel(x: u32, y: u32, seed: u64) -> Sampler {
+        let k = mix64(seed ^ 0x9e37_79b9_7f4a_7c15);
+        Sampler { key: mix64(k ^ (((x as u64) << 32) | y as u64)) }
+    }
+
+    /// The sampler of camera sample `sample` of pixel `(x, y)`.
+    #[inline]
+    pub fn new(x: u32, y: u32, sample: u32, seed: u64) -> Sampler {
+        Sampler::pixel(x, y, seed).child(sample)
+    }
+
+    /// An independent sub-stream, e.g. one per (depth, light) for shadow rays.
+    #[inline]
+    pub fn child(&self, tag: u32) -> Sampler {
+        Sampler { key: mix64(self.key ^ mix64(tag as u64 ^ 0x632b_e59b_d9b4_e019)) }
+    }
+
+    /// 32 random bits for dimension `dim`.
+    #[inline]
+    pub fn bits(&self, dim: u32) -> u32 {
+        (mix64(self.key ^ (dim as u64).wrapping_mul(0xd6e8_feb8_6659_fd93)) >> 32) as u32
+    }
+
+    /// A uniform float in `[0, 1)` for dimension `dim`.
+    #[inline]
+    pub fn get(&self, dim: u32) -> f32 {
+        to_unit(self.bits(dim))
+    }
+}
+
+/// Kensler's hashed permutation ("Correlated Multi-Jittered Sampling", 2013):
+/// maps `i` in `0..len` to a distinct value in `0..len`, chosen by `key`.
+/// Needs no memory; cycle-walks when `len` is not a power of two.
+#[inline]
+pub fn permute(mut i: u32, len: u32, key: u32) -> u32 {
+    if len <= 1 {
+        return 0;
+    }
+    let p = key;
+    let mut w = len - 1;
+    w |= w >> 1;
+    w |= w >> 2;
+    w |= w >> 4;
+    w |= w >> 8;
+    w |= w >> 16;
+    loop {
+        i ^= p;
+        i = i.wrapping_mul(0xe170_893d);
+        i ^= p >> 16;
+        i ^= (i & w) >> 4;
+        i ^= p >> 8;
+        i = i.wrapping_mul(0x0929_eb3f);
+        i ^= p >> 23;
+        i ^= (i & w) >> 1;
+        i = i.wrapping_mul(1 | (p >> 27));
+        i = i.wrapping_mul(0x6935_fa69);
+        i ^= (i & w) >> 11;
+        i = i.wrapping_mul(0x74dc_b303);
+        i ^= (i & w) >> 2;
+        i = i.wrapping_mul(0x9e50_1cc3);
+        i ^= (i & w) >> 2;
+        i = i.wrapping_mul(0xc860_a3df);
+        i &= w;
+        i ^= i >> 5;
+        if i < len {
+            break;
+        }
+    }
+    ((i as u64 + p as u64) % len as u64) as u32
+}
+
+/// `⌈√n⌉`, exactly.
+#[inline]
+pub fn ceil_sqrt(n: u32) -> u32 {
+    let mut m = (n as f64).sqrt() as u32;
+    while (m as u64) * (m as u64) < n as u64 {
+        m += 1;
+    }
+    while m > 0 && ((m - 1) as u64) * ((m - 1) as u64) >= n as u64 {
+        m -= 1;
+    }
+    m
+}
+
+/// Sample `i` of `n` stratified, jittered samples over the unit square (see the
+/// module docs), drawn from `sampler`. All samples of one set must share the
+/// sampler. Dimension 0 of the sampler keys the permutation; dimensions
+/// `1 + 2i` and `2 + 2i` jitter sample `i`.
+#[inline]
+pub fn stratified_square(i: u32, n: u32, sampler: &Sampler) -> Vec2 {
+    let m = ceil_sqrt(n.max(1));
+    let s = permute(i, m * m, sampler.bits(0));
+    let (sx, sy) = (s % m, s / m);
+    let inv = 1.0 / m as f32;
+    let jx = sampler.get(1 + 2 * i);
+    let jy = sampler.get(2 + 2 * i);
+    // Clamp below 1: (m-1 + 0.99999994)/m can round up to exactly 1.
+    Vec2::new(((sx as f32 + jx) * inv).min(ONE_MINUS_EPS), ((sy as f32 + jy) * inv).min(ONE_MINUS_EPS))
+}
+
+/// The largest f32 below one.
+pub const ONE_MINUS_EPS: f32 = 1.0 - f32::EPSILON / 2.0;
+
+/// Maps the unit square to barycentric coordinates `(b1, b2)` of a triangle,
+/// uniformly and with low distortion (Heitz 2019, "A Low-Distortion Map Between
+/// Triangle and Square"), so strata of the square stay compact on the triangle.
+/// The point is `(1 − b1 − b2)·v0 + b1·v1 + b2·v2`.
+#[inline]
+pub fn square_to_triangle(u: Vec2) -> (f32, f32) {
+    if u.y > u.x {
+        let b1 = u.x * 0.5;
+        (b1, u.y - b1)
+    } else {
+        let b2 = u.y * 0.5;
+        (u.x - b2, b2)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn permute_is_a_permutation() {
+        for len in [1u32, 2, 3, 7, 9, 16, 25, 100, 1000] {
+            for key in [0u32, 1, 0xdead_beef, 12345] {
+                let mut seen = vec![false; len as usize];
+                for i in 0..len {
+                    let j = permute(i, len, key) as usize;
+                    assert!(j < len as usize);
+                    assert!(!seen[j], "len {len} key {key}: {j} twice");
+                    seen[j] = true;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn ceil_sqrt_is_exact() {
+        for n in 0..2000u32 {
+            let m = ceil_sqrt(n);
+            assert!(m * m >= n && (m == 0 || (m - 1) * (m - 1) < n), "n {n} m {m}");
+        }
+    }
+
+    #[test]
+    fn samples_are_uniform_in_unit_interval_and_depend_on_every_input() {
+        let s = Sampler::new(3, 4, 5, 6);
+        let mut sum = 0.0f64;
+        for d in 0..10_000 {
+            let x = s.get(d);
+            assert!((0.0..1.0).contains(&x));
+            sum += x as f64;
+        }
+        assert!((sum / 10_000.0 - 0.5).abs() < 0.02, "mean {}", sum / 10_000.0);
+        let base = s.get(0);
+        for other in [
+            Sampler::new(4, 4, 5, 6),
+            Sampler::new(3, 5, 5, 6),
+            Sampler::new(3, 4, 6, 6),
+            Sampler::new(3, 4, 5, 7),
+        ] {
+            assert_ne!(other.get(0), base);
+        }
+        assert_eq!(Sampler::new(3, 4, 5, 6).get(0), base, "same inputs, same sample");
+    }
+
+    #[test]
+    fn square_counts_fill_every_stratum_once() {
+        for n in [4u32, 9, 16, 64] {
+            let m = ceil_sqrt(n);
+            let s = Sampler::new(10, 20, 0, 99);
+            let mut count = vec![0; (m * m) as usize];
+            for i in 0..n {
+                let p = stratified_square(i, n, &s);
+                assert!(p.x >= 0.0 && p.x < 1.0 && p.y >= 0.0 && p.y < 1.0);
+                let (cx, cy) = ((p.x * m as f32) as u32, (p.y * m as f32) as u32);
+                count[(cy * m + cx) as usize] += 1;
+            }
+            assert!(count.iter().all(|&c| c == 1), "n {n}: {count:?}");
+        }
+        // Non-square counts use distinct strata.
+        let n = 5;
+        let s = Sampler::new(1, 2, 3, 4);
+        let mut cells: Vec<_> = (0..n)
+            .map(|i| stratified_square(i, n, &s))
+            .map(|p| ((p.x * 3.0) as u32, (p.y * 3.0) as u32))
+            .collect();
+        cells.sort();
+        cells.dedup();
+        assert_eq!(cells.len(), n as usize);
+    }
+
+    #[test]
+    fn square_to_triangle_stays_inside_and_is_uniform() {
+        let s = Sampler::new(0, 0, 0, 1);
+        let n = 4096;
+        let mut mean = (0.0f64, 0.0f64);
+        for i in 0..n {
+            let (b1, b2) = square_to_triangle(stratified_square(i, n, &s));
+            assert!(b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0);
+            mean.0 += b1 as f64;
+            mean.1 += b2 as f64;
+        }
+        // The centroid of a uniform distribution on the triangle is (1/3, 1/3).
+        assert!((mean.0 / n as f64 - 1.0 / 3.0).abs() < 0.01);
+        assert!((mean.1 / n as f64 - 1.0 / 3.0).abs() < 0.01);
+    }
+}

@@ -1,8 +1,19 @@
 //! Textures: procedural checker and mip-mapped image textures with bilinear
 //! filtering, so distant textured floors do not alias.
 //!
-//! OWNER: shading helper. The constructors are what the scene loader calls.
+//! Conventions: UV `(0, 0)` is the top-left corner of an image (row 0), `u`
+//! grows to the right and `v` downwards; both wrap (repeat). A lookup carries a
+//! filter footprint `width` in UV units (from the integrator's ray cones):
+//!
+//! * images pick the mip level `lod = log2(width × max(W, H))` and blend the two
+//!   nearest levels (trilinear), each sampled bilinearly;
+//! * the checker is box-filtered analytically over a `width × width` square:
+//!   the integral of the ±1 square wave is a triangle wave, and the checker is
+//!   the product of two square waves, so its box-filtered value is exact. A
+//!   checker floor receding to the horizon converges to the mean of its two
+//!   colours instead of aliasing.
 
+use crate::math;
 use glam::{Vec2, Vec3};
 
 /// A texture, evaluated at a UV coordinate with a filter footprint.
@@ -34,20 +45,360 @@ struct Level {
     texels: Vec<Vec3>,
 }
 
+/// Largest accepted image side, to bound allocations from untrusted input.
+pub const MAX_TEXTURE_SIZE: u32 = 16_384;
+
+/// The sRGB electro-optical transfer function (decode to linear), exact.
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 { c / 12.92 } else { math::powf((c + 0.055) / 1.055, 2.4) }
+}
+
+/// Decoding table for 8-bit sRGB values.
+fn srgb8_table() -> [f32; 256] {
+    let mut t = [0.0; 256];
+    for (i, v) in t.iter_mut().enumerate() {
+        *v = srgb_to_linear(i as f32 / 255.0);
+    }
+    t
+}
+
 impl MipMap {
     /// Builds the pyramid from an sRGB-encoded RGBA8 image (alpha ignored),
-    /// `rgba.len() == width * height * 4`.
+    /// `rgba.len() == width * height * 4`. Invalid input (a zero or oversized
+    /// dimension, too few bytes) gives a 1 × 1 magenta image rather than a
+    /// panic; use [`MipMap::try_from_srgb8`] to detect it.
     pub fn from_srgb8(width: u32, height: u32, rgba: &[u8]) -> Self {
-        let _ = (width, height, rgba);
-        todo!("shading helper")
+        Self::try_from_srgb8(width, height, rgba)
+            .unwrap_or_else(|| MipMap::from_linear(1, 1, vec![Vec3::X + Vec3::Z]))
     }
+
+    /// Like [`MipMap::from_srgb8`], but `None` for invalid input.
+    pub fn try_from_srgb8(width: u32, height: u32, rgba: &[u8]) -> Option<Self> {
+        if width == 0 || height == 0 || width > MAX_TEXTURE_SIZE || height > MAX_TEXTURE_SIZE {
+            return None;
+        }
+        let n = width as usize * height as usize;
+        if rgba.len() < n * 4 {
+            return None;
+        }
+        let table = srgb8_table();
+        let texels = rgba[..n * 4]
+            .chunks_exact(4)
+            .map(|p| Vec3::new(table[p[0] as usize], table[p[1] as usize], table[p[2] as usize]))
+            .collect();
+        Some(Self::from_linear(width, height, texels))
+    }
+
+    /// Builds the pyramid from linear RGB texels, row-major, row 0 on top.
+    /// Each level halves each side (rounding down, never below 1); odd sides
+    /// are reduced with an exact area-weighted box filter (each new texel
+    /// averages the source area it covers), so every level keeps the mean.
+    ///
+    /// # Panics
+    /// If `texels.len() != width * height` or a side is zero.
+    pub fn from_linear(width: u32, height: u32, texels: Vec<Vec3>) -> Self {
+        assert!(width > 0 && height > 0 && texels.len() == width as usize * height as usize);
+        let mut levels = vec![Level { width, height, texels }];
+        loop {
+            let last = levels.last().expect("at least one level");
+            if last.width == 1 && last.height == 1 {
+                break;
+            }
+            let next = last.downsample();
+            levels.push(next);
+        }
+        MipMap { levels }
+    }
+
+    /// Number of levels (1 for a 1 × 1 image).
+    pub fn level_count(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// Size of level `level`.
+    pub fn level_size(&self, level: usize) -> (u32, u32) {
+        self.levels.get(level).map_or((0, 0), |l| (l.width, l.height))
+    }
+
+    /// Texel `(x, y)` of level `level` (linear RGB).
+    pub fn texel(&self, level: usize, x: u32, y: u32) -> Vec3 {
+        let l = &self.levels[level];
+        l.texels[(y * l.width + x) as usize]
+    }
+
+    /// Trilinear lookup with a footprint `width` UV units wide.
+    pub fn eval(&self, uv: Vec2, width: f32) -> Vec3 {
+        let Some(base) = self.levels.first() else { return Vec3::ZERO };
+        let size = base.width.max(base.height) as f32;
+        let texels_wide = width * size;
+        if texels_wide.is_nan() || texels_wide <= 1.0 {
+            return base.bilinear(uv);
+        }
+        let lod = math::log2(texels_wide).min((self.levels.len() - 1) as f32);
+        let l0 = lod as usize; // lod > 0 here
+        let f = lod - l0 as f32;
+        let a = self.levels[l0].bilinear(uv);
+        if f <= 0.0 || l0 + 1 >= self.levels.len() {
+            return a;
+        }
+        let b = self.levels[l0 + 1].bilinear(uv);
+        a * (1.0 - f) + b * f
+    }
+}
+
+/// Wraps a coordinate into `[0, 1)`; non-finite values become 0.
+#[inline]
+fn wrap(x: f32) -> f32 {
+    if !x.is_finite() {
+        return 0.0;
+    }
+    let f = x - x.floor();
+    if f >= 1.0 { 0.0 } else { f }
+}
+
+impl Level {
+    #[inline]
+    fn at(&self, x: u32, y: u32) -> Vec3 {
+        self.texels[(y * self.width + x) as usize]
+    }
+
+    /// Bilinear lookup with repeat wrapping; texel centres are at
+    /// `((i + ½)/W, (j + ½)/H)`.
+    fn bilinear(&self, uv: Vec2) -> Vec3 {
+        let (w, h) = (self.width, self.height);
+        let x = wrap(uv.x) * w as f32 - 0.5;
+        let y = wrap(uv.y) * h as f32 - 0.5;
+        let (xf, yf) = (x.floor(), y.floor());
+        let (fx, fy) = (x - xf, y - yf);
+        // xf is in -1..=w-1.
+        let x0 = if xf < 0.0 { w - 1 } else { (xf as u32).min(w - 1) };
+        let y0 = if yf < 0.0 { h - 1 } else { (yf as u32).min(h - 1) };
+        let x1 = if x0 + 1 >= w { 0 } else { x0 + 1 };
+        let y1 = if y0 + 1 >= h { 0 } else { y0 + 1 };
+        let top = self.at(x0, y0) * (1.0 - fx) + self.at(x1, y0) * fx;
+        let bottom = self.at(x0, y1) * (1.0 - fx) + self.at(x1, y1) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+
+    /// The next level: each side halved (rounded down, at least 1).
+    fn downsample(&self) -> Level {
+        let (w, h) = (self.width, self.height);
+        let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+        let wx = box_weights(w, nw);
+        let wy = box_weights(h, nh);
+        // Horizontal pass: h rows × nw.
+        let mut tmp = vec![Vec3::ZERO; (nw * h) as usize];
+        for y in 0..h {
+            for (nx, taps) in wx.iter().enumerate() {
+                let mut acc = Vec3::ZERO;
+                for &(x, wgt) in taps {
+                    acc += self.at(x, y) * wgt;
+                }
+                tmp[(y * nw) as usize + nx] = acc;
+            }
+        }
+        let mut texels = vec![Vec3::ZERO; (nw * nh) as usize];
+        for (ny, taps) in wy.iter().enumerate() {
+            for nx in 0..nw as usize {
+                let mut acc = Vec3::ZERO;
+                for &(y, wgt) in taps {
+                    acc += tmp[(y * nw) as usize + nx] * wgt;
+                }
+                texels[ny * nw as usize + nx] = acc;
+            }
+        }
+        Level { width: nw, height: nh, texels }
+    }
+}
+
+/// For each of `dst` output texels, the source texels it covers and their
+/// weights: output `i` covers `[i·src/dst, (i+1)·src/dst)` of the source.
+fn box_weights(src: u32, dst: u32) -> Vec<Vec<(u32, f32)>> {
+    let ratio = src as f64 / dst as f64;
+    (0..dst)
+        .map(|i| {
+            let (a, b) = (i as f64 * ratio, (i + 1) as f64 * ratio);
+            let mut taps = Vec::new();
+            let mut x = a.floor() as u32;
+            while (x as f64) < b && x < src {
+                let overlap = (b.min(x as f64 + 1.0) - a.max(x as f64)).max(0.0);
+                if overlap > 0.0 {
+                    taps.push((x, (overlap / ratio) as f32));
+                }
+                x += 1;
+            }
+            taps
+        })
+        .collect()
+}
+
+/// Box-filtered mean of the ±1 square wave (`+1` where `floor(x)` is even) over
+/// `[x − w/2, x + w/2]`: the difference of its integral, a triangle wave.
+#[inline]
+fn filtered_square_wave(x: f64, w: f64) -> f64 {
+    // g(x) = −2 |fract(x/2) − ½| has slope +1 on even cells and −1 on odd ones.
+    let g = |x: f64| -2.0 * ((x * 0.5 - (x * 0.5).floor()) - 0.5).abs();
+    (g(x + 0.5 * w) - g(x - 0.5 * w)) / w
+}
+
+/// The checker's colour at `uv` box-filtered over a `width`-wide square.
+fn checker(even: Vec3, odd: Vec3, scale: f32, uv: Vec2, width: f32) -> Vec3 {
+    let (u, v) = (uv.x as f64 * scale as f64, uv.y as f64 * scale as f64);
+    if !u.is_finite() || !v.is_finite() {
+        return (even + odd) * 0.5;
+    }
+    let w = (width as f64 * scale as f64).abs();
+    // Tiny footprints: the difference quotient loses precision; point-sample.
+    let p = if w.is_finite() && w > 1e-6 {
+        filtered_square_wave(u, w) * filtered_square_wave(v, w)
+    } else if !w.is_finite() {
+        0.0
+    } else if (u.floor() + v.floor()).rem_euclid(2.0) == 0.0 {
+        1.0
+    } else {
+        -1.0
+    };
+    // p is the mean of (+1 even, −1 odd): the fraction of `even` is (1 + p)/2.
+    let fe = (0.5 + 0.5 * p).clamp(0.0, 1.0) as f32;
+    even * fe + odd * (1.0 - fe)
 }
 
 impl Texture {
     /// The texture's colour at `uv`, filtered over a square footprint `width`
     /// UV units wide (0 for a point sample).
     pub fn eval(&self, uv: Vec2, width: f32) -> Vec3 {
-        let _ = (uv, width);
-        todo!("shading helper")
+        let width = if width.is_nan() { 0.0 } else { width.max(0.0) };
+        match self {
+            Texture::Checker { even, odd, scale } => checker(*even, *odd, *scale, uv, width),
+            Texture::Image(m) => m.eval(uv, width),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: Vec3, b: Vec3, tol: f32) -> bool {
+        (a - b).abs().max_element() <= tol
+    }
+
+    #[test]
+    fn srgb_table_endpoints_and_midpoint() {
+        let t = srgb8_table();
+        assert_eq!(t[0], 0.0);
+        assert!((t[255] - 1.0).abs() < 1e-6);
+        // sRGB 188 is about linear 0.5 (a well-known value).
+        assert!((t[188] - 0.5).abs() < 0.005, "{}", t[188]);
+        assert!(t.windows(2).all(|w| w[0] < w[1]));
+    }
+
+    #[test]
+    fn checker_point_samples_follow_the_convention() {
+        let c = Texture::Checker { even: Vec3::ONE, odd: Vec3::ZERO, scale: 4.0 };
+        assert_eq!(c.eval(Vec2::new(0.1, 0.1), 0.0), Vec3::ONE);
+        assert_eq!(c.eval(Vec2::new(0.3, 0.1), 0.0), Vec3::ZERO);
+        assert_eq!(c.eval(Vec2::new(0.3, 0.3), 0.0), Vec3::ONE);
+        assert_eq!(c.eval(Vec2::new(-0.1, 0.1), 0.0), Vec3::ZERO, "floor(-0.4) = -1 is odd");
+        // A small footprint inside one square does not blur.
+        assert!(close(c.eval(Vec2::new(0.125, 0.125), 0.05), Vec3::ONE, 1e-5));
+    }
+
+    #[test]
+    fn checker_far_away_footprint_gives_the_average() {
+        let even = Vec3::new(0.9, 0.8, 0.1);
+        let odd = Vec3::new(0.1, 0.0, 0.5);
+        let c = Texture::Checker { even, odd, scale: 10.0 };
+        let avg = (even + odd) * 0.5;
+        for &(u, v) in &[(0.013, 0.77), (5.5, -3.25), (100.01, 0.3)] {
+            let got = c.eval(Vec2::new(u, v), 37.3);
+            assert!(close(got, avg, 0.02), "{got:?} vs {avg:?}");
+        }
+        // An exact multiple of two squares integrates to exactly the mean.
+        assert!(close(c.eval(Vec2::new(0.37, 0.61), 0.2), avg, 1e-4));
+        // Half a square-width footprint centred on an edge: half and half in u.
+        let edge = c.eval(Vec2::new(0.1, 0.05), 0.05);
+        assert!(close(edge, avg, 1e-4), "{edge:?}");
+    }
+
+    fn two_colour(w: u32, h: u32) -> (MipMap, Vec3, Vec3) {
+        let (a, b) = ([255u8, 0, 0, 255], [0u8, 0, 255, 255]);
+        let mut rgba = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                rgba.extend_from_slice(if (x + y) % 2 == 0 { &a } else { &b });
+            }
+        }
+        (MipMap::from_srgb8(w, h, &rgba), Vec3::X, Vec3::Z)
+    }
+
+    #[test]
+    fn bilinear_at_texel_centres_returns_the_texel() {
+        let mut rgba = Vec::new();
+        for i in 0..(5 * 3) {
+            rgba.extend_from_slice(&[(i * 17) as u8, (255 - i * 13) as u8, (i * 7) as u8, 255]);
+        }
+        let m = MipMap::from_srgb8(5, 3, &rgba);
+        let t = Texture::Image(m.clone());
+        for y in 0..3 {
+            for x in 0..5 {
+                let uv = Vec2::new((x as f32 + 0.5) / 5.0, (y as f32 + 0.5) / 3.0);
+                assert!(close(t.eval(uv, 0.0), m.texel(0, x, y), 1e-5), "texel {x},{y}");
+                // Repeat wrapping.
+                assert!(close(t.eval(uv + Vec2::new(2.0, -1.0), 0.0), m.texel(0, x, y), 1e-4));
+            }
+        }
+        // Row 0 is v near 0 (top).
+        let i = 2; // texel (2, 0)
+        assert!((m.texel(0, 2, 0).x - srgb_to_linear((i * 17) as f32 / 255.0)).abs() < 1e-6);
+        // Halfway between two texels is their mean.
+        let mid = t.eval(Vec2::new(1.0 / 5.0, 0.5 / 3.0), 0.0);
+        assert!(close(mid, (m.texel(0, 0, 0) + m.texel(0, 1, 0)) * 0.5, 1e-5));
+    }
+
+    #[test]
+    fn mip_levels_of_a_two_colour_image_average() {
+        for (w, h) in [(8, 8), (7, 5), (16, 3)] {
+            let (m, a, b) = two_colour(w, h);
+            let last = m.level_count() - 1;
+            assert_eq!(m.level_size(last), (1, 1));
+            let n = (w * h) as f32;
+            let na = ((w * h).div_ceil(2)) as f32;
+            let mean = (a * na + b * (n - na)) / n;
+            assert!(close(m.texel(last, 0, 0), mean, 1e-5), "{w}x{h}: {:?}", m.texel(last, 0, 0));
+            if w % 2 == 0 && h % 2 == 0 {
+                // Level 1 of a 1-pixel checker is uniformly the 50/50 mix.
+                for y in 0..h / 2 {
+                    for x in 0..w / 2 {
+                        assert!(close(m.texel(1, x, y), (a + b) * 0.5, 1e-6));
+                    }
+                }
+            }
+            // A far-away footprint returns the mean.
+            let far = Texture::Image(m).eval(Vec2::new(0.3, 0.6), 100.0);
+            assert!(close(far, mean, 1e-5));
+        }
+    }
+
+    #[test]
+    fn trilinear_blends_between_levels() {
+        let (m, a, b) = two_colour(8, 8);
+        let t = Texture::Image(m.clone());
+        let uv = Vec2::new(0.5 / 8.0, 0.5 / 8.0); // centre of texel (0,0) = a
+        let sharp = t.eval(uv, 0.0);
+        assert!(close(sharp, a, 1e-6));
+        let half = t.eval(uv, 1.0 / 8.0 * std::f32::consts::SQRT_2); // lod 0.5
+        let lvl1 = m.eval(uv, 2.0 / 8.0);
+        assert!(close(lvl1, (a + b) * 0.5, 1e-5));
+        assert!(close(half, (sharp + lvl1) * 0.5, 1e-3), "{half:?}");
+    }
+
+    #[test]
+    fn invalid_images_do_not_panic() {
+        assert!(MipMap::try_from_srgb8(0, 4, &[]).is_none());
+        assert!(MipMap::try_from_srgb8(2, 2, &[0; 15]).is_none());
+        let m = MipMap::from_srgb8(2, 2, &[0; 3]);
+        assert_eq!(m.level_count(), 1);
+        assert_eq!(Texture::Image(m).eval(Vec2::new(f32::NAN, 0.5), f32::NAN), Vec3::new(1.0, 0.0, 1.0));
     }
 }

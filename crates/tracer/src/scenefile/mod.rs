@@ -3,11 +3,23 @@
 //!
 //! OWNER: scene helper.
 //!
+//! The format is described in [`format`]; `scenes/paper.toml` opens with a
+//! commented example of every section.
+//!
 //! Loading never touches the file system: files a scene refers to (meshes,
 //! textures, MTL libraries, glTF buffers) are requested from an [`AssetSource`].
 //! The binary passes one that reads from disk and records what it read; the
 //! recording becomes a [`SceneBundle`] — the scene text plus every asset's bytes —
 //! which serialises with serde and is what the master ships to slaves.
+
+mod build;
+mod errors;
+pub mod format;
+mod gltf;
+mod obj;
+
+pub use build::{MAX_IMAGE_SIDE, MAX_TRIANGLES};
+pub use errors::{Location, SceneError};
 
 use crate::scene::{Scene, SceneParts};
 use serde::{Deserialize, Serialize};
@@ -46,20 +58,10 @@ impl SceneBundle {
     }
 }
 
-/// Why a scene could not be loaded. Every variant names the file and, where it
-/// can, the line and the field.
-#[derive(Debug, thiserror::Error)]
-pub enum SceneError {
-    /// Placeholder until the loader exists.
-    #[error("{0}")]
-    Other(String),
-}
-
 /// Parses a scene file's text (`name` is used in error messages) and loads every
 /// asset through `assets`, producing everything but the BVH.
 pub fn parse_scene(name: &str, source: &str, assets: &mut dyn AssetSource) -> Result<SceneParts, SceneError> {
-    let _ = (name, source, assets);
-    todo!("scene helper")
+    build::Builder::new(name, source, assets).build()
 }
 
 /// [`parse_scene`], then builds the scene (BVH included).

@@ -1,0 +1,266 @@
+//! Bounding volume hierarchy over all triangles of a scene, built with the binned
+//! surface-area heuristic.
+//!
+//! * [`build`] — top-down binned SAH builder (parallel with rayon, yet the tree
+//!   is a pure function of the input triangles: any thread count, any machine,
+//!   the same bytes).
+//! * [`traverse`] — nearest-hit and any-hit traversal: ordered by box entry
+//!   distance, early-out against the current best hit, fixed-size stack.
+//!
+//! # Memory layout
+//!
+//! The tree is an array of 32-byte [`Node`]s in depth-first order: the root is
+//! node 0, an interior node's first child directly follows it and its second
+//! child's index is stored in the node. Triangles are stored once, in leaf order,
+//! in the precomputed Möller–Trumbore form `(v0, e1, e2)` ([`PreTriangle`]); a
+//! leaf owns a contiguous range of them, and `prim_ids` maps that order back to
+//! the index in the slice the BVH was built from ([`Hit::prim`]).
+
+mod build;
+mod traverse;
+
+use crate::geometry::{Aabb, Ray};
+use crate::shapes::{Hit, Triangle};
+use glam::Vec3;
+
+/// Most triangles a leaf holds.
+pub const MAX_LEAF_SIZE: usize = 4;
+
+/// Deepest a node can be (the root is at depth 0). The builder switches to
+/// median splits well before this, and traversal stacks are sized from it.
+pub const MAX_DEPTH: usize = 64;
+
+/// Most triangles a BVH can hold (2^30), which keeps the median-split fallback
+/// within [`MAX_DEPTH`].
+pub const MAX_TRIANGLES: usize = 1 << 30;
+
+/// One node of the tree: 32 bytes, aligned so a node never straddles a cache line.
+///
+/// | bytes  | field    | interior node                 | leaf                                   |
+/// |--------|----------|-------------------------------|----------------------------------------|
+/// | 0..12  | `min`    | box lower corner (x, y, z)    | box lower corner                       |
+/// | 12..16 | `offset` | index of the second child     | index of the first triangle (leaf order) |
+/// | 16..28 | `max`    | box upper corner (x, y, z)    | box upper corner                       |
+/// | 28..32 | `count`  | 0                             | number of triangles, 1..=[`MAX_LEAF_SIZE`] |
+///
+/// The first child of interior node `i` is node `i + 1` (depth-first order).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+pub struct Node {
+    /// Lower corner of the box.
+    pub min: [f32; 3],
+    /// Interior: index of the second child. Leaf: first triangle in leaf order.
+    pub offset: u32,
+    /// Upper corner of the box.
+    pub max: [f32; 3],
+    /// 0 for an interior node, else the number of triangles in the leaf.
+    pub count: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<Node>() == 32);
+const _: () = assert!(std::mem::align_of::<Node>() == 32);
+
+impl Node {
+    /// True for a leaf.
+    #[inline(always)]
+    pub fn is_leaf(&self) -> bool {
+        self.count != 0
+    }
+
+    /// The node's box.
+    pub fn bounds(&self) -> Aabb {
+        Aabb { min: Vec3::from_array(self.min), max: Vec3::from_array(self.max) }
+    }
+
+    fn leaf(bounds: &Aabb, first: u32, count: u32) -> Self {
+        Node { min: bounds.min.to_array(), offset: first, max: bounds.max.to_array(), count }
+    }
+
+    fn interior(bounds: &Aabb, second_child: u32) -> Self {
+        Node { min: bounds.min.to_array(), offset: second_child, max: bounds.max.to_array(), count: 0 }
+    }
+}
+
+/// A triangle in the precomputed form Möller–Trumbore works on: `v0`,
+/// `e1 = v1 - v0`, `e2 = v2 - v0` (36 bytes).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreTriangle {
+    /// First vertex.
+    pub v0: Vec3,
+    /// `v1 - v0`.
+    pub e1: Vec3,
+    /// `v2 - v0`.
+    pub e2: Vec3,
+}
+
+impl PreTriangle {
+    /// Precomputes `tri` exactly as [`Triangle::intersect`] does, so both give the same bits.
+    pub fn new(tri: &Triangle) -> Self {
+        let (v0, e1, e2) = tri.edges();
+        PreTriangle { v0, e1, e2 }
+    }
+
+    /// The three vertices as the intersection test sees them (`v0`, `v0 + e1`,
+    /// `v0 + e2`; these may differ from the input vertices in the last bit).
+    pub fn vertices(&self) -> [Vec3; 3] {
+        [self.v0, self.v0 + self.e1, self.v0 + self.e2]
+    }
+}
+
+/// A BVH over a triangle list. It keeps its own, traversal-friendly copy of the
+/// triangle data; [`Hit::prim`] refers to the index in the list it was built from.
+///
+/// The default value is the empty BVH: every query misses.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Bvh {
+    /// Nodes in depth-first order; empty when there are no triangles.
+    nodes: Vec<Node>,
+    /// Triangles in leaf order.
+    tris: Vec<PreTriangle>,
+    /// `prim_ids[i]` is the input index of `tris[i]`.
+    prim_ids: Vec<u32>,
+}
+
+/// A violated BVH invariant, found by [`Bvh::validate`].
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("invalid BVH at node {node}: {problem}")]
+pub struct InvalidBvh {
+    /// Index of the offending node (0 for whole-tree problems).
+    pub node: usize,
+    /// What is wrong.
+    pub problem: String,
+}
+
+impl Bvh {
+    /// Builds the hierarchy over `triangles` with the binned SAH. Uses the current
+    /// rayon pool for large subtrees; the result does not depend on its size.
+    ///
+    /// # Panics
+    /// When given more than [`MAX_TRIANGLES`] triangles.
+    pub fn build(triangles: &[Triangle]) -> Self {
+        build::build(triangles)
+    }
+
+    /// Nearest hit with `t_min < t < t_max`. Equal to a brute-force scan with
+    /// [`Triangle::intersect`] over all triangles (up to the choice between
+    /// hits at bit-identical `t`).
+    pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        traverse::intersect(self, ray, t_min, t_max)
+    }
+
+    /// True when anything lies on the ray with `t_min < t < t_max` (shadow rays).
+    /// Stops at the first hit found.
+    pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        traverse::occluded(self, ray, t_min, t_max)
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// The nodes, depth-first (see [`Node`] for the layout).
+    pub fn nodes(&self) -> &[Node] {
+        &self.nodes
+    }
+
+    /// Bounding box of everything (empty box for the empty BVH).
+    pub fn bounds(&self) -> Aabb {
+        self.nodes.first().map_or(Aabb::EMPTY, Node::bounds)
+    }
+
+    /// Checks the tree's invariants:
+    /// * the empty BVH has no nodes, triangles or ids; otherwise node 0 is the root;
+    /// * every node is reached exactly once from the root, within [`MAX_DEPTH`];
+    /// * an interior node's first child is the next node and its second child comes
+    ///   after the first child's subtree; both children's boxes lie inside the parent's;
+    /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles, their ranges cover the triangle
+    ///   array exactly once, and each leaf's box contains its triangles' vertices;
+    /// * the triangle-to-input map is a permutation (every primitive exactly once).
+    pub fn validate(&self) -> Result<(), InvalidBvh> {
+        let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
+        let n = self.tris.len();
+        if self.prim_ids.len() != n {
+            return fail(0, format!("{} triangles but {} primitive ids", n, self.prim_ids.len()));
+        }
+        if self.nodes.is_empty() {
+            return if n == 0 { Ok(()) } else { fail(0, format!("{n} triangles but no nodes")) };
+        }
+        let mut seen_prim = vec![false; n];
+        for &p in &self.prim_ids {
+            match seen_prim.get_mut(p as usize) {
+                Some(seen) if !*seen => *seen = true,
+                _ => return fail(0, format!("primitive id {p} out of range or repeated")),
+            }
+        }
+        let mut visited = vec![false; self.nodes.len()];
+        let mut covered = vec![false; n];
+        // (node, depth, end of the index range its subtree may use)
+        let mut stack = vec![(0usize, 0usize, self.nodes.len())];
+        while let Some((i, depth, end)) = stack.pop() {
+            if i >= end || visited[i] {
+                return fail(i, "node out of its subtree's range or reached twice".into());
+            }
+            visited[i] = true;
+            if depth > MAX_DEPTH {
+                return fail(i, format!("depth {depth} exceeds {MAX_DEPTH}"));
+            }
+            let node = &self.nodes[i];
+            let bounds = node.bounds();
+            if node.is_leaf() {
+                self.validate_leaf(i, node, &bounds, &mut covered)?;
+                continue;
+            }
+            let second = node.offset as usize;
+            if second <= i + 1 || second >= end {
+                return fail(i, format!("second child {second} outside ({}, {end})", i + 1));
+            }
+            for child in [i + 1, second] {
+                if !contains_box(&bounds, &self.nodes[child].bounds()) {
+                    return fail(i, format!("child {child}'s box is not inside its parent's"));
+                }
+            }
+            stack.push((second, depth + 1, end));
+            stack.push((i + 1, depth + 1, second));
+        }
+        if let Some(i) = visited.iter().position(|v| !v) {
+            return fail(i, "unreachable node".into());
+        }
+        if let Some(t) = covered.iter().position(|c| !c) {
+            return fail(0, format!("triangle {t} is in no leaf"));
+        }
+        Ok(())
+    }
+
+    fn validate_leaf(
+        &self,
+        i: usize,
+        node: &Node,
+        bounds: &Aabb,
+        covered: &mut [bool],
+    ) -> Result<(), InvalidBvh> {
+        let fail = |problem: String| Err(InvalidBvh { node: i, problem });
+        let (first, count) = (node.offset as usize, node.count as usize);
+        if count > MAX_LEAF_SIZE || first + count > self.tris.len() {
+            return fail(format!("leaf range {first}+{count} invalid"));
+        }
+        for t in first..first + count {
+            if std::mem::replace(&mut covered[t], true) {
+                return fail(format!("triangle {t} is in two leaves"));
+            }
+            let inside = self.tris[t].vertices().iter().all(|&p| contains_point(bounds, p));
+            if !inside {
+                return fail(format!("triangle {t} sticks out of its leaf's box"));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn contains_point(b: &Aabb, p: Vec3) -> bool {
+    b.min.cmple(p).all() && p.cmple(b.max).all()
+}
+
+fn contains_box(outer: &Aabb, inner: &Aabb) -> bool {
+    outer.min.cmple(inner.min).all() && inner.max.cmple(outer.max).all()
+}

@@ -1,0 +1,208 @@
+//! Wavefront OBJ meshes and their MTL material libraries (through `tobj`).
+//!
+//! `mtllib` paths are relative to the OBJ file and texture paths (`map_Kd`)
+//! relative to the MTL file; everything is read through the scene's
+//! [`super::AssetSource`]. OBJ counts texture `v` upwards from the bottom of the
+//! image, the tracer downwards from the top, so `v` is flipped.
+//!
+//! MTL materials map to the nearest Whitted material: `Ke` → emissive;
+//! `illum` 4, 6, 7 or `d` < 1 with `Ni` → dielectric (`Ni` as the index,
+//! `Tf` as the tint); `illum` 3 with a black `Kd` → mirror tinted by `Ks`;
+//! otherwise Phong with `Kd` (or `map_Kd` tinted by `Kd`), `Ks`, `Ns` and, for
+//! `illum` 3, a mirror reflection weighted by `Ks`.
+
+use super::SceneError;
+use super::build::{Builder, Origin, Placement, join};
+use crate::materials::{Albedo, Material};
+use crate::meshes::Mesh;
+use glam::{Vec2, Vec3};
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Loads the OBJ file at `path` (relative to the scene file) into the scene.
+pub(crate) fn load(
+    b: &mut Builder,
+    path: &str,
+    origin: &Origin,
+    placement: &Placement,
+) -> Result<(), SceneError> {
+    let bytes = b.read_asset(path, origin)?;
+    // tobj's material loader is a `Fn`: route reads through a RefCell and
+    // remember which library each material came from and why a read failed.
+    let assets = RefCell::new(&mut *b.assets);
+    let libraries: RefCell<Vec<(String, usize)>> = RefCell::new(Vec::new());
+    let failure: RefCell<Option<SceneError>> = RefCell::new(None);
+    let loader = |mtl: &Path| {
+        let rel = join(path, &mtl.to_string_lossy());
+        let result = match assets.borrow_mut().read(&rel) {
+            Ok(data) => tobj::load_mtl_buf(&mut data.as_slice()).inspect_err(|e| {
+                failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
+            }),
+            Err(reason) => {
+                failure.borrow_mut().get_or_insert(SceneError::MissingAsset {
+                    at: origin.at.clone(),
+                    what: format!("{} (mtllib in {path})", origin.what),
+                    path: rel.clone(),
+                    reason,
+                });
+                Err(tobj::LoadError::OpenFileFailed)
+            }
+        };
+        if let Ok((mats, _)) = &result {
+            libraries.borrow_mut().push((rel, mats.len()));
+        }
+        result
+    };
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        single_index: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let loaded = tobj::load_obj_buf(&mut bytes.as_slice(), &options, loader);
+    if let Some(e) = failure.into_inner() {
+        return Err(e);
+    }
+    let (models, materials) = loaded.map_err(|e| origin.bad_asset(path, format!("OBJ: {e}")))?;
+    let materials = materials.map_err(|e| origin.bad_asset(path, format!("MTL: {e}")))?;
+    // Which library each material index came from, to resolve its textures.
+    let mut library_of = Vec::with_capacity(materials.len());
+    for (lib, count) in libraries.into_inner() {
+        library_of.extend(std::iter::repeat_n(lib, count));
+    }
+
+    let mut mapped: HashMap<usize, u32> = HashMap::new();
+    for model in &models {
+        let m = &model.mesh;
+        let mesh = to_mesh(m).map_err(|e| origin.bad_asset(path, format!("object `{}`: {e}", model.name)))?;
+        let material = match (placement.material, m.material_id) {
+            (Some(over), _) => over,
+            (None, Some(id)) if id < materials.len() => match mapped.get(&id) {
+                Some(&i) => i,
+                None => {
+                    let lib = library_of.get(id).map_or(path, String::as_str).to_owned();
+                    let mat = convert(b, &materials[id], &lib, origin)?;
+                    let i = b.add_material(mat);
+                    mapped.insert(id, i);
+                    i
+                }
+            },
+            _ => b.default_material(),
+        };
+        b.emit(&mesh, placement, material, origin)?;
+    }
+    Ok(())
+}
+
+/// A `tobj` mesh (single-indexed) as a [`Mesh`], `v` flipped.
+fn to_mesh(m: &tobj::Mesh) -> Result<Mesh, String> {
+    if m.positions.len() % 3 != 0 || m.indices.len() % 3 != 0 {
+        return Err("malformed vertex or index arrays".into());
+    }
+    let positions: Vec<Vec3> = m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])).collect();
+    let n = positions.len();
+    let normals = if m.normals.len() == 3 * n {
+        m.normals.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2]).normalize_or_zero()).collect()
+    } else {
+        Vec::new()
+    };
+    let uvs = if m.texcoords.len() == 2 * n {
+        m.texcoords.chunks_exact(2).map(|t| Vec2::new(t[0], 1.0 - t[1])).collect()
+    } else {
+        Vec::new()
+    };
+    let indices: Vec<[u32; 3]> = m.indices.chunks_exact(3).map(|i| [i[0], i[1], i[2]]).collect();
+    if let Some(bad) = m.indices.iter().find(|&&i| i as usize >= n) {
+        return Err(format!("vertex index {bad} out of range ({n} vertices)"));
+    }
+    Ok(Mesh { positions, normals, uvs, indices })
+}
+
+fn rgb(c: Option<[f32; 3]>) -> Option<Vec3> {
+    c.map(Vec3::from)
+}
+
+fn parse_rgb(s: &str) -> Option<Vec3> {
+    let v: Vec<f32> = s.split_whitespace().map(str::parse).collect::<Result<_, _>>().ok()?;
+    match v.as_slice() {
+        [g] => Some(Vec3::splat(*g)),
+        [r, g, b] => Some(Vec3::new(*r, *g, *b)),
+        _ => None,
+    }
+}
+
+/// The texture file of a `map_Kd` statement, skipping options like `-s 1 1 1`.
+fn texture_file(spec: &str) -> &str {
+    let spec = spec.trim();
+    if spec.starts_with('-') { spec.split_whitespace().last().unwrap_or(spec) } else { spec }
+}
+
+/// Maps an MTL material to the nearest Whitted material; `library` is the MTL
+/// file's path (relative to the scene file), against which textures resolve.
+fn convert(
+    b: &mut Builder,
+    m: &tobj::Material,
+    library: &str,
+    origin: &Origin,
+) -> Result<Material, SceneError> {
+    let bad = |what: &str| origin.bad_asset(library, format!("material `{}`: {what}", m.name));
+    let finite = |v: Vec3| v.is_finite() && v.min_element() >= 0.0;
+    let kd = rgb(m.diffuse).unwrap_or(Vec3::splat(0.7));
+    let ks = rgb(m.specular).unwrap_or(Vec3::ZERO);
+    let ke = rgb(m.emissive).unwrap_or(Vec3::ZERO);
+    let tf = m.unknown_param.get("Tf").and_then(|s| parse_rgb(s)).unwrap_or(Vec3::ONE);
+    if ![kd, ks, ke, tf].into_iter().all(finite) {
+        return Err(bad("colours must be finite and non-negative"));
+    }
+    let ns = m.shininess.unwrap_or(1.0);
+    let ni = m.optical_density.unwrap_or(1.5);
+    let d = m.dissolve.unwrap_or(1.0);
+    if !(ns.is_finite() && ni.is_finite() && d.is_finite()) {
+        return Err(bad("Ns, Ni and d must be finite"));
+    }
+    let illum = m.illumination_model.unwrap_or(2);
+    if ke.max_element() > 0.0 {
+        return Ok(Material::Emissive { radiance: ke });
+    }
+    if matches!(illum, 4 | 6 | 7) || (d < 1.0 && m.optical_density.is_some()) {
+        return Ok(Material::Dielectric { ior: if ni > 0.0 { ni } else { 1.5 }, tint: tf });
+    }
+    let texture = match &m.diffuse_texture {
+        Some(spec) if !spec.trim().is_empty() => {
+            let tex_path = join(library, texture_file(spec));
+            let tex_origin =
+                Origin { at: origin.at.clone(), what: format!("{} (map_Kd of `{}`)", origin.what, m.name) };
+            Some(b.image_texture(&tex_path, &tex_origin)?)
+        }
+        _ => None,
+    };
+    if illum == 3 && texture.is_none() && kd.max_element() < 0.05 {
+        let tint = if ks.max_element() > 0.0 { ks } else { Vec3::ONE };
+        return Ok(Material::Mirror { tint });
+    }
+    let albedo = match texture {
+        Some(texture) => Albedo::Texture { texture, tint: rgb(m.diffuse).unwrap_or(Vec3::ONE) },
+        None => Albedo::Constant(kd),
+    };
+    let reflectivity = if illum == 3 { ks.max_element().clamp(0.0, 1.0) } else { 0.0 };
+    Ok(Material::Phong { albedo, specular: ks, shininess: ns.max(1.0), reflectivity })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn map_kd_options_are_skipped() {
+        assert_eq!(texture_file("wood.png"), "wood.png");
+        assert_eq!(texture_file(" -s 2 2 1 -bm 0.5 tex/wood.png "), "tex/wood.png");
+    }
+
+    #[test]
+    fn colours_parse_as_grey_or_rgb() {
+        assert_eq!(parse_rgb("0.5"), Some(Vec3::splat(0.5)));
+        assert_eq!(parse_rgb("1 0.5 0"), Some(Vec3::new(1.0, 0.5, 0.0)));
+        assert_eq!(parse_rgb("1 x 0"), None);
+    }
+}
