@@ -54,12 +54,8 @@ pub(crate) fn load(
         }
         result
     };
-    let options = tobj::LoadOptions {
-        triangulate: true,
-        single_index: true,
-        ignore_points: true,
-        ignore_lines: true,
-    };
+    let options =
+        tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
     let loaded = tobj::load_obj_buf(&mut bytes.as_slice(), &options, loader);
     if let Some(e) = failure.into_inner() {
         return Err(e);
