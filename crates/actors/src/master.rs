@@ -83,6 +83,7 @@ struct Peer {
 
 struct FrameSpec {
     id: FrameId,
+    bytes_in_at_start: u64,
     camera: Camera,
     settings: RenderSettings,
     viewer: u64,
@@ -167,6 +168,19 @@ impl Master {
         addr
     }
 
+    /// Counters of every connection, open or closed.
+    fn wire(&self) -> ConnStats {
+        let mut wire = self.closed_wire;
+        for p in self.peers.values() {
+            let s = p.sender.stats();
+            wire.bytes_sent += s.bytes_sent;
+            wire.bytes_received += s.bytes_received;
+            wire.frames_sent += s.frames_sent;
+            wire.frames_received += s.frames_received;
+        }
+        wire
+    }
+
     fn now(&self) -> Duration {
         self.epoch.elapsed()
     }
@@ -248,7 +262,10 @@ impl Master {
                         p.sender.close();
                     }
                 }
-                Output::FrameDone { frame, stats } => {
+                Output::FrameDone { frame, mut stats } => {
+                    if let Some(spec) = self.frame.as_ref().filter(|f| f.id == frame) {
+                        stats.bytes_in = self.wire().bytes_received.saturating_sub(spec.bytes_in_at_start);
+                    }
                     self.status.frames_done += 1;
                     self.status.last_frame = Some(stats.clone());
                     if let Some(spec) = self.frame.take_if(|f| f.id == frame) {
@@ -369,7 +386,9 @@ impl Master {
                 if let Err(e) = self.sched.submit_frame(now, frame, settings.width, settings.height) {
                     return self.send(id, &Message::Error { message: e.to_string() });
                 }
-                self.frame = Some(FrameSpec { id: frame, camera, settings, viewer: id, request });
+                let bytes_in_at_start = self.wire().bytes_received;
+                self.frame =
+                    Some(FrameSpec { id: frame, bytes_in_at_start, camera, settings, viewer: id, request });
                 tracing::debug!(frame, request, "frame requested {}x{}", settings.width, settings.height);
                 self.drain();
             }
@@ -527,15 +546,7 @@ impl Handler<GetStatus> for Master {
     fn handle(&mut self, _: GetStatus, _: &mut Self::Context) -> Self::Result {
         let mut status = self.status.clone();
         status.slaves = self.sched.slaves();
-        let mut wire = self.closed_wire;
-        for p in self.peers.values() {
-            let s = p.sender.stats();
-            wire.bytes_sent += s.bytes_sent;
-            wire.bytes_received += s.bytes_received;
-            wire.frames_sent += s.frames_sent;
-            wire.frames_received += s.frames_received;
-        }
-        status.wire = wire;
+        status.wire = self.wire();
         MessageResult(status)
     }
 }

@@ -177,6 +177,9 @@ pub struct FrameStats {
     pub requeued: u32,
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
+    /// Bytes the master received from all peers while the frame was open
+    /// (tiles, framing and heartbeats): the frame's cost on the slaves' links.
+    pub bytes_in: u64,
 }
 
 /// Every message of the protocol.

@@ -1,0 +1,336 @@
+//! `isin bench cluster`: frames per second through a real cluster (a master
+//! and 1 or 2 slave processes on loopback) against in-process rendering with
+//! the same number of render threads, bytes on the wire per frame, and the
+//! time from a slave's `kill -9` to its tiles being handed to another slave.
+
+use super::cluster;
+use crate::assets::load_scene_file;
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use isin_actors::auth::{self, Ticket};
+use isin_actors::viewer;
+use serde::Serialize;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// Arguments of `isin bench`.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    what: BenchCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum BenchCommand {
+    /// Cluster throughput and efficiency against in-process rendering.
+    Cluster(ClusterBenchArgs),
+}
+
+/// Arguments of `isin bench cluster`.
+#[derive(Args, Debug)]
+pub struct ClusterBenchArgs {
+    /// Scene file.
+    #[arg(long, default_value = "scenes/paper.toml")]
+    scene: PathBuf,
+    /// Timed frames per configuration (after one warm-up frame).
+    #[arg(long, default_value_t = 10)]
+    frames: u32,
+    /// Image sizes, `WxH` comma-separated.
+    #[arg(long, default_value = "320x240,640x480")]
+    sizes: String,
+    /// Slave process counts, comma-separated.
+    #[arg(long, default_value = "1,2")]
+    slaves: String,
+    /// Total render threads (split among the slaves; the in-process baseline uses as many).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Where to write the JSON results.
+    #[arg(long, default_value = "bench-cluster.json")]
+    out: PathBuf,
+}
+
+#[derive(Serialize)]
+struct Row {
+    width: u32,
+    height: u32,
+    slaves: usize,
+    threads_per_slave: usize,
+    inprocess_fps: f64,
+    cluster_fps: f64,
+    efficiency: f64,
+    bytes_per_frame_slaves_to_master: f64,
+    bytes_per_frame_master_to_viewer: f64,
+    raw_rgb_bytes_per_frame: u64,
+}
+
+#[derive(Serialize)]
+struct KillResult {
+    width: u32,
+    height: u32,
+    /// From `kill -9` to the master logging the slave dead.
+    kill_to_death_ms: f64,
+    /// From `kill -9` to the master logging its tiles handed to another slave.
+    kill_to_reassigned_ms: f64,
+    /// Tiles the dead slave held.
+    requeued: u32,
+}
+
+#[derive(Serialize)]
+struct Report {
+    scene: String,
+    cores: usize,
+    threads: usize,
+    frames: u32,
+    transport: &'static str,
+    rows: Vec<Row>,
+    kill: Option<KillResult>,
+}
+
+/// A child process killed on drop, with its stderr lines (and arrival times) on a channel.
+struct ChildGuard {
+    child: Child,
+    lines: mpsc::Receiver<(Instant, String)>,
+}
+
+impl ChildGuard {
+    fn spawn(args: &[&str]) -> anyhow::Result<(Self, BufReader<std::process::ChildStdout>)> {
+        let exe = std::env::current_exe()?;
+        let mut child = Command::new(exe)
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .context("cannot start a cluster process")?;
+        let stdout = BufReader::new(child.stdout.take().context("stdout")?);
+        let stderr = child.stderr.take().context("stderr")?;
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if tx.send((Instant::now(), line)).is_err() {
+                    break;
+                }
+            }
+        });
+        Ok((Self { child, lines }, stdout))
+    }
+
+    /// Waits for a stderr line containing `needle`; returns when it arrived.
+    fn wait_for(&self, needle: &str, timeout: Duration) -> anyhow::Result<(Instant, String)> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let (at, line) =
+                self.lines.recv_timeout(left).with_context(|| format!("no `{needle}` within {timeout:?}"))?;
+            if line.contains(needle) {
+                return Ok((at, line));
+            }
+        }
+    }
+}
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Runs `isin bench`.
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    match args.what {
+        BenchCommand::Cluster(a) => run_cluster(a),
+    }
+}
+
+fn parse_list<T: std::str::FromStr>(s: &str) -> anyhow::Result<Vec<T>> {
+    s.split(',').map(|x| x.trim().parse::<T>().map_err(|_| anyhow::anyhow!("bad list item `{x}`"))).collect()
+}
+
+fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
+    let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let threads = args.threads.unwrap_or(cores).max(1);
+    let sizes: Vec<(u32, u32)> = args
+        .sizes
+        .split(',')
+        .map(|s| {
+            let (w, h) = s.trim().split_once('x').context("size must be WxH")?;
+            Ok((w.parse()?, h.parse()?))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let slave_counts: Vec<usize> = parse_list(&args.slaves)?;
+    let (scene, _) = load_scene_file(&args.scene)?;
+    let scene_arg = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
+
+    let mut rows = Vec::new();
+    for &(w, h) in &sizes {
+        let mut settings = scene.settings;
+        settings.width = w;
+        settings.height = h;
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+        let render =
+            || pool.install(|| isin_tracer::render_frame(&scene, &scene.camera, &settings, 32, &|_| {}));
+        render();
+        let t0 = Instant::now();
+        for _ in 0..args.frames {
+            render();
+        }
+        let inprocess_fps = args.frames as f64 / t0.elapsed().as_secs_f64();
+        println!("{w}x{h} in-process, {threads} threads: {inprocess_fps:.2} frames/s");
+        for &n in &slave_counts {
+            let per = (threads / n).max(1);
+            let (fps, bytes_in, bytes_out) = cluster_fps(&scene_arg, n, per, w, h, args.frames)?;
+            let row = Row {
+                width: w,
+                height: h,
+                slaves: n,
+                threads_per_slave: per,
+                inprocess_fps,
+                cluster_fps: fps,
+                efficiency: fps / inprocess_fps,
+                bytes_per_frame_slaves_to_master: bytes_in,
+                bytes_per_frame_master_to_viewer: bytes_out,
+                raw_rgb_bytes_per_frame: w as u64 * h as u64 * 3,
+            };
+            println!(
+                "{w}x{h} cluster, {n} slave(s) × {per} threads: {fps:.2} frames/s, efficiency {:.3}, \
+                 {:.0} kB/frame slaves→master, {:.0} kB/frame master→viewer",
+                row.efficiency,
+                bytes_in / 1e3,
+                bytes_out / 1e3
+            );
+            rows.push(row);
+        }
+    }
+    let (kw, kh) = *sizes.last().context("no sizes")?;
+    let kill = match kill_latency(&scene_arg, threads, kw, kh) {
+        Ok(k) => {
+            println!(
+                "kill -9 of a slave at {kw}x{kh}: declared dead after {:.1} ms, {} tiles reassigned after {:.1} ms",
+                k.kill_to_death_ms, k.requeued, k.kill_to_reassigned_ms
+            );
+            Some(k)
+        }
+        Err(e) => {
+            println!("kill measurement failed: {e:#}");
+            None
+        }
+    };
+    let report =
+        Report { scene: scene_arg, cores, threads, frames: args.frames, transport: "tcp", rows, kill };
+    std::fs::write(&args.out, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Starts a master and `n` slave processes; returns the guards and the ticket.
+fn start_cluster(scene: &str, n: usize, per: usize) -> anyhow::Result<(ChildGuard, Vec<ChildGuard>, Ticket)> {
+    let token = auth::generate_token()?;
+    let (master, mut out) =
+        ChildGuard::spawn(&["master", scene, "--listen", "127.0.0.1:0", "--token", &token])?;
+    let mut ticket = None;
+    for _ in 0..10 {
+        let mut line = String::new();
+        if out.read_line(&mut line)? == 0 {
+            break;
+        }
+        if let Some(t) = line.strip_prefix("ticket ") {
+            ticket = Some(t.trim().to_string());
+            break;
+        }
+    }
+    let ticket: Ticket = ticket.context("master printed no ticket")?.parse()?;
+    let mut slaves = Vec::new();
+    let per_s = per.to_string();
+    for i in 0..n {
+        let name = format!("bench{i}");
+        let (s, _) = ChildGuard::spawn(&[
+            "slave",
+            "--connect",
+            &ticket.to_string(),
+            "--threads",
+            &per_s,
+            "--name",
+            &name,
+        ])?;
+        slaves.push(s);
+    }
+    for _ in 0..n {
+        master.wait_for("joined with", Duration::from_secs(60))?;
+    }
+    Ok((master, slaves, ticket))
+}
+
+/// Frames/s through master + `n` slaves, and bytes per frame in and out of the master.
+fn cluster_fps(
+    scene: &str,
+    n: usize,
+    per: usize,
+    w: u32,
+    h: u32,
+    frames: u32,
+) -> anyhow::Result<(f64, f64, f64)> {
+    let (_master, _slaves, ticket) = start_cluster(scene, n, per)?;
+    let transport = cluster::transport(&ticket.transport)?;
+    actix::System::new().block_on(async move {
+        let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
+        let mut settings = info.settings;
+        settings.width = w;
+        settings.height = h;
+        viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
+        let before = v.send(viewer::GetWireStats).await?;
+        let mut bytes_in = 0u64;
+        let t0 = Instant::now();
+        for _ in 0..frames {
+            let (_, stats) = viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
+            bytes_in += stats.bytes_in;
+        }
+        let secs = t0.elapsed().as_secs_f64();
+        let after = v.send(viewer::GetWireStats).await?;
+        let out = (after.bytes_received - before.bytes_received) as f64 / frames as f64;
+        anyhow::Ok((frames as f64 / secs, bytes_in as f64 / frames as f64, out))
+    })
+}
+
+/// Renders frames continuously through 2 slaves, kills one mid-frame, and
+/// times the master's reaction from its log lines.
+fn kill_latency(scene: &str, threads: usize, w: u32, h: u32) -> anyhow::Result<KillResult> {
+    let per = (threads / 2).max(1);
+    let (master, mut slaves, ticket) = start_cluster(scene, 2, per)?;
+    let transport = cluster::transport(&ticket.transport)?;
+    let viewer_thread = std::thread::spawn(move || {
+        actix::System::new().block_on(async move {
+            let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
+            let mut settings = info.settings;
+            settings.width = w;
+            settings.height = h;
+            for _ in 0..4 {
+                viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
+            }
+            anyhow::Ok(())
+        })
+    });
+    // Kill during the second frame, shortly after it was requested.
+    master.wait_for("frame done", Duration::from_secs(120))?;
+    let victim = slaves.remove(1);
+    let mut victim = victim;
+    let t_kill = Instant::now();
+    victim.child.kill()?;
+    let (t_dead, dead) = master.wait_for("dead (", Duration::from_secs(60))?;
+    let requeued =
+        dead.split("; ").nth(1).and_then(|s| s.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or(0);
+    let t_re = if requeued > 0 { master.wait_for("reassigned", Duration::from_secs(60))?.0 } else { t_dead };
+    viewer_thread.join().map_err(|_| anyhow::anyhow!("viewer thread panicked"))??;
+    Ok(KillResult {
+        width: w,
+        height: h,
+        kill_to_death_ms: (t_dead - t_kill).as_secs_f64() * 1e3,
+        kill_to_reassigned_ms: (t_re - t_kill).as_secs_f64() * 1e3,
+        requeued,
+    })
+}
