@@ -61,6 +61,12 @@ struct Row {
     inprocess_fps: f64,
     cluster_fps: f64,
     efficiency: f64,
+    /// CPU seconds per frame, in-process (the bench process).
+    inprocess_cpu_s_per_frame: f64,
+    /// CPU seconds per frame, cluster (master + slaves + the viewer in the bench process).
+    cluster_cpu_s_per_frame: f64,
+    /// `inprocess_cpu / cluster_cpu`: the cluster's overhead, insensitive to other load on the machine.
+    cpu_efficiency: f64,
     bytes_per_frame_slaves_to_master: f64,
     bytes_per_frame_master_to_viewer: f64,
     raw_rgb_bytes_per_frame: u64,
@@ -85,6 +91,9 @@ struct Report {
     threads: usize,
     frames: u32,
     transport: &'static str,
+    /// `/proc/loadavg` before and after: wall-clock figures mean little on a busy machine.
+    loadavg_before: String,
+    loadavg_after: String,
     rows: Vec<Row>,
     kill: Option<KillResult>,
 }
@@ -147,6 +156,22 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     }
 }
 
+/// CPU seconds (user + system) used so far by process `pid` (`self` for this one).
+fn cpu_secs(pid: &str) -> f64 {
+    let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else { return 0.0 };
+    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    (ticks(11) + ticks(12)) / hz
+}
+
+fn loadavg() -> String {
+    std::fs::read_to_string("/proc/loadavg").unwrap_or_default().trim().to_string()
+}
+
 fn parse_list<T: std::str::FromStr>(s: &str) -> anyhow::Result<Vec<T>> {
     s.split(',').map(|x| x.trim().parse::<T>().map_err(|_| anyhow::anyhow!("bad list item `{x}`"))).collect()
 }
@@ -166,6 +191,7 @@ fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
     let (scene, _) = load_scene_file(&args.scene)?;
     let scene_arg = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
 
+    let loadavg_before = loadavg();
     let mut rows = Vec::new();
     for &(w, h) in &sizes {
         let mut settings = scene.settings;
@@ -175,15 +201,18 @@ fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
         let render =
             || pool.install(|| isin_tracer::render_frame(&scene, &scene.camera, &settings, 32, &|_| {}));
         render();
-        let t0 = Instant::now();
+        let (t0, c0) = (Instant::now(), cpu_secs("self"));
         for _ in 0..args.frames {
             render();
         }
         let inprocess_fps = args.frames as f64 / t0.elapsed().as_secs_f64();
-        println!("{w}x{h} in-process, {threads} threads: {inprocess_fps:.2} frames/s");
+        let inprocess_cpu = (cpu_secs("self") - c0) / args.frames as f64;
+        println!(
+            "{w}x{h} in-process, {threads} threads: {inprocess_fps:.2} frames/s, {inprocess_cpu:.3} CPU s/frame"
+        );
         for &n in &slave_counts {
             let per = (threads / n).max(1);
-            let (fps, bytes_in, bytes_out) = cluster_fps(&scene_arg, n, per, w, h, args.frames)?;
+            let (fps, cpu, bytes_in, bytes_out) = cluster_fps(&scene_arg, n, per, w, h, args.frames)?;
             let row = Row {
                 width: w,
                 height: h,
@@ -192,14 +221,19 @@ fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
                 inprocess_fps,
                 cluster_fps: fps,
                 efficiency: fps / inprocess_fps,
+                inprocess_cpu_s_per_frame: inprocess_cpu,
+                cluster_cpu_s_per_frame: cpu,
+                cpu_efficiency: inprocess_cpu / cpu,
                 bytes_per_frame_slaves_to_master: bytes_in,
                 bytes_per_frame_master_to_viewer: bytes_out,
                 raw_rgb_bytes_per_frame: w as u64 * h as u64 * 3,
             };
             println!(
                 "{w}x{h} cluster, {n} slave(s) × {per} threads: {fps:.2} frames/s, efficiency {:.3}, \
-                 {:.0} kB/frame slaves→master, {:.0} kB/frame master→viewer",
+                 {cpu:.3} CPU s/frame (CPU efficiency {:.3}), {:.0} kB/frame slaves→master, \
+                 {:.0} kB/frame master→viewer",
                 row.efficiency,
+                row.cpu_efficiency,
                 bytes_in / 1e3,
                 bytes_out / 1e3
             );
@@ -220,8 +254,17 @@ fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
             None
         }
     };
-    let report =
-        Report { scene: scene_arg, cores, threads, frames: args.frames, transport: "tcp", rows, kill };
+    let report = Report {
+        scene: scene_arg,
+        cores,
+        threads,
+        frames: args.frames,
+        transport: "tcp",
+        loadavg_before,
+        loadavg_after: loadavg(),
+        rows,
+        kill,
+    };
     std::fs::write(&args.out, serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     println!("wrote {}", args.out.display());
@@ -266,7 +309,8 @@ fn start_cluster(scene: &str, n: usize, per: usize) -> anyhow::Result<(ChildGuar
     Ok((master, slaves, ticket))
 }
 
-/// Frames/s through master + `n` slaves, and bytes per frame in and out of the master.
+/// Frames/s through master + `n` slaves, CPU seconds per frame of all the
+/// processes involved, and bytes per frame in and out of the master.
 fn cluster_fps(
     scene: &str,
     n: usize,
@@ -274,8 +318,14 @@ fn cluster_fps(
     w: u32,
     h: u32,
     frames: u32,
-) -> anyhow::Result<(f64, f64, f64)> {
-    let (_master, _slaves, ticket) = start_cluster(scene, n, per)?;
+) -> anyhow::Result<(f64, f64, f64, f64)> {
+    let (master, slaves, ticket) = start_cluster(scene, n, per)?;
+    let pids: Vec<String> = std::iter::once(&master)
+        .chain(&slaves)
+        .map(|g| g.child.id().to_string())
+        .chain(["self".to_string()])
+        .collect();
+    let cpu = move || pids.iter().map(|p| cpu_secs(p)).sum::<f64>();
     let transport = cluster::transport(&ticket.transport)?;
     actix::System::new().block_on(async move {
         let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
@@ -285,15 +335,16 @@ fn cluster_fps(
         viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
         let before = v.send(viewer::GetWireStats).await?;
         let mut bytes_in = 0u64;
-        let t0 = Instant::now();
+        let (t0, c0) = (Instant::now(), cpu());
         for _ in 0..frames {
             let (_, stats) = viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
             bytes_in += stats.bytes_in;
         }
         let secs = t0.elapsed().as_secs_f64();
+        let cpu_per_frame = (cpu() - c0) / frames as f64;
         let after = v.send(viewer::GetWireStats).await?;
         let out = (after.bytes_received - before.bytes_received) as f64 / frames as f64;
-        anyhow::Ok((frames as f64 / secs, bytes_in as f64 / frames as f64, out))
+        anyhow::Ok((frames as f64 / secs, cpu_per_frame, bytes_in as f64 / frames as f64, out))
     })
 }
 

@@ -36,7 +36,7 @@ macro_rules! cluster_test {
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a
 /// test acts on it.
-const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "4"];
+const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "2"];
 
 cluster_test!(identical, |t: Transport| {
     let c = Cluster::start(t, 3, &[]);
