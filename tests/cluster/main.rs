@@ -13,6 +13,8 @@
 //! - `wrong_token`: refused with a clear message; no scene data reaches the intruder.
 //! - `garbage`: garbage bytes and an oversized length prefix; the master keeps rendering.
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
+//! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
+//!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
 
 mod util;
 
@@ -153,4 +155,27 @@ cluster_test!(slave_waits_for_master, |t: Transport| {
     master.wait_for(Stream::Out, "ticket ");
     slave.wait_for(Stream::Err, "joined master");
     master.wait_for(Stream::Err, "joined with");
+});
+
+cluster_test!(silent_slave_times_out_and_rejoins_with_cached_scene, |t: Transport| {
+    // A slave frozen with SIGSTOP keeps its socket open but says nothing: only
+    // the heartbeat timeout can find it out.
+    let mut c = Cluster::start(t, 2, &["--heartbeat-timeout-ms", "1000"]);
+    let (mut render, out) = c.render_async("frame.png", SLOW);
+    c.master.wait_for(Stream::Err, "frame requested");
+    let pid = c.slaves[0].pid() as libc::pid_t;
+    // SAFETY: signalling a child process this test started.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0);
+    c.master.wait_for(Stream::Err, "dead (Timeout)");
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    assert_same_pixels(&util::pixels(&out), &render_local(SLOW), "frame with a frozen slave");
+    // Thawed, it finds its connection closed, reconnects, and is not sent the
+    // scene again.
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGCONT) }, 0);
+    c.slaves[0].wait_for_n(Stream::Err, "joined master", 2);
+    c.master.wait_for(Stream::Err, "(scene cached)");
+    c.wait_joined(3);
+    assert_eq!(c.slaves[0].matching(Stream::Err, |l| l.contains("loaded scene")).len(), 1);
+    c.render("after.png", SMALL);
 });
