@@ -160,7 +160,7 @@ cluster_test!(slave_waits_for_master, |t: Transport| {
 cluster_test!(silent_slave_times_out_and_rejoins_with_cached_scene, |t: Transport| {
     // A slave frozen with SIGSTOP keeps its socket open but says nothing: only
     // the heartbeat timeout can find it out.
-    let mut c = Cluster::start(t, 2, &["--heartbeat-timeout-ms", "1000"]);
+    let c = Cluster::start(t, 2, &["--heartbeat-timeout-ms", "1000"]);
     let (mut render, out) = c.render_async("frame.png", SLOW);
     c.master.wait_for(Stream::Err, "frame requested");
     let pid = c.slaves[0].pid() as libc::pid_t;
