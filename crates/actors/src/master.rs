@@ -3,7 +3,7 @@
 //!
 //! Everything time-dependent is the scheduler's; the actor only owns the clock
 //! (a periodic tick feeds `now` into it) and the connections. Inputs arrive as
-//! actix messages from per-connection reader tasks ([`Inbound`], [`Closed`]),
+//! actix messages from per-connection reader tasks (`Inbound`, `Closed`),
 //! so a connection that sends garbage is closed without disturbing the others.
 
 use crate::auth;

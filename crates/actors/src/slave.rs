@@ -302,6 +302,14 @@ impl<R: Renderer> SlaveActor<R> {
                     );
                     return;
                 };
+                if pixels.len() != t.pixel_count() * 3 {
+                    tracing::error!(
+                        ?t,
+                        len = pixels.len(),
+                        "renderer returned the wrong number of bytes; dropped"
+                    );
+                    return;
+                }
                 let msg = Message::TileResult(TileResult {
                     frame,
                     id: job.id,

@@ -1,6 +1,6 @@
 //! The viewer: a client that asks the master for frames and receives their
 //! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
-//! [`render_frame`] collects one whole frame (used by `isin render --cluster`).
+//! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
 
 use crate::auth::Ticket;
 use crate::client::{self, JoinError};
