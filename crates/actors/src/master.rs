@@ -95,6 +95,8 @@ struct FrameSpec {
 pub struct MasterStatus {
     /// The live slaves.
     pub slaves: Vec<SlaveInfo>,
+    /// Frame requests accepted from viewers.
+    pub frames_requested: u64,
     /// Frames completed.
     pub frames_done: u64,
     /// Bytes on all connections (closed ones included).
@@ -386,6 +388,11 @@ impl Master {
                 if let Err(e) = self.sched.submit_frame(now, frame, settings.width, settings.height) {
                     return self.send(id, &Message::Error { message: e.to_string() });
                 }
+                if let Some(old) = self.frame.as_ref().filter(|f| f.viewer != id) {
+                    let message = format!("request {} superseded by another viewer's request", old.request);
+                    self.send(old.viewer, &Message::Error { message });
+                }
+                self.status.frames_requested += 1;
                 let bytes_in_at_start = self.wire().bytes_received;
                 self.frame =
                     Some(FrameSpec { id: frame, bytes_in_at_start, camera, settings, viewer: id, request });

@@ -152,3 +152,37 @@ async fn slave_joining_mid_session_gets_tiles() {
     viewer::collect_frame(&v, &mut events, Camera::default(), settings(320, 240)).await.unwrap();
     assert!(late.tiles.load(Ordering::Relaxed) > 0, "the late slave rendered tiles");
 }
+
+#[actix::test]
+async fn a_viewer_whose_frame_is_superseded_by_another_viewer_is_told() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    // No slaves yet: the first request stays open.
+    let (v1, _, mut e1) = viewer::connect(&t, &ticket, "one").await.unwrap();
+    let (v2, _, mut e2) = viewer::connect(&t, &ticket, "two").await.unwrap();
+    let first = v1.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
+    first.await.unwrap();
+    // Make sure the master has seen the first request before the second.
+    let mut seen = false;
+    for _ in 0..5000 {
+        if master.send(GetStatus).await.unwrap().frames_requested == 1 {
+            seen = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    assert!(seen, "the master never saw the first request");
+    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
+    let (frame, _) = viewer::collect_frame(&v2, &mut e2, Camera::default(), settings(32, 32)).await.unwrap();
+    assert_eq!(frame.width, 32);
+    loop {
+        match e1.recv().await.expect("viewer one hears back") {
+            viewer::ViewerEvent::Error(m) => {
+                assert!(m.contains("superseded"), "{m}");
+                break;
+            }
+            viewer::ViewerEvent::Tile { .. } => {}
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+}
