@@ -13,7 +13,7 @@ use serde::Serialize;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
 
 /// Arguments of `isin bench`.
@@ -192,54 +192,16 @@ fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
     let scene_arg = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
 
     let loadavg_before = loadavg();
-    let mut rows = Vec::new();
-    for &(w, h) in &sizes {
-        let mut settings = scene.settings;
-        settings.width = w;
-        settings.height = h;
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
-        let render =
-            || pool.install(|| isin_tracer::render_frame(&scene, &scene.camera, &settings, 32, &|_| {}));
-        render();
-        let (t0, c0) = (Instant::now(), cpu_secs("self"));
-        for _ in 0..args.frames {
-            render();
+    let scene = Arc::new(scene);
+    let pool = Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?);
+    let frames = args.frames.max(1);
+    let rows = actix::System::new().block_on(async {
+        let mut rows = Vec::new();
+        for &(w, h) in &sizes {
+            rows.extend(bench_size(&scene, &scene_arg, &pool, threads, &slave_counts, w, h, frames).await?);
         }
-        let inprocess_fps = args.frames as f64 / t0.elapsed().as_secs_f64();
-        let inprocess_cpu = (cpu_secs("self") - c0) / args.frames as f64;
-        println!(
-            "{w}x{h} in-process, {threads} threads: {inprocess_fps:.2} frames/s, {inprocess_cpu:.3} CPU s/frame"
-        );
-        for &n in &slave_counts {
-            let per = (threads / n).max(1);
-            let (fps, cpu, bytes_in, bytes_out) = cluster_fps(&scene_arg, n, per, w, h, args.frames)?;
-            let row = Row {
-                width: w,
-                height: h,
-                slaves: n,
-                threads_per_slave: per,
-                inprocess_fps,
-                cluster_fps: fps,
-                efficiency: fps / inprocess_fps,
-                inprocess_cpu_s_per_frame: inprocess_cpu,
-                cluster_cpu_s_per_frame: cpu,
-                cpu_efficiency: inprocess_cpu / cpu,
-                bytes_per_frame_slaves_to_master: bytes_in,
-                bytes_per_frame_master_to_viewer: bytes_out,
-                raw_rgb_bytes_per_frame: w as u64 * h as u64 * 3,
-            };
-            println!(
-                "{w}x{h} cluster, {n} slave(s) × {per} threads: {fps:.2} frames/s, efficiency {:.3}, \
-                 {cpu:.3} CPU s/frame (CPU efficiency {:.3}), {:.0} kB/frame slaves→master, \
-                 {:.0} kB/frame master→viewer",
-                row.efficiency,
-                row.cpu_efficiency,
-                bytes_in / 1e3,
-                bytes_out / 1e3
-            );
-            rows.push(row);
-        }
-    }
+        anyhow::Ok(rows)
+    })?;
     let (kw, kh) = *sizes.last().context("no sizes")?;
     let kill = match kill_latency(&scene_arg, threads, kw, kh) {
         Ok(k) => {
@@ -309,43 +271,130 @@ fn start_cluster(scene: &str, n: usize, per: usize) -> anyhow::Result<(ChildGuar
     Ok((master, slaves, ticket))
 }
 
-/// Frames/s through master + `n` slaves, CPU seconds per frame of all the
-/// processes involved, and bytes per frame in and out of the master.
-fn cluster_fps(
-    scene: &str,
-    n: usize,
+/// A running cluster under test and what was measured on it.
+struct Bench {
+    slaves: usize,
     per: usize,
+    pids: Vec<String>,
+    viewer: actix::Addr<viewer::ViewerActor>,
+    events: tokio::sync::mpsc::UnboundedReceiver<viewer::ViewerEvent>,
+    camera: isin_tracer::Camera,
+    secs: f64,
+    cpu: f64,
+    bytes_in: u64,
+    _guards: (ChildGuard, Vec<ChildGuard>),
+}
+
+/// One image size: the in-process baseline and every cluster setup, their
+/// frames interleaved (baseline, cluster 1, cluster 2, baseline, …) so that
+/// whatever else loads the machine weighs on all of them alike.
+#[allow(clippy::too_many_arguments)]
+async fn bench_size(
+    scene: &Arc<isin_tracer::Scene>,
+    scene_arg: &str,
+    pool: &Arc<rayon::ThreadPool>,
+    threads: usize,
+    slave_counts: &[usize],
     w: u32,
     h: u32,
     frames: u32,
-) -> anyhow::Result<(f64, f64, f64, f64)> {
-    let (master, slaves, ticket) = start_cluster(scene, n, per)?;
-    let pids: Vec<String> = std::iter::once(&master)
-        .chain(&slaves)
-        .map(|g| g.child.id().to_string())
-        .chain(["self".to_string()])
-        .collect();
-    let cpu = move || pids.iter().map(|p| cpu_secs(p)).sum::<f64>();
-    let transport = cluster::transport(&ticket.transport)?;
-    actix::System::new().block_on(async move {
-        let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
-        let mut settings = info.settings;
-        settings.width = w;
-        settings.height = h;
-        viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
-        let before = v.send(viewer::GetWireStats).await?;
-        let mut bytes_in = 0u64;
-        let (t0, c0) = (Instant::now(), cpu());
-        for _ in 0..frames {
-            let (_, stats) = viewer::collect_frame(&v, &mut events, info.camera, settings).await?;
-            bytes_in += stats.bytes_in;
+) -> anyhow::Result<Vec<Row>> {
+    let mut settings = scene.settings;
+    settings.width = w;
+    settings.height = h;
+    let mut benches = Vec::new();
+    for &n in slave_counts {
+        let per = (threads / n).max(1);
+        let (master, slaves, ticket) = start_cluster(scene_arg, n, per)?;
+        let pids = std::iter::once(&master)
+            .chain(&slaves)
+            .map(|g| g.child.id().to_string())
+            .chain(["self".to_string()])
+            .collect();
+        let transport = cluster::transport(&ticket.transport)?;
+        let (v, info, events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
+        benches.push(Bench {
+            slaves: n,
+            per,
+            pids,
+            viewer: v,
+            events,
+            camera: info.camera,
+            secs: 0.0,
+            cpu: 0.0,
+            bytes_in: 0,
+            _guards: (master, slaves),
+        });
+    }
+    let local = || {
+        let (scene, pool) = (scene.clone(), pool.clone());
+        tokio::task::spawn_blocking(move || {
+            let (t0, c0) = (Instant::now(), cpu_secs("self"));
+            pool.install(|| isin_tracer::render_frame(&scene, &scene.camera, &settings, 32, &|_| {}));
+            (t0.elapsed().as_secs_f64(), cpu_secs("self") - c0)
+        })
+    };
+    // Warm-up: one frame of each.
+    local().await?;
+    for b in &mut benches {
+        viewer::collect_frame(&b.viewer, &mut b.events, b.camera, settings).await?;
+    }
+    let mut wire_before = Vec::new();
+    for b in &benches {
+        wire_before.push(b.viewer.send(viewer::GetWireStats).await?.bytes_received);
+    }
+    let (mut local_secs, mut local_cpu) = (0.0, 0.0);
+    for _ in 0..frames {
+        let (s, c) = local().await?;
+        local_secs += s;
+        local_cpu += c;
+        for b in &mut benches {
+            let cpu = |pids: &[String]| pids.iter().map(|p| cpu_secs(p)).sum::<f64>();
+            let (t0, c0) = (Instant::now(), cpu(&b.pids));
+            let (_, stats) = viewer::collect_frame(&b.viewer, &mut b.events, b.camera, settings).await?;
+            b.secs += t0.elapsed().as_secs_f64();
+            b.cpu += cpu(&b.pids) - c0;
+            b.bytes_in += stats.bytes_in;
         }
-        let secs = t0.elapsed().as_secs_f64();
-        let cpu_per_frame = (cpu() - c0) / frames as f64;
-        let after = v.send(viewer::GetWireStats).await?;
-        let out = (after.bytes_received - before.bytes_received) as f64 / frames as f64;
-        anyhow::Ok((frames as f64 / secs, cpu_per_frame, bytes_in as f64 / frames as f64, out))
-    })
+    }
+    let n = frames as f64;
+    let (inprocess_fps, inprocess_cpu) = (n / local_secs, local_cpu / n);
+    println!(
+        "{w}x{h} in-process, {threads} threads: {inprocess_fps:.2} frames/s, {inprocess_cpu:.3} CPU s/frame"
+    );
+    let mut rows = Vec::new();
+    for (b, before) in benches.iter().zip(wire_before) {
+        let after = b.viewer.send(viewer::GetWireStats).await?.bytes_received;
+        let (fps, cpu) = (n / b.secs, b.cpu / n);
+        let row = Row {
+            width: w,
+            height: h,
+            slaves: b.slaves,
+            threads_per_slave: b.per,
+            inprocess_fps,
+            cluster_fps: fps,
+            efficiency: fps / inprocess_fps,
+            inprocess_cpu_s_per_frame: inprocess_cpu,
+            cluster_cpu_s_per_frame: cpu,
+            cpu_efficiency: inprocess_cpu / cpu,
+            bytes_per_frame_slaves_to_master: b.bytes_in as f64 / n,
+            bytes_per_frame_master_to_viewer: (after - before) as f64 / n,
+            raw_rgb_bytes_per_frame: w as u64 * h as u64 * 3,
+        };
+        println!(
+            "{w}x{h} cluster, {} slave(s) × {} threads: {fps:.2} frames/s, efficiency {:.3}, \
+             {cpu:.3} CPU s/frame (CPU efficiency {:.3}), {:.0} kB/frame slaves→master, \
+             {:.0} kB/frame master→viewer",
+            b.slaves,
+            b.per,
+            row.efficiency,
+            row.cpu_efficiency,
+            row.bytes_per_frame_slaves_to_master / 1e3,
+            row.bytes_per_frame_master_to_viewer / 1e3
+        );
+        rows.push(row);
+    }
+    Ok(rows)
 }
 
 /// Renders frames continuously through 2 slaves, kills one mid-frame, and
