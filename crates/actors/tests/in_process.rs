@@ -186,3 +186,64 @@ async fn a_viewer_whose_frame_is_superseded_by_another_viewer_is_told() {
         }
     }
 }
+
+#[actix::test]
+async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by_others() {
+    use isin_actors::client;
+    use isin_actors::protocol::{self, Message, Role, TileResult};
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    // A hand-driven slave that lies about a tile's size.
+    let (mut conn, welcome) = client::handshake(&t, &ticket, Role::Slave, "liar", 1, None).await.unwrap();
+    let max = protocol::DEFAULT_MAX_FRAME;
+    loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
+            Message::SceneSync { .. } => break,
+            Message::Heartbeat => {}
+            other => panic!("unexpected {}", other.kind()),
+        }
+    }
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash }).unwrap();
+    wait_slaves(&master, 1).await;
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    let req = v.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
+    req.await.unwrap();
+    let assignment = loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
+            Message::TileAssignment(a) => break a,
+            Message::Heartbeat => {}
+            other => panic!("unexpected {}", other.kind()),
+        }
+    };
+    let job = assignment.tiles[0];
+    let lie =
+        TileResult { frame: assignment.frame, id: job.id, render_micros: 1, pixels: vec![0u8; 5].into() };
+    client::send_message(&conn, &Message::TileResult(lie)).unwrap();
+    let reason = loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await {
+            Ok(Message::Reject { reason }) => break reason,
+            Ok(_) => {}
+            Err(e) => panic!("connection ended without a reason: {e}"),
+        }
+    };
+    assert!(reason.contains("bytes"), "{reason}");
+    assert!(matches!(
+        client::recv_message(&mut conn, max, Duration::from_secs(10)).await,
+        Err(JoinError::Closed | JoinError::Transport(_))
+    ));
+    // An honest slave finishes the frame, the liar's tiles included.
+    spawn_slave(&t, &ticket, "honest", Arc::new(Fake::default()));
+    let mut covered = 0;
+    while let Some(ev) = events.recv().await {
+        match ev {
+            viewer::ViewerEvent::Tile { tile, pixels, .. } => {
+                assert_eq!(pixels.len(), tile.pixel_count() * 3);
+                covered += tile.pixel_count();
+            }
+            viewer::ViewerEvent::FrameDone { .. } => break,
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    assert_eq!(covered, 64 * 64);
+    assert_eq!(master.send(GetStatus).await.unwrap().deaths, 1);
+}
