@@ -122,7 +122,6 @@ fn check_scene(p: &SceneParts, name: &str) {
 /// Shipped scenes are read from `scenes/`; image textures need the shading
 /// branch's MipMap.
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn every_shipped_scene_loads() {
     let mut names: Vec<String> = std::fs::read_dir(scenes_dir())
         .unwrap()
@@ -138,7 +137,6 @@ fn every_shipped_scene_loads() {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn paper_scene_has_the_papers_ingredients() {
     let (p, read) = load_shipped("paper.toml");
     check_scene(&p, "paper");
@@ -157,7 +155,6 @@ fn paper_scene_has_the_papers_ingredients() {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn mesh_scene_loads_its_obj_and_gltf() {
     let (p, read) = load_shipped("mesh.toml");
     check_scene(&p, "mesh");
@@ -169,15 +166,11 @@ fn mesh_scene_loads_its_obj_and_gltf() {
     assert!(has_material(&p, |m| matches!(m, Material::Mirror { tint } if tint.x > tint.z)));
 }
 
-/// The shipped scenes' geometry, lights and cameras, loadable before image
-/// textures exist: image textures are swapped for checkers.
+/// The shipped scenes' geometry, lights and cameras.
 #[test]
-fn shipped_scenes_load_with_images_swapped_for_checkers() {
+fn shipped_scene_layouts() {
     for name in ["paper.toml", "cornell.toml", "mesh.toml"] {
         let text = std::fs::read_to_string(scenes_dir().join(name)).unwrap();
-        let text = text.replace("kind = \"image\"", "kind = \"checker\"");
-        let text: String =
-            text.lines().filter(|l| !l.starts_with("path = \"textures/")).collect::<Vec<_>>().join("\n");
         let mut assets = Dir { base: scenes_dir(), read: BTreeMap::new() };
         let p = parse_scene(name, &text, &mut assets).unwrap_or_else(|e| panic!("{e}"));
         check_scene(&p, name);
@@ -403,11 +396,12 @@ fn missing_asset_files_are_named_with_the_referring_line() {
     let e = err(src, &mut Mem::default());
     assert_mentions(&e, &["test.toml:3", "textures/gone.png", "textures.t"]);
 
-    // An MTL library missing next to its OBJ: named by its path relative to the scene.
+    // A texture named by an MTL library: resolved against the library's directory.
     let obj = "mtllib lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n";
     let src = "[[objects]]\nkind = \"obj\"\npath = \"m/tri.obj\"\n";
-    let e = err(src, &mut Mem::default().with("m/tri.obj", obj));
-    assert_mentions(&e, &["test.toml:3", "m/lib.mtl", "mtllib"]);
+    let mut assets = Mem::default().with("m/tri.obj", obj).with("m/lib.mtl", "newmtl a\nmap_Kd tex/a.png\n");
+    let e = err(src, &mut assets);
+    assert_mentions(&e, &["test.toml:3", "m/tex/a.png", "map_Kd"]);
 
     let gltf = r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":12,"uri":"data/buf.bin"}]}"#;
     let src = "[[objects]]\nkind = \"gltf\"\npath = \"g/a.gltf\"\n";
@@ -586,6 +580,18 @@ fn obj_meshes_and_mtl_materials() {
 }
 
 #[test]
+fn a_missing_mtl_library_falls_back_to_the_default_material() {
+    let src = "[[objects]]\nkind = \"obj\"\npath = \"meshes/sub/thing.obj\"\n";
+    let p = load(src, &mut Mem::default().with("meshes/sub/thing.obj", OBJ)).unwrap();
+    assert_eq!(p.triangles.len(), 5);
+    assert_eq!(p.materials, vec![Material::default()]);
+    // A library that exists but does not parse is an error.
+    let mut assets =
+        Mem::default().with("meshes/sub/thing.obj", OBJ).with("meshes/mat/lib.mtl", "newmtl a\nKd 1 x\n");
+    assert_mentions(&err(src, &mut assets), &["test.toml:3", "MTL"]);
+}
+
+#[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\
                path = \"meshes/sub/thing.obj\"\nmaterial = \"gold\"\n";
@@ -611,6 +617,28 @@ fn shared_cornell_box_obj_loads_with_its_mtl() {
         &p,
         |m| matches!(m, Material::Phong { albedo: Albedo::Constant(c), .. } if c.x > 0.6 && c.y < 0.1)
     ));
+}
+
+#[test]
+fn shared_meshes_load_through_scene_files() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/meshes");
+    for (file, min_tris, has_uvs) in
+        [("dragon/dragon_100k.obj", 99_000, false), ("spot/spot_triangulated.obj", 5_800, true)]
+    {
+        if !dir.join(file).exists() {
+            eprintln!("skipping: {} is absent", dir.join(file).display());
+            continue;
+        }
+        let src = format!("[[objects]]\nkind = \"obj\"\npath = \"{file}\"\n");
+        let mut assets = Dir { base: dir.clone(), read: BTreeMap::new() };
+        let p = parse_scene("shared.toml", &src, &mut assets).unwrap_or_else(|e| panic!("{e}"));
+        assert!(p.triangles.len() >= min_tris, "{file}: {}", p.triangles.len());
+        let any_uv = p.shading.iter().any(|s| s.uvs.iter().any(|uv| *uv != Vec2::ZERO));
+        assert_eq!(any_uv, has_uvs, "{file}");
+        for s in &p.shading {
+            assert!(s.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-3), "{file}");
+        }
+    }
 }
 
 // ───────────────────────── glTF ─────────────────────────
@@ -796,6 +824,42 @@ fn malformed_gltf_accessors_are_errors_not_panics() {
     let mut assets = Mem::default().with("models/quad.gltf", quad_gltf(PLAIN, &buffer, ""));
     let e = err(GLTF_SCENE, &mut assets);
     assert_mentions(&e, &["test.toml:3", "models/quad.gltf"]);
+
+    let (data, _) = quad_buffer();
+    let buffer = format!(
+        r#"{{"byteLength": {}, "uri": "data:application/octet-stream;base64,{}"}}"#,
+        data.len(),
+        b64(&data)
+    );
+    let good = quad_gltf(PLAIN, &buffer, "");
+    let mutations = [
+        (r#""count": 4, "type": "VEC3", "min""#, r#""count": 4, "type": "VEC2", "min""#),
+        (
+            r#""componentType": 5126, "count": 4, "type": "VEC3", "min""#,
+            r#""componentType": 5121, "count": 4, "type": "VEC3", "min""#,
+        ),
+        (r#""componentType": 5123, "count": 6"#, r#""componentType": 5123, "count": 600"#),
+        (r#""componentType": 5123, "count": 6"#, r#""componentType": 5123, "count": 18446744073709551615"#),
+        (r#""byteOffset": 0, "byteLength""#, r#""byteOffset": 0, "byteStride": 4, "byteLength""#),
+        (r#""nodes": [0]}"#, r#""nodes": [7]}"#),
+    ];
+    for (from, to) in mutations {
+        assert!(good.contains(from), "{from}");
+        let mut assets = Mem::default().with("models/quad.gltf", good.replacen(from, to, 1));
+        let e = err(GLTF_SCENE, &mut assets);
+        assert_mentions(&e, &["test.toml:3", "models/quad.gltf"]);
+    }
+    // Indices beyond the vertex count.
+    let mut data = data;
+    let n = data.len();
+    data[n - 2..].copy_from_slice(&9u16.to_le_bytes());
+    let buffer = format!(
+        r#"{{"byteLength": {}, "uri": "data:application/octet-stream;base64,{}"}}"#,
+        data.len(),
+        b64(&data)
+    );
+    let mut assets = Mem::default().with("models/quad.gltf", quad_gltf(PLAIN, &buffer, ""));
+    assert_mentions(&err(GLTF_SCENE, &mut assets), &["out of range"]);
 }
 
 fn png_2x2() -> Vec<u8> {
@@ -806,7 +870,6 @@ fn png_2x2() -> Vec<u8> {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn gltf_base_colour_textures_load() {
     let (data, _) = quad_buffer();
     let buffer = format!(
@@ -828,10 +891,9 @@ fn gltf_base_colour_textures_load() {
 }
 
 #[test]
-#[ignore = "needs MipMap from the shading branch"]
 fn image_textures_are_shared_between_references() {
-    let src = "[textures.a]\nkind = \"image\"\npath = \"t.png\"\n\n[materials.m]\nkind = \"phong\"\ntexture = \"a\"\n\n\
-               [[objects]]\nkind = \"quad\"\nmaterial = \"m\"\n";
+    let src = "[textures.a]\nkind = \"image\"\npath = \"t.png\"\n\n[textures.b]\nkind = \"image\"\npath = \"./t.png\"\n\n\
+               [materials.m]\nkind = \"phong\"\ntexture = \"b\"\n\n[[objects]]\nkind = \"quad\"\nmaterial = \"m\"\n";
     let p = load(src, &mut Mem::default().with("t.png", png_2x2())).unwrap();
     assert_eq!(p.textures.len(), 1);
     assert_eq!(
@@ -879,7 +941,7 @@ fn scene_bundles_round_trip_through_messagepack() {
     assert_eq!(scene.materials, direct.materials);
     // A bundle missing an asset fails with the asset's name.
     let mut broken = back.clone();
-    broken.assets.remove("meshes/mat/lib.mtl");
-    let e = broken.load().expect_err("missing MTL").to_string();
-    assert_mentions(&e, &["bundle.toml:3", "meshes/mat/lib.mtl"]);
+    broken.assets.remove("meshes/sub/thing.obj");
+    let e = broken.load().expect_err("missing OBJ").to_string();
+    assert_mentions(&e, &["bundle.toml:3", "meshes/sub/thing.obj", "not in the scene bundle"]);
 }
