@@ -199,12 +199,7 @@ impl Master {
 
     fn drop_peer(&mut self, id: u64, why: &str) {
         if let Some(p) = self.peers.remove(&id) {
-            let s = p.sender.stats();
-            self.closed_wire.bytes_sent += s.bytes_sent;
-            self.closed_wire.bytes_received += s.bytes_received;
-            self.closed_wire.frames_sent += s.frames_sent;
-            self.closed_wire.frames_received += s.frames_received;
-            p.sender.close();
+            self.retire(&p);
             tracing::debug!(peer = %p.name, addr = %p.addr, "connection closed: {why}");
             match p.state {
                 PeerState::Slave => {
@@ -221,6 +216,16 @@ impl Master {
             }
         }
         self.drain();
+    }
+
+    /// Closes a removed peer's connection, keeping its byte counts.
+    fn retire(&mut self, p: &Peer) {
+        let s = p.sender.stats();
+        self.closed_wire.bytes_sent += s.bytes_sent;
+        self.closed_wire.bytes_received += s.bytes_received;
+        self.closed_wire.frames_sent += s.frames_sent;
+        self.closed_wire.frames_received += s.frames_received;
+        p.sender.close();
     }
 
     fn refuse(&mut self, id: u64, reason: String) {
@@ -261,7 +266,7 @@ impl Master {
                     if cause == DeathCause::Timeout
                         && let Some(p) = self.peers.remove(&slave)
                     {
-                        p.sender.close();
+                        self.retire(&p);
                     }
                 }
                 Output::FrameDone { frame, mut stats } => {
