@@ -359,6 +359,10 @@ impl Master {
                     self.sched.handle_heartbeat(now, id);
                     return;
                 };
+                if r.tile != rect {
+                    let got = r.tile;
+                    return self.refuse(id, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
+                }
                 if r.pixels.len() != rect.pixel_count() * 3 {
                     let n = r.pixels.len();
                     return self.refuse(

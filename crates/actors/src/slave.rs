@@ -313,6 +313,7 @@ impl<R: Renderer> SlaveActor<R> {
                 let msg = Message::TileResult(TileResult {
                     frame,
                     id: job.id,
+                    tile: t,
                     render_micros: t0.elapsed().as_micros() as u64,
                     pixels: ByteBuf::from(pixels),
                 });

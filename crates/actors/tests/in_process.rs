@@ -216,8 +216,13 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
         }
     };
     let job = assignment.tiles[0];
-    let lie =
-        TileResult { frame: assignment.frame, id: job.id, render_micros: 1, pixels: vec![0u8; 5].into() };
+    let lie = TileResult {
+        frame: assignment.frame,
+        id: job.id,
+        tile: job.tile,
+        render_micros: 1,
+        pixels: vec![0u8; 5].into(),
+    };
     client::send_message(&conn, &Message::TileResult(lie)).unwrap();
     let reason = loop {
         match client::recv_message(&mut conn, max, Duration::from_secs(10)).await {
