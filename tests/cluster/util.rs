@@ -177,10 +177,10 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The scene the cluster tests render: the shipped paper scene.
+/// The scene the cluster tests render: the shipped paper scene (its textures
+/// and meshes travel to the slaves in the scene bundle).
 pub fn scene() -> PathBuf {
-    let paper = root().join("scenes/paper.toml");
-    if paper.exists() { paper } else { root().join("tests/data/cluster.toml") }
+    root().join("scenes/paper.toml")
 }
 
 /// A master and its slaves, all separate processes.
