@@ -10,6 +10,7 @@
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
+//! - `hot_join_mid_frame`: a slave joining while a frame is open takes part in that frame.
 //! - `wrong_token`: refused with a clear message; no scene data reaches the intruder.
 //! - `garbage`: garbage bytes and an oversized length prefix; the master keeps rendering.
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
@@ -178,4 +179,19 @@ cluster_test!(silent_slave_times_out_and_rejoins_with_cached_scene, |t: Transpor
     c.wait_joined(3);
     assert_eq!(c.slaves[0].matching(Stream::Err, |l| l.contains("loaded scene")).len(), 1);
     c.render("after.png", SMALL);
+});
+
+cluster_test!(hot_join_mid_frame, |t: Transport| {
+    // A frame of ≈ 2 CPU seconds: the newcomer joins while it is being rendered
+    // and takes part in it.
+    const BIG: &[&str] = &["--width", "640", "--height", "480", "--spp", "2"];
+    let mut c = Cluster::start(t, 1, &[]);
+    let (mut render, out) = c.render_async("frame.png", BIG);
+    c.master.wait_for(Stream::Err, "frame requested");
+    c.add_slave("newcomer");
+    c.wait_joined(2);
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    let line = render.wait_for(Stream::Out, "tiles ");
+    assert!(line.contains("newcomer#"), "the newcomer rendered no tile of the open frame: {line}");
+    assert_same_pixels(&util::pixels(&out), &render_local(BIG), "frame finished with a newcomer");
 });
