@@ -109,33 +109,18 @@ cluster_test!(wrong_token, |t: Transport| {
 });
 
 cluster_test!(garbage, |t: Transport| {
-    use std::io::{Read, Write};
     let c = Cluster::start(t, 2, &[]);
-    assert_eq!(t, Transport::Tcp, "raw-socket abuse is written for TCP");
-    let closes = |mut s: std::net::TcpStream| {
-        s.set_read_timeout(Some(util::TIMEOUT)).unwrap();
-        let mut buf = Vec::new();
-        // The master may send its challenge first; then it must close.
-        let _ = s.read_to_end(&mut buf);
-        assert!(buf.len() < 1024, "master sent {} bytes to an unauthenticated peer", buf.len());
-    };
     // Random bytes.
-    let mut s = std::net::TcpStream::connect(&c.addr).unwrap();
     let junk: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
-    let _ = s.write_all(&junk);
-    closes(s);
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&junk);
     // A length prefix of 4 GiB − 1.
-    let mut s = std::net::TcpStream::connect(&c.addr).unwrap();
-    s.write_all(&u32::MAX.to_be_bytes()).unwrap();
-    closes(s);
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&u32::MAX.to_be_bytes());
     // A well-framed message that is not a message.
-    let mut s = std::net::TcpStream::connect(&c.addr).unwrap();
-    s.write_all(&8u32.to_be_bytes()).unwrap();
-    s.write_all(&[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]).unwrap();
-    closes(s);
+    let bogus = [&8u32.to_be_bytes()[..], &[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]].concat();
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&bogus);
     c.master.wait_for_n(Stream::Err, "bad frame", 3);
     // A peer that connects and says nothing does not block anyone either.
-    let _idle = std::net::TcpStream::connect(&c.addr).unwrap();
+    let _idle = util::RawPeer::connect(t, &c.addr);
     let (pixels, _) = c.render("after-garbage.png", SMALL);
     assert_same_pixels(&pixels, &render_local(SMALL), "frame after garbage");
 });

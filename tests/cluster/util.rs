@@ -29,6 +29,42 @@ impl Transport {
     }
 }
 
+/// A peer that writes raw bytes at the master, below the protocol: the
+/// transport's own framing is up to the test.
+pub enum RawPeer {
+    /// A plain TCP connection.
+    Tcp(std::net::TcpStream),
+}
+
+impl RawPeer {
+    /// Connects to the master at `addr`.
+    pub fn connect(t: Transport, addr: &str) -> RawPeer {
+        match t {
+            Transport::Tcp => RawPeer::Tcp(std::net::TcpStream::connect(addr).expect("connect")),
+        }
+    }
+
+    /// Sends `bytes` and asserts that the master then closes the connection
+    /// having sent at most its (small) challenge.
+    pub fn send_then_expect_close(self, bytes: &[u8]) {
+        use std::io::{Read, Write};
+        match self {
+            RawPeer::Tcp(mut s) => {
+                s.set_read_timeout(Some(TIMEOUT)).unwrap();
+                // The master may close before reading everything: a failed write is fine.
+                let _ = s.write_all(bytes);
+                let mut buf = Vec::new();
+                match s.read_to_end(&mut buf) {
+                    Ok(_) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => {}
+                    Err(e) => panic!("the master did not close the connection: {e}"),
+                }
+                assert!(buf.len() < 1024, "master sent {} bytes to an unauthenticated peer", buf.len());
+            }
+        }
+    }
+}
+
 /// Which output stream.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stream {
