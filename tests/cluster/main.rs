@@ -79,7 +79,7 @@ cluster_test!(hot_join, |t: Transport| {
 
 cluster_test!(wrong_token, |t: Transport| {
     let c = Cluster::start(t, 1, &[]);
-    let wrong = format!("isin://not-the-token@{}", c.addr);
+    let wrong = t.ticket("not-the-token", &c.addr);
     // A viewer…
     let (mut p, out) = {
         let scene = util::scene();
@@ -126,10 +126,9 @@ cluster_test!(garbage, |t: Transport| {
 });
 
 cluster_test!(slave_waits_for_master, |t: Transport| {
-    // Reserve a port, free it, and start the slave before the master exists.
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let addr = format!("127.0.0.1:{port}");
-    let ticket = format!("isin://tok@{addr}");
+    // Start the slave before the master exists.
+    let addr = t.free_addr();
+    let ticket = t.ticket("tok", &addr);
     let slave = Proc::spawn("early slave", &["slave", "--connect", &ticket, "--threads", "1"], "info");
     slave.wait_for(Stream::Err, "retrying");
     let scene = util::scene();

@@ -27,6 +27,24 @@ impl Transport {
             Transport::Tcp => "tcp",
         }
     }
+
+    /// A join ticket for this transport.
+    pub fn ticket(self, token: &str, addr: &str) -> String {
+        match self {
+            Transport::Tcp => format!("isin://{token}@{addr}"),
+        }
+    }
+
+    /// A loopback address whose port was free a moment ago (for a master that
+    /// must start after its slaves).
+    pub fn free_addr(self) -> String {
+        let port = match self {
+            Transport::Tcp => {
+                std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+            }
+        };
+        format!("127.0.0.1:{port}")
+    }
 }
 
 /// A peer that writes raw bytes at the master, below the protocol: the
