@@ -284,7 +284,10 @@ impl<R: Renderer> SlaveActor<R> {
             );
             let (frame, camera, settings) = (a.frame, a.camera, a.settings);
             self.pool.spawn_fifo(move || {
-                let skip = latest.load(Ordering::Acquire) > frame
+                // Skip tiles of superseded frames, cancelled tiles, and the
+                // leftovers of a session whose connection is gone.
+                let skip = sender.is_closed()
+                    || latest.load(Ordering::Acquire) > frame
                     || cancelled.lock().map(|c| c.contains(&(frame, job.id))).unwrap_or(false);
                 if skip {
                     counters.skipped.fetch_add(1, Ordering::Relaxed);
