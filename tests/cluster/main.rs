@@ -11,6 +11,8 @@
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
 //! - `hot_join_mid_frame`: a slave joining while a frame is open takes part in that frame.
+//! - `embedded_default…`: `isin` with no arguments renders through its in-process cluster,
+//!   identical to `isin render`.
 //! - `wrong_token`: refused with a clear message; no scene data reaches the intruder.
 //! - `garbage`: garbage bytes and an oversized length prefix; the master keeps rendering.
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
@@ -179,3 +181,15 @@ cluster_test!(hot_join_mid_frame, |t: Transport| {
     assert!(line.contains("newcomer#"), "the newcomer rendered no tile of the open frame: {line}");
     assert_same_pixels(&util::pixels(&out), &render_local(BIG), "frame finished with a newcomer");
 });
+
+#[test]
+fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
+    // `isin` with no arguments: master + local slaves in one process.
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = Proc::spawn_in("isin (no arguments)", dir.path(), &[], "info");
+    assert!(p.wait_exit().success(), "{}", p.dump());
+    p.wait_for(Stream::Out, "frame 2:");
+    assert_eq!(p.matching(Stream::Out, |l| l.starts_with("slave ")).len(), 2, "{}", p.dump());
+    let cluster = util::pixels(&dir.path().join("paper.png"));
+    assert_same_pixels(&cluster, &render_local(&[]), "embedded cluster frame vs isin render");
+}

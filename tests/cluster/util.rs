@@ -110,7 +110,13 @@ pub struct Proc {
 impl Proc {
     /// Starts `isin ARGS…` with logs at `log` level.
     pub fn spawn(name: &str, args: &[&str], log: &str) -> Proc {
+        Self::spawn_in(name, Path::new("."), args, log)
+    }
+
+    /// [`Proc::spawn`] in working directory `dir`.
+    pub fn spawn_in(name: &str, dir: &Path, args: &[&str], log: &str) -> Proc {
         let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
+            .current_dir(dir)
             .args(args)
             .env("RUST_LOG", log)
             .env("RUST_BACKTRACE", "0")
