@@ -23,6 +23,10 @@ use std::time::{Duration, Instant};
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// Largest samples per pixel a viewer may request.
 pub const MAX_SPP: u32 = 65536;
+/// Largest shadow-ray count per area light a viewer may request.
+pub const MAX_LIGHT_SAMPLES: u32 = 4096;
+/// Largest recursion depth a viewer may request.
+pub const MAX_DEPTH: u32 = 64;
 
 /// How the master runs.
 #[derive(Clone, Debug)]
@@ -454,6 +458,12 @@ fn validate_request(camera: &Camera, s: &RenderSettings) -> Result<(), String> {
     }
     if s.spp == 0 || s.spp > MAX_SPP {
         return Err(format!("samples per pixel {} out of range 1..={MAX_SPP}", s.spp));
+    }
+    if s.light_samples > MAX_LIGHT_SAMPLES || s.max_depth > MAX_DEPTH {
+        return Err(format!(
+            "light samples {} / depth {} above the limits {MAX_LIGHT_SAMPLES} / {MAX_DEPTH}",
+            s.light_samples, s.max_depth
+        ));
     }
     Ok(())
 }

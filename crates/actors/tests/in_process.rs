@@ -252,3 +252,24 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
     assert_eq!(covered, 64 * 64);
     assert_eq!(master.send(GetStatus).await.unwrap().deaths, 1);
 }
+
+#[actix::test]
+async fn absurd_frame_requests_get_an_error_and_the_viewer_stays_connected() {
+    let t = MemTransport::new();
+    let (_master, ticket) = start_master(&t, "tok").await;
+    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    for bad in [
+        settings(0, 10),
+        settings(100_000, 10),
+        RenderSettings { spp: 0, ..settings(8, 8) },
+        RenderSettings { max_depth: 1_000_000, ..settings(8, 8) },
+    ] {
+        let err = viewer::collect_frame(&v, &mut events, Camera::default(), bad).await;
+        assert!(matches!(err, Err(viewer::ViewerError::Master(_))), "{bad:?} accepted");
+    }
+    let mut cam = Camera::default();
+    cam.eye = cam.corners[0];
+    assert!(viewer::collect_frame(&v, &mut events, cam, settings(8, 8)).await.is_err(), "degenerate camera");
+    viewer::collect_frame(&v, &mut events, Camera::default(), settings(8, 8)).await.unwrap();
+}
