@@ -273,3 +273,22 @@ async fn absurd_frame_requests_get_an_error_and_the_viewer_stays_connected() {
     assert!(viewer::collect_frame(&v, &mut events, cam, settings(8, 8)).await.is_err(), "degenerate camera");
     viewer::collect_frame(&v, &mut events, Camera::default(), settings(8, 8)).await.unwrap();
 }
+
+#[actix::test]
+async fn a_peer_speaking_another_protocol_version_is_told_so() {
+    use isin_actors::client;
+    use isin_actors::protocol::{self, Message};
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    let mut conn = t.connect(&ticket.addr).await.unwrap();
+    let challenge = client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap();
+    assert!(matches!(challenge, Message::Challenge { .. }));
+    let mut frame = protocol::encode(&Message::Heartbeat).unwrap();
+    frame[..2].copy_from_slice(&(protocol::PROTOCOL_VERSION + 1).to_be_bytes());
+    conn.sender.send(frame).unwrap();
+    match client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap() {
+        Message::Reject { reason } => assert!(reason.contains("protocol version"), "{reason}"),
+        other => panic!("expected a refusal, got {}", other.kind()),
+    }
+    assert_eq!(master.send(GetStatus).await.unwrap().refused, 1);
+}
