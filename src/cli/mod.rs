@@ -1,7 +1,11 @@
 //! Command-line interface.
 
+mod bench;
+mod cluster;
 mod fly;
+mod master;
 mod render;
+mod slave;
 mod view;
 
 use clap::{Parser, Subcommand};
@@ -16,13 +20,19 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Render a scene to a PNG file.
+    /// Render a scene to a PNG file (locally, or through a cluster with --cluster).
     Render(render::RenderArgs),
     /// Fly through a scene in a window (keyboard and mouse navigation).
     #[command(after_help = view::KEYS_HELP)]
     View(view::ViewArgs),
     /// Replay a camera path headless: one PNG per camera, with frame times.
     Fly(fly::FlyArgs),
+    /// Serve a scene to slaves and viewers; prints a join ticket.
+    Master(master::MasterArgs),
+    /// Render tiles for a master.
+    Slave(slave::SlaveArgs),
+    /// Benchmarks (`isin bench cluster`).
+    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line and runs the chosen command.
@@ -33,12 +43,20 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Render(args)) => render::run(args),
         Some(Command::View(args)) => view::run(args),
         Some(Command::Fly(args)) => fly::run(args),
-        None => render::run_default(),
+        Some(Command::Master(args)) => master::run(args),
+        Some(Command::Slave(args)) => slave::run(args),
+        Some(Command::Bench(args)) => bench::run(args),
+        None => cluster::run_default(),
     }
 }
 
 fn init_logging() {
     use tracing_subscriber::EnvFilter;
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(ansi)
+        .with_writer(std::io::stderr)
+        .try_init();
 }

@@ -33,25 +33,17 @@ pub struct RenderArgs {
     /// Do not draw a progress bar.
     #[arg(long)]
     pub quiet: bool,
-}
-
-/// The default job with no arguments: render the shipped paper scene.
-pub fn run_default() -> anyhow::Result<()> {
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper.toml");
-    run(RenderArgs {
-        scene,
-        output: "paper.png".into(),
-        width: None,
-        height: None,
-        spp: None,
-        threads: None,
-        tile: 32,
-        quiet: false,
-    })
+    /// Render through the cluster of this join ticket (`isin://TOKEN@HOST:PORT`)
+    /// instead of locally; the master's scene, camera and settings are used.
+    #[arg(long)]
+    pub cluster: Option<String>,
 }
 
 /// Runs `isin render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    if let Some(ticket) = &args.cluster {
+        return run_cluster(&args, ticket);
+    }
     let t0 = Instant::now();
     let (scene, _bundle) = load_scene_file(&args.scene)?;
     let load_time = t0.elapsed();
@@ -109,6 +101,40 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         rays.shadow as f64 / 1e6,
         rays.total() as f64 / secs / 1e6
     );
+    println!("wrote      {}", args.output.display());
+    Ok(())
+}
+
+/// `isin render --cluster TICKET`: one frame through a running cluster.
+fn run_cluster(args: &RenderArgs, ticket: &str) -> anyhow::Result<()> {
+    let ticket = super::cluster::ticket(ticket, None, "tcp")?;
+    let t0 = Instant::now();
+    let (frame, stats, scene, wire) =
+        super::cluster::render_frame(&ticket, args.width, args.height, args.spp)?;
+    let elapsed = t0.elapsed();
+    let ours = args.scene.display().to_string();
+    let same = Path::new(&scene).file_name() == args.scene.file_name();
+    if !same {
+        tracing::warn!("the master serves {scene}, not {ours}: rendered the master's scene");
+    }
+    image::save_buffer(&args.output, &frame.rgb, frame.width, frame.height, image::ColorType::Rgb8)
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    println!("scene      {scene} (via cluster {})", ticket.addr);
+    println!("resolution {}x{}", frame.width, frame.height);
+    let per: Vec<String> = stats.per_slave.iter().map(|(k, n)| format!("{k}: {n}")).collect();
+    println!(
+        "tiles      {} ({}), {} duplicated, {} requeued",
+        stats.tiles,
+        per.join(", "),
+        stats.duplicated,
+        stats.requeued
+    );
+    println!(
+        "render     {:.1} ms (master: {:.1} ms)",
+        elapsed.as_secs_f64() * 1e3,
+        stats.micros as f64 / 1e3
+    );
+    println!("wire       {:.2} MB received", wire as f64 / 1e6);
     println!("wrote      {}", args.output.display());
     Ok(())
 }

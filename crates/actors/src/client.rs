@@ -1,0 +1,104 @@
+//! The peer side of the handshake, shared by slaves and viewers: connect,
+//! answer the master's challenge, check the master's own proof.
+
+use crate::auth::{self, Ticket};
+use crate::protocol::{
+    self, DEFAULT_MAX_FRAME, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, Welcome,
+};
+use crate::transport::{Connection, Transport, TransportError};
+use std::time::Duration;
+
+/// How long each handshake step may take.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Why joining a master failed.
+#[derive(Debug, thiserror::Error)]
+pub enum JoinError {
+    /// The network failed (worth retrying).
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The master refused us (not worth retrying: e.g. wrong token).
+    #[error("master refused: {0}")]
+    Rejected(String),
+    /// The master could not prove it knows the token.
+    #[error("master failed to prove it knows the token: not the master of this ticket")]
+    MasterUnauthenticated,
+    /// The master spoke nonsense or another protocol version.
+    #[error("protocol error: {0}")]
+    Protocol(#[from] protocol::ProtocolError),
+    /// The master sent a message we did not expect here.
+    #[error("unexpected {0} message from the master")]
+    Unexpected(&'static str),
+    /// The master did not answer in time.
+    #[error("master did not answer within {0:?}")]
+    Timeout(Duration),
+    /// The master closed the connection.
+    #[error("master closed the connection")]
+    Closed,
+    /// The scene the master sent could not be loaded.
+    #[error("cannot load the master's scene: {0}")]
+    Scene(String),
+}
+
+impl JoinError {
+    /// Whether trying again later could help.
+    pub fn is_retryable(&self) -> bool {
+        matches!(self, JoinError::Transport(_) | JoinError::Timeout(_) | JoinError::Closed)
+    }
+}
+
+/// Receives and decodes the next message, with a timeout.
+pub async fn recv_message(
+    conn: &mut Connection,
+    max: usize,
+    timeout: Duration,
+) -> Result<Message, JoinError> {
+    match tokio::time::timeout(timeout, conn.receiver.recv()).await {
+        Err(_) => Err(JoinError::Timeout(timeout)),
+        Ok(None) => Err(JoinError::Closed),
+        Ok(Some(Err(e))) => Err(e.into()),
+        Ok(Some(Ok(frame))) => Ok(protocol::decode(&frame, max)?),
+    }
+}
+
+/// Encodes and sends a message.
+pub fn send_message(conn: &Connection, msg: &Message) -> Result<(), JoinError> {
+    conn.sender.send(protocol::encode(msg)?)?;
+    Ok(())
+}
+
+/// Connects to the master of `ticket` and authenticates as `role`.
+pub async fn handshake(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    role: Role,
+    name: &str,
+    threads: u32,
+    cached_scene: Option<SceneHash>,
+) -> Result<(Connection, Welcome), JoinError> {
+    let mut conn = tokio::time::timeout(HANDSHAKE_TIMEOUT, transport.connect(&ticket.addr))
+        .await
+        .map_err(|_| JoinError::Timeout(HANDSHAKE_TIMEOUT))??;
+    let nonce = match recv_message(&mut conn, HANDSHAKE_MAX_FRAME, HANDSHAKE_TIMEOUT).await? {
+        Message::Challenge { nonce } => nonce,
+        Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
+        other => return Err(JoinError::Unexpected(other.kind())),
+    };
+    let client_nonce = auth::random_bytes::<32>().map_err(|e| JoinError::Scene(e.to_string()))?;
+    let proof = auth::client_proof(&ticket.token, role, &nonce, &client_nonce);
+    let hello = Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene };
+    send_message(&conn, &Message::Hello(hello))?;
+    // The master's welcome is small, but what follows (the scene) is not.
+    conn.sender.set_max_frame(DEFAULT_MAX_FRAME);
+    let welcome = match recv_message(&mut conn, DEFAULT_MAX_FRAME, HANDSHAKE_TIMEOUT).await? {
+        Message::Welcome(w) => w,
+        Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
+        other => return Err(JoinError::Unexpected(other.kind())),
+    };
+    let expected = auth::server_proof(&ticket.token, role, &nonce, &client_nonce);
+    if !auth::proofs_match(&expected, &welcome.proof) {
+        conn.sender.close();
+        return Err(JoinError::MasterUnauthenticated);
+    }
+    Ok((conn, welcome))
+}

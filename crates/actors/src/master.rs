@@ -1,0 +1,578 @@
+//! The master actor: accepts slaves and viewers, authenticates them, ships the
+//! scene, and turns the [`Scheduler`]'s decisions into messages.
+//!
+//! Everything time-dependent is the scheduler's; the actor only owns the clock
+//! (a periodic tick feeds `now` into it) and the connections. Inputs arrive as
+//! actix messages from per-connection reader tasks (`Inbound`, `Closed`),
+//! so a connection that sends garbage is closed without disturbing the others.
+
+use crate::auth;
+use crate::protocol::{
+    self, DEFAULT_MAX_FRAME, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Message, Role, SceneHash,
+    SceneInfo, TileAssignment, Welcome, WireBundle,
+};
+use crate::scheduler::{DeathCause, Output, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo};
+use crate::transport::{ConnStats, Connection, FrameSender, Listener};
+use actix::prelude::*;
+use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Largest image a viewer may request, in pixels per side.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Largest samples per pixel a viewer may request.
+pub const MAX_SPP: u32 = 65536;
+/// Largest shadow-ray count per area light a viewer may request.
+pub const MAX_LIGHT_SAMPLES: u32 = 4096;
+/// Largest recursion depth a viewer may request.
+pub const MAX_DEPTH: u32 = 64;
+
+/// How the master runs.
+#[derive(Clone, Debug)]
+pub struct MasterConfig {
+    /// The shared secret peers must prove.
+    pub token: String,
+    /// The scene to serve.
+    pub bundle: Arc<SceneBundle>,
+    /// The scene's own camera (offered to viewers).
+    pub camera: Camera,
+    /// The scene's own settings (offered to viewers).
+    pub settings: RenderSettings,
+    /// Scheduling knobs.
+    pub scheduler: SchedulerConfig,
+    /// Period of the clock tick (timeouts, heartbeats).
+    pub tick: Duration,
+    /// How often the master tells peers it is alive.
+    pub heartbeat_interval: Duration,
+    /// A peer that has not authenticated within this is dropped.
+    pub handshake_timeout: Duration,
+    /// Largest frame accepted from an authenticated peer.
+    pub max_frame: usize,
+}
+
+impl MasterConfig {
+    /// Defaults around a scene and a token.
+    pub fn new(token: String, bundle: SceneBundle, camera: Camera, settings: RenderSettings) -> Self {
+        Self {
+            token,
+            bundle: Arc::new(bundle),
+            camera,
+            settings,
+            scheduler: SchedulerConfig::default(),
+            tick: Duration::from_millis(50),
+            heartbeat_interval: Duration::from_millis(500),
+            handshake_timeout: Duration::from_secs(10),
+            max_frame: DEFAULT_MAX_FRAME,
+        }
+    }
+}
+
+#[derive(Debug)]
+enum PeerState {
+    AwaitHello { nonce: [u8; 32] },
+    Syncing { threads: u32 },
+    Slave,
+    Viewer,
+}
+
+#[derive(Debug)]
+struct Peer {
+    sender: FrameSender,
+    name: String,
+    addr: String,
+    state: PeerState,
+    since: Duration,
+}
+
+struct FrameSpec {
+    id: FrameId,
+    bytes_in_at_start: u64,
+    camera: Camera,
+    settings: RenderSettings,
+    viewer: u64,
+    request: u64,
+}
+
+/// Counters of the whole master, for `isin bench` and the embedded default.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MasterStatus {
+    /// The live slaves.
+    pub slaves: Vec<SlaveInfo>,
+    /// Frame requests accepted from viewers.
+    pub frames_requested: u64,
+    /// Frames completed.
+    pub frames_done: u64,
+    /// Bytes on all connections (closed ones included).
+    pub wire: ConnStats,
+    /// Connections refused (bad token, bad protocol, garbage).
+    pub refused: u64,
+    /// Slaves declared dead.
+    pub deaths: u64,
+    /// Last completed frame's stats.
+    pub last_frame: Option<FrameStats>,
+}
+
+/// The master actor.
+pub struct Master {
+    cfg: MasterConfig,
+    sched: Scheduler,
+    epoch: Instant,
+    next_peer: u64,
+    peers: HashMap<u64, Peer>,
+    frame: Option<FrameSpec>,
+    next_frame: FrameId,
+    scene_hash: SceneHash,
+    scene_sync: Arc<Vec<u8>>,
+    last_heartbeat: Duration,
+    status: MasterStatus,
+    closed_wire: ConnStats,
+}
+
+impl Master {
+    /// A master for `cfg`; fails only if the scene cannot be encoded.
+    pub fn new(cfg: MasterConfig) -> Result<Self, protocol::ProtocolError> {
+        let scene_hash = protocol::scene_hash(&cfg.bundle);
+        let scene_sync = Arc::new(protocol::encode(&Message::SceneSync {
+            hash: scene_hash,
+            bundle: WireBundle::from(cfg.bundle.as_ref()),
+        })?);
+        Ok(Self {
+            sched: Scheduler::new(cfg.scheduler.clone()),
+            cfg,
+            epoch: Instant::now(),
+            next_peer: 1,
+            peers: HashMap::new(),
+            frame: None,
+            next_frame: 1,
+            scene_hash,
+            scene_sync,
+            last_heartbeat: Duration::ZERO,
+            status: MasterStatus::default(),
+            closed_wire: ConnStats::default(),
+        })
+    }
+
+    /// Starts the master and an accept loop on `listener`.
+    pub fn serve(self, mut listener: Box<dyn Listener>) -> Addr<Master> {
+        let addr = self.start();
+        let target = addr.clone();
+        tokio::spawn(async move {
+            loop {
+                match listener.accept().await {
+                    Ok(conn) => target.do_send(Accepted(conn)),
+                    Err(e) => {
+                        tracing::warn!("accept failed: {e}");
+                        if !target.connected() {
+                            return;
+                        }
+                        tokio::time::sleep(Duration::from_millis(50)).await;
+                    }
+                }
+            }
+        });
+        addr
+    }
+
+    /// Counters of every connection, open or closed.
+    fn wire(&self) -> ConnStats {
+        let mut wire = self.closed_wire;
+        for p in self.peers.values() {
+            let s = p.sender.stats();
+            wire.bytes_sent += s.bytes_sent;
+            wire.bytes_received += s.bytes_received;
+            wire.frames_sent += s.frames_sent;
+            wire.frames_received += s.frames_received;
+        }
+        wire
+    }
+
+    fn now(&self) -> Duration {
+        self.epoch.elapsed()
+    }
+
+    fn send(&self, peer: u64, msg: &Message) {
+        let Some(p) = self.peers.get(&peer) else { return };
+        match protocol::encode(msg) {
+            Ok(bytes) => {
+                let _ = p.sender.send(bytes);
+            }
+            Err(e) => tracing::error!("cannot encode {}: {e}", msg.kind()),
+        }
+    }
+
+    fn drop_peer(&mut self, id: u64, why: &str) {
+        if let Some(p) = self.peers.remove(&id) {
+            self.retire(&p);
+            tracing::debug!(peer = %p.name, addr = %p.addr, "connection closed: {why}");
+            match p.state {
+                PeerState::Slave => {
+                    let now = self.now();
+                    self.sched.handle_disconnect(now, id);
+                }
+                PeerState::Viewer => {
+                    if self.frame.as_ref().is_some_and(|f| f.viewer == id) {
+                        self.sched.abandon_frame();
+                        self.frame = None;
+                    }
+                }
+                PeerState::AwaitHello { .. } | PeerState::Syncing { .. } => {}
+            }
+        }
+        self.drain();
+    }
+
+    /// Closes a removed peer's connection, keeping its byte counts.
+    fn retire(&mut self, p: &Peer) {
+        let s = p.sender.stats();
+        self.closed_wire.bytes_sent += s.bytes_sent;
+        self.closed_wire.bytes_received += s.bytes_received;
+        self.closed_wire.frames_sent += s.frames_sent;
+        self.closed_wire.frames_received += s.frames_received;
+        p.sender.close();
+    }
+
+    fn refuse(&mut self, id: u64, reason: String) {
+        if let Some(p) = self.peers.get(&id) {
+            tracing::warn!(addr = %p.addr, "refused {}: {reason}", p.name);
+        }
+        self.status.refused += 1;
+        self.send(id, &Message::Reject { reason });
+        self.drop_peer(id, "refused");
+    }
+
+    fn drain(&mut self) {
+        let now = self.now();
+        while let Some(out) = self.sched.poll_output(now) {
+            match out {
+                Output::Assign { slave, frame, tiles, reassigned } => {
+                    let Some(spec) = self.frame.as_ref().filter(|f| f.id == frame) else { continue };
+                    if reassigned > 0 {
+                        let name = self.peers.get(&slave).map_or("?", |p| p.name.as_str());
+                        tracing::info!(
+                            slave = name,
+                            frame,
+                            "reassigned {reassigned} tiles of dead slaves to {name}"
+                        );
+                    }
+                    let msg = Message::TileAssignment(TileAssignment {
+                        frame,
+                        camera: spec.camera,
+                        settings: spec.settings,
+                        tiles,
+                    });
+                    self.send(slave, &msg);
+                }
+                Output::Cancel { slave, frame, tiles } => self.send(slave, &Message::Cancel { frame, tiles }),
+                Output::SlaveDead { slave, name, cause, requeued } => {
+                    self.status.deaths += 1;
+                    tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
+                    if cause == DeathCause::Timeout
+                        && let Some(p) = self.peers.remove(&slave)
+                    {
+                        self.retire(&p);
+                    }
+                }
+                Output::FrameDone { frame, mut stats } => {
+                    if let Some(spec) = self.frame.as_ref().filter(|f| f.id == frame) {
+                        stats.bytes_in = self.wire().bytes_received.saturating_sub(spec.bytes_in_at_start);
+                    }
+                    self.status.frames_done += 1;
+                    self.status.last_frame = Some(stats.clone());
+                    if let Some(spec) = self.frame.take_if(|f| f.id == frame) {
+                        tracing::info!(
+                            frame,
+                            "frame done in {:.1} ms: {} tiles, {} duplicated, {} requeued",
+                            stats.micros as f64 / 1e3,
+                            stats.tiles,
+                            stats.duplicated,
+                            stats.requeued
+                        );
+                        self.send(spec.viewer, &Message::FrameDone { request: spec.request, stats });
+                    }
+                }
+            }
+        }
+    }
+
+    fn on_message(&mut self, id: u64, msg: Message) {
+        let now = self.now();
+        let Some(peer) = self.peers.get_mut(&id) else { return };
+        match (&peer.state, msg) {
+            (PeerState::AwaitHello { nonce }, Message::Hello(hello)) => {
+                let nonce = *nonce;
+                let expected = auth::client_proof(&self.cfg.token, hello.role, &nonce, &hello.client_nonce);
+                if !auth::proofs_match(&expected, &hello.proof) {
+                    return self.refuse(id, "authentication failed: wrong token".into());
+                }
+                let name: String = hello.name.chars().filter(|c| !c.is_control()).take(48).collect();
+                peer.name = format!("{name}#{id}");
+                peer.sender.set_max_frame(self.cfg.max_frame);
+                let welcome = Welcome {
+                    id,
+                    name: peer.name.clone(),
+                    proof: auth::server_proof(&self.cfg.token, hello.role, &nonce, &hello.client_nonce),
+                    scene: SceneInfo {
+                        name: self.cfg.bundle.name.clone(),
+                        hash: self.scene_hash,
+                        camera: self.cfg.camera,
+                        settings: self.cfg.settings,
+                    },
+                };
+                match hello.role {
+                    Role::Viewer => {
+                        peer.state = PeerState::Viewer;
+                        tracing::info!(viewer = %peer.name, addr = %peer.addr, "viewer {} connected", peer.name);
+                        self.send(id, &Message::Welcome(welcome));
+                    }
+                    Role::Slave => {
+                        peer.state = PeerState::Syncing { threads: hello.threads };
+                        let cached = hello.cached_scene == Some(self.scene_hash);
+                        tracing::info!(
+                            slave = %peer.name,
+                            addr = %peer.addr,
+                            threads = hello.threads,
+                            "slave {} authenticated{}",
+                            peer.name,
+                            if cached { " (scene cached)" } else { "; sending scene" }
+                        );
+                        self.send(id, &Message::Welcome(welcome));
+                        if !cached && let Some(p) = self.peers.get(&id) {
+                            let _ = p.sender.send(self.scene_sync.as_ref().clone());
+                        }
+                    }
+                }
+            }
+            (PeerState::AwaitHello { .. }, other) => {
+                self.refuse(id, format!("expected Hello, got {}", other.kind()));
+            }
+            (PeerState::Syncing { threads }, Message::Ready { hash }) => {
+                if hash != self.scene_hash {
+                    return self.refuse(id, "slave loaded a different scene".into());
+                }
+                let threads = *threads;
+                peer.state = PeerState::Slave;
+                let name = peer.name.clone();
+                tracing::info!(slave = %name, threads, "slave {name} joined with {threads} threads");
+                self.sched.handle_join(now, id, name, threads);
+                self.drain();
+            }
+            (PeerState::Slave, Message::TileResult(r)) => {
+                let Some(rect) = self.sched.tile(r.frame, r.id) else {
+                    // Not the current frame: stale, drop quietly.
+                    self.sched.handle_heartbeat(now, id);
+                    return;
+                };
+                if r.tile != rect {
+                    let got = r.tile;
+                    return self.refuse(id, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
+                }
+                if r.pixels.len() != rect.pixel_count() * 3 {
+                    let n = r.pixels.len();
+                    return self.refuse(
+                        id,
+                        format!("tile {} has {n} bytes, expected {}", r.id, rect.pixel_count() * 3),
+                    );
+                }
+                match self.sched.handle_result(now, id, r.frame, r.id) {
+                    ResultOutcome::Accepted { tile } => {
+                        if let Some(spec) = self.frame.as_ref().filter(|f| f.id == r.frame) {
+                            let msg = Message::FrameTile(FrameTile {
+                                request: spec.request,
+                                tile,
+                                pixels: r.pixels,
+                            });
+                            self.send(spec.viewer, &msg);
+                        }
+                    }
+                    outcome => tracing::trace!(?outcome, "tile result dropped"),
+                }
+                self.drain();
+            }
+            (PeerState::Slave | PeerState::Syncing { .. }, Message::Heartbeat) => {
+                self.sched.handle_heartbeat(now, id);
+            }
+            (PeerState::Viewer, Message::FrameRequest { request, camera, settings }) => {
+                if let Err(e) = validate_request(&camera, &settings) {
+                    return self.send(id, &Message::Error { message: e });
+                }
+                let frame = self.next_frame;
+                self.next_frame += 1;
+                if let Err(e) = self.sched.submit_frame(now, frame, settings.width, settings.height) {
+                    return self.send(id, &Message::Error { message: e.to_string() });
+                }
+                if let Some(old) = self.frame.as_ref().filter(|f| f.viewer != id) {
+                    let message = format!("request {} superseded by another viewer's request", old.request);
+                    self.send(old.viewer, &Message::Error { message });
+                }
+                self.status.frames_requested += 1;
+                let bytes_in_at_start = self.wire().bytes_received;
+                self.frame =
+                    Some(FrameSpec { id: frame, bytes_in_at_start, camera, settings, viewer: id, request });
+                tracing::debug!(frame, request, "frame requested {}x{}", settings.width, settings.height);
+                self.drain();
+            }
+            (PeerState::Viewer, Message::Heartbeat) => {}
+            (_, Message::Error { message }) => {
+                tracing::warn!(peer = %peer.name, "peer reports: {message}");
+            }
+            (_, other) => {
+                let kind = other.kind();
+                self.refuse(id, format!("unexpected {kind} message"));
+            }
+        }
+    }
+
+    fn on_tick(&mut self) {
+        let now = self.now();
+        self.sched.handle_timeout(now);
+        let late: Vec<u64> = self
+            .peers
+            .iter()
+            .filter(|(_, p)| {
+                matches!(p.state, PeerState::AwaitHello { .. }) && now > p.since + self.cfg.handshake_timeout
+            })
+            .map(|(&id, _)| id)
+            .collect();
+        for id in late {
+            self.refuse(id, "handshake timed out".into());
+        }
+        if now >= self.last_heartbeat + self.cfg.heartbeat_interval {
+            self.last_heartbeat = now;
+            if let Ok(hb) = protocol::encode(&Message::Heartbeat) {
+                for p in self.peers.values() {
+                    if !matches!(p.state, PeerState::AwaitHello { .. }) {
+                        let _ = p.sender.send(hb.clone());
+                    }
+                }
+            }
+        }
+        self.drain();
+    }
+}
+
+fn validate_request(camera: &Camera, s: &RenderSettings) -> Result<(), String> {
+    camera.validate().map_err(|e| format!("bad camera: {e}"))?;
+    if s.width == 0 || s.height == 0 || s.width > MAX_IMAGE_SIDE || s.height > MAX_IMAGE_SIDE {
+        return Err(format!("image size {}x{} out of range 1..={MAX_IMAGE_SIDE}", s.width, s.height));
+    }
+    if s.spp == 0 || s.spp > MAX_SPP {
+        return Err(format!("samples per pixel {} out of range 1..={MAX_SPP}", s.spp));
+    }
+    if s.light_samples > MAX_LIGHT_SAMPLES || s.max_depth > MAX_DEPTH {
+        return Err(format!(
+            "light samples {} / depth {} above the limits {MAX_LIGHT_SAMPLES} / {MAX_DEPTH}",
+            s.light_samples, s.max_depth
+        ));
+    }
+    Ok(())
+}
+
+impl Actor for Master {
+    type Context = Context<Self>;
+
+    fn started(&mut self, ctx: &mut Self::Context) {
+        ctx.run_interval(self.cfg.tick, |m, _| m.on_tick());
+    }
+}
+
+/// A new connection from the listener.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct Accepted(pub Connection);
+
+/// A frame (or a transport error) from connection `peer`.
+#[derive(Message)]
+#[rtype(result = "()")]
+struct Inbound {
+    peer: u64,
+    frame: Result<Vec<u8>, crate::transport::TransportError>,
+}
+
+/// Connection `peer` ended.
+#[derive(Message)]
+#[rtype(result = "()")]
+struct Closed {
+    peer: u64,
+}
+
+/// Asks for the master's counters.
+#[derive(Message)]
+#[rtype(result = "MasterStatus")]
+pub struct GetStatus;
+
+impl Handler<Accepted> for Master {
+    type Result = ();
+
+    fn handle(&mut self, Accepted(conn): Accepted, ctx: &mut Self::Context) {
+        let id = self.next_peer;
+        self.next_peer += 1;
+        let Ok(nonce) = auth::random_bytes::<32>() else {
+            tracing::error!("no randomness: refusing connection");
+            conn.sender.close();
+            return;
+        };
+        let Connection { peer: addr, sender, mut receiver } = conn;
+        sender.set_max_frame(HANDSHAKE_MAX_FRAME);
+        let me = ctx.address();
+        tokio::spawn(async move {
+            while let Some(frame) = receiver.recv().await {
+                me.do_send(Inbound { peer: id, frame });
+            }
+            me.do_send(Closed { peer: id });
+        });
+        let now = self.now();
+        tracing::debug!(%addr, "connection #{id}");
+        self.peers.insert(
+            id,
+            Peer {
+                sender,
+                name: format!("peer#{id}"),
+                addr,
+                state: PeerState::AwaitHello { nonce },
+                since: now,
+            },
+        );
+        self.send(id, &Message::Challenge { nonce });
+    }
+}
+
+impl Handler<Inbound> for Master {
+    type Result = ();
+
+    fn handle(&mut self, msg: Inbound, _: &mut Self::Context) {
+        let Some(peer) = self.peers.get(&msg.peer) else { return };
+        let max = if matches!(peer.state, PeerState::AwaitHello { .. }) {
+            HANDSHAKE_MAX_FRAME
+        } else {
+            self.cfg.max_frame
+        };
+        match msg
+            .frame
+            .map_err(|e| e.to_string())
+            .and_then(|f| protocol::decode(&f, max).map_err(|e| e.to_string()))
+        {
+            Ok(m) => self.on_message(msg.peer, m),
+            Err(e) => self.refuse(msg.peer, format!("bad frame: {e}")),
+        }
+    }
+}
+
+impl Handler<Closed> for Master {
+    type Result = ();
+
+    fn handle(&mut self, msg: Closed, _: &mut Self::Context) {
+        self.drop_peer(msg.peer, "peer closed");
+    }
+}
+
+impl Handler<GetStatus> for Master {
+    type Result = MessageResult<GetStatus>;
+
+    fn handle(&mut self, _: GetStatus, _: &mut Self::Context) -> Self::Result {
+        let mut status = self.status.clone();
+        status.slaves = self.sched.slaves();
+        status.wire = self.wire();
+        MessageResult(status)
+    }
+}

@@ -1,0 +1,541 @@
+//! The wire protocol: every message the master, slaves and viewers exchange,
+//! and its encoding.
+//!
+//! A frame on the wire is `[version: u16 big-endian][MessagePack body]`. The
+//! version comes first so that a peer speaking another protocol version gets a
+//! clear [`ProtocolError::Version`] instead of a confusing decode error.
+//! Decoding takes untrusted bytes: it never panics, refuses frames above a
+//! maximum length before looking at them, and leaves allocation of variable
+//! fields to rmp-serde, which checks declared lengths against the bytes present.
+
+use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
+use serde::{Deserialize, Serialize};
+use serde_bytes::ByteBuf;
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+
+/// Version of the protocol spoken by this build; peers must match exactly.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+/// Default largest frame accepted from an authenticated peer (scene bundles
+/// with meshes and textures are the big ones).
+pub const DEFAULT_MAX_FRAME: usize = 512 << 20;
+
+/// Largest frame accepted before a peer has authenticated: a handshake message
+/// is tiny, so an unauthenticated peer cannot make anyone allocate much.
+pub const HANDSHAKE_MAX_FRAME: usize = 16 << 10;
+
+/// SHA-256 of a scene bundle's contents: slaves cache scenes by it.
+pub type SceneHash = [u8; 32];
+
+/// Identifies a frame in the master (increasing).
+pub type FrameId = u64;
+
+/// Identifies a tile within a frame.
+pub type TileId = u32;
+
+/// What a connecting peer wants to be.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Role {
+    /// Renders tiles.
+    Slave,
+    /// Requests frames and receives their tiles.
+    Viewer,
+}
+
+/// A peer's answer to the master's [`Message::Challenge`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Hello {
+    /// Slave or viewer.
+    pub role: Role,
+    /// Human-readable name for logs (the master truncates it).
+    pub name: String,
+    /// Render threads (slaves; 0 for viewers).
+    pub threads: u32,
+    /// The peer's own nonce, so the master's proof is fresh too.
+    pub client_nonce: [u8; 32],
+    /// `HMAC-SHA256(token, …)` over both nonces and the role: see [`crate::auth`].
+    pub proof: [u8; 32],
+    /// The scene this peer already holds, if any: it is not sent again.
+    pub cached_scene: Option<SceneHash>,
+}
+
+/// What a viewer needs to know about the scene being served.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneInfo {
+    /// The scene file's name.
+    pub name: String,
+    /// Content hash of its bundle.
+    pub hash: SceneHash,
+    /// The scene's own camera.
+    pub camera: Camera,
+    /// The scene's own render settings.
+    pub settings: RenderSettings,
+}
+
+/// The master's acceptance of a peer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Welcome {
+    /// The id the master gave this peer.
+    pub id: u64,
+    /// The name the master will use for it in logs.
+    pub name: String,
+    /// Proof that the master knows the token too (mutual authentication).
+    pub proof: [u8; 32],
+    /// The scene being served.
+    pub scene: SceneInfo,
+}
+
+/// A scene bundle as it travels: asset bytes as MessagePack binaries.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WireBundle {
+    /// Name of the scene file.
+    pub name: String,
+    /// The scene file's text.
+    pub source: String,
+    /// Asset bytes by path.
+    pub assets: BTreeMap<String, ByteBuf>,
+}
+
+impl From<&SceneBundle> for WireBundle {
+    fn from(b: &SceneBundle) -> Self {
+        Self {
+            name: b.name.clone(),
+            source: b.source.clone(),
+            assets: b.assets.iter().map(|(k, v)| (k.clone(), ByteBuf::from(v.clone()))).collect(),
+        }
+    }
+}
+
+impl From<WireBundle> for SceneBundle {
+    fn from(b: WireBundle) -> Self {
+        Self {
+            name: b.name,
+            source: b.source,
+            assets: b.assets.into_iter().map(|(k, v)| (k, v.into_vec())).collect(),
+        }
+    }
+}
+
+/// One tile of an assignment.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TileJob {
+    /// The tile's id within its frame.
+    pub id: TileId,
+    /// Its pixels.
+    pub tile: Tile,
+}
+
+/// Master → slave: render these tiles of this frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TileAssignment {
+    /// The frame they belong to.
+    pub frame: FrameId,
+    /// The frame's camera (carried by every assignment so that message order
+    /// does not matter).
+    pub camera: Camera,
+    /// The frame's settings.
+    pub settings: RenderSettings,
+    /// The tiles.
+    pub tiles: Vec<TileJob>,
+}
+
+/// Slave → master: a rendered tile.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TileResult {
+    /// The frame it belongs to.
+    pub frame: FrameId,
+    /// The tile's id.
+    pub id: TileId,
+    /// The tile's rectangle (checked by the master against the one it assigned).
+    pub tile: Tile,
+    /// Wall time spent rendering it, in microseconds.
+    pub render_micros: u64,
+    /// `w * h * 3` bytes of sRGB RGB8, row-major.
+    pub pixels: ByteBuf,
+}
+
+/// Master → viewer: a finished tile of a requested frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameTile {
+    /// The viewer's request number.
+    pub request: u64,
+    /// Where the pixels go.
+    pub tile: Tile,
+    /// `w * h * 3` bytes of sRGB RGB8, row-major.
+    pub pixels: ByteBuf,
+}
+
+/// Summary of one completed frame.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FrameStats {
+    /// Master-side time from request to last tile, microseconds.
+    pub micros: u64,
+    /// Tiles accepted (after end-of-frame splitting).
+    pub tiles: u32,
+    /// Tiles handed out a second time to an idle slave.
+    pub duplicated: u32,
+    /// Tiles put back in the queue because their slave died.
+    pub requeued: u32,
+    /// Tiles accepted per slave name.
+    pub per_slave: BTreeMap<String, u32>,
+    /// Bytes the master received from all peers while the frame was open
+    /// (tiles, framing and heartbeats): the frame's cost on the slaves' links.
+    pub bytes_in: u64,
+}
+
+/// Every message of the protocol.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Message {
+    /// Master → any peer, first: a fresh nonce to prove the token over.
+    Challenge {
+        /// Random bytes, never reused.
+        nonce: [u8; 32],
+    },
+    /// Peer → master: who it is, with its proof of the token.
+    Hello(Hello),
+    /// Master → peer: accepted.
+    Welcome(Welcome),
+    /// Either way: refused, with the reason; the connection closes after it.
+    Reject {
+        /// Human-readable reason.
+        reason: String,
+    },
+    /// Master → slave: the scene, sent once per slave and only if the slave
+    /// does not already hold a scene with this hash.
+    SceneSync {
+        /// Content hash of the bundle.
+        hash: SceneHash,
+        /// The scene.
+        bundle: WireBundle,
+    },
+    /// Slave → master: scene loaded, ready for tiles.
+    Ready {
+        /// Hash of the scene it holds.
+        hash: SceneHash,
+    },
+    /// Viewer → master: render a frame (supersedes any earlier request).
+    FrameRequest {
+        /// The viewer's request number, echoed in replies.
+        request: u64,
+        /// Camera to render with.
+        camera: Camera,
+        /// Resolution, samples and the rest.
+        settings: RenderSettings,
+    },
+    /// Master → slave: tiles to render.
+    TileAssignment(TileAssignment),
+    /// Master → slave: drop these tiles if not started (another slave won, or
+    /// the frame was superseded).
+    Cancel {
+        /// The frame.
+        frame: FrameId,
+        /// The tiles.
+        tiles: Vec<TileId>,
+    },
+    /// Slave → master: a rendered tile.
+    TileResult(TileResult),
+    /// Master → viewer: a tile of the requested frame.
+    FrameTile(FrameTile),
+    /// Master → viewer: the requested frame is complete.
+    FrameDone {
+        /// The viewer's request number.
+        request: u64,
+        /// How it went.
+        stats: FrameStats,
+    },
+    /// Either way: still alive.
+    Heartbeat,
+    /// Either way: a request could not be served (the connection stays open).
+    Error {
+        /// Human-readable message.
+        message: String,
+    },
+}
+
+impl Message {
+    /// Short name of the message kind, for logs.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Message::Challenge { .. } => "Challenge",
+            Message::Hello(_) => "Hello",
+            Message::Welcome(_) => "Welcome",
+            Message::Reject { .. } => "Reject",
+            Message::SceneSync { .. } => "SceneSync",
+            Message::Ready { .. } => "Ready",
+            Message::FrameRequest { .. } => "FrameRequest",
+            Message::TileAssignment(_) => "TileAssignment",
+            Message::Cancel { .. } => "Cancel",
+            Message::TileResult(_) => "TileResult",
+            Message::FrameTile(_) => "FrameTile",
+            Message::FrameDone { .. } => "FrameDone",
+            Message::Heartbeat => "Heartbeat",
+            Message::Error { .. } => "Error",
+        }
+    }
+}
+
+/// Why a frame could not be encoded or decoded.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ProtocolError {
+    /// Shorter than the version prefix.
+    #[error("frame of {0} bytes is too short to hold a protocol version")]
+    TooShort(usize),
+    /// Longer than allowed.
+    #[error("frame of {len} bytes exceeds the maximum of {max}")]
+    TooLarge {
+        /// Its length.
+        len: usize,
+        /// The maximum.
+        max: usize,
+    },
+    /// The peer speaks another protocol version.
+    #[error("peer speaks protocol version {got}, this build speaks {want}")]
+    Version {
+        /// The peer's version.
+        got: u16,
+        /// Ours.
+        want: u16,
+    },
+    /// The body is not a valid message.
+    #[error("malformed message: {0}")]
+    Decode(String),
+    /// The message could not be encoded.
+    #[error("cannot encode message: {0}")]
+    Encode(String),
+}
+
+/// Encodes a message as one wire frame (version prefix + MessagePack).
+pub fn encode(msg: &Message) -> Result<Vec<u8>, ProtocolError> {
+    let mut buf = Vec::with_capacity(64);
+    buf.extend_from_slice(&PROTOCOL_VERSION.to_be_bytes());
+    rmp_serde::encode::write(&mut buf, msg).map_err(|e| ProtocolError::Encode(e.to_string()))?;
+    Ok(buf)
+}
+
+/// Decodes one wire frame of at most `max` bytes. Never panics.
+pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
+    if frame.len() > max {
+        return Err(ProtocolError::TooLarge { len: frame.len(), max });
+    }
+    let (version, body) = match frame {
+        [a, b, body @ ..] => (u16::from_be_bytes([*a, *b]), body),
+        _ => return Err(ProtocolError::TooShort(frame.len())),
+    };
+    if version != PROTOCOL_VERSION {
+        return Err(ProtocolError::Version { got: version, want: PROTOCOL_VERSION });
+    }
+    // A cursor reader: binaries are read with `take(len)`, so a declared
+    // length beyond the bytes present fails without allocating it.
+    let mut de = rmp_serde::Deserializer::new(std::io::Cursor::new(body));
+    let msg = Message::deserialize(&mut de).map_err(|e| ProtocolError::Decode(e.to_string()))?;
+    let rest = body.len() as u64 - de.position().min(body.len() as u64);
+    if rest != 0 {
+        return Err(ProtocolError::Decode(format!("{rest} trailing bytes after the message")));
+    }
+    Ok(msg)
+}
+
+/// Content hash of a scene bundle (name, text and every asset, length-prefixed
+/// so that no two different bundles hash the same input).
+pub fn scene_hash(bundle: &SceneBundle) -> SceneHash {
+    let mut h = Sha256::new();
+    let mut put = |bytes: &[u8]| {
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(bytes);
+    };
+    put(bundle.name.as_bytes());
+    put(bundle.source.as_bytes());
+    for (path, bytes) in &bundle.assets {
+        put(path.as_bytes());
+        put(bytes);
+    }
+    h.finalize().into()
+}
+
+/// Hex form of a scene hash's first bytes, for logs.
+pub fn short_hash(hash: &SceneHash) -> String {
+    hash[..6].iter().map(|b| format!("{b:02x}")).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn samples() -> Vec<Message> {
+        let mut assets = BTreeMap::new();
+        assets.insert("mesh.obj".to_string(), vec![1u8, 2, 3, 250]);
+        let bundle = SceneBundle { name: "s.toml".into(), source: "[camera]".into(), assets };
+        vec![
+            Message::Challenge { nonce: [7; 32] },
+            Message::Hello(Hello {
+                role: Role::Slave,
+                name: "box".into(),
+                threads: 4,
+                client_nonce: [1; 32],
+                proof: [2; 32],
+                cached_scene: Some([3; 32]),
+            }),
+            Message::Welcome(Welcome {
+                id: 9,
+                name: "box#9".into(),
+                proof: [4; 32],
+                scene: SceneInfo {
+                    name: "s".into(),
+                    hash: [5; 32],
+                    camera: Camera::default(),
+                    settings: RenderSettings::default(),
+                },
+            }),
+            Message::Reject { reason: "no".into() },
+            Message::SceneSync { hash: scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
+            Message::Ready { hash: [6; 32] },
+            Message::FrameRequest {
+                request: 3,
+                camera: Camera::default(),
+                settings: RenderSettings::default(),
+            },
+            Message::TileAssignment(TileAssignment {
+                frame: 2,
+                camera: Camera::default(),
+                settings: RenderSettings::default(),
+                tiles: vec![TileJob { id: 1, tile: Tile { x: 0, y: 32, w: 32, h: 16 } }],
+            }),
+            Message::Cancel { frame: 2, tiles: vec![1, 5] },
+            Message::TileResult(TileResult {
+                frame: 2,
+                id: 1,
+                tile: Tile { x: 0, y: 32, w: 4, h: 4 },
+                render_micros: 55,
+                pixels: ByteBuf::from(vec![200u8; 48]),
+            }),
+            Message::FrameTile(FrameTile {
+                request: 3,
+                tile: Tile { x: 1, y: 2, w: 3, h: 4 },
+                pixels: ByteBuf::from(vec![9u8; 36]),
+            }),
+            Message::FrameDone { request: 3, stats: FrameStats::default() },
+            Message::Heartbeat,
+            Message::Error { message: "bad".into() },
+        ]
+    }
+
+    #[test]
+    fn every_message_round_trips() {
+        for msg in samples() {
+            let bytes = encode(&msg).unwrap();
+            assert_eq!(decode(&bytes, DEFAULT_MAX_FRAME).unwrap(), msg, "{}", msg.kind());
+        }
+    }
+
+    #[test]
+    fn pixels_travel_as_binary_not_as_integer_arrays() {
+        let msg = Message::TileResult(TileResult {
+            frame: 1,
+            id: 1,
+            tile: Tile { x: 0, y: 0, w: 32, h: 32 },
+            render_micros: 1,
+            pixels: ByteBuf::from(vec![255u8; 3072]),
+        });
+        let bytes = encode(&msg).unwrap();
+        assert!(bytes.len() < 3072 + 32, "{} bytes", bytes.len());
+    }
+
+    #[test]
+    fn scene_bundle_survives_the_wire_and_hash_is_content_based() {
+        let mut assets = BTreeMap::new();
+        assets.insert("a".to_string(), vec![0u8, 255, 128]);
+        let b = SceneBundle { name: "n".into(), source: "src".into(), assets };
+        let back: SceneBundle = WireBundle::from(&b).into();
+        assert_eq!(back, b);
+        assert_eq!(scene_hash(&back), scene_hash(&b));
+        let mut c = b.clone();
+        c.assets.insert("a".into(), vec![0u8, 255, 129]);
+        assert_ne!(scene_hash(&c), scene_hash(&b));
+        // Moving bytes between fields must change the hash.
+        let d = SceneBundle { name: "ns".into(), source: "rc".into(), assets: b.assets.clone() };
+        assert_ne!(scene_hash(&d), scene_hash(&b));
+    }
+
+    #[test]
+    fn wrong_version_is_named() {
+        let mut bytes = encode(&Message::Heartbeat).unwrap();
+        bytes[1] = bytes[1].wrapping_add(1);
+        assert!(matches!(decode(&bytes, 1024), Err(ProtocolError::Version { .. })));
+    }
+
+    #[test]
+    fn oversized_frames_are_refused_before_decoding() {
+        let bytes = encode(&Message::Error { message: "x".repeat(100) }).unwrap();
+        assert!(matches!(decode(&bytes, 50), Err(ProtocolError::TooLarge { .. })));
+        assert!(decode(&bytes, 500).is_ok());
+    }
+
+    #[test]
+    fn trailing_bytes_are_refused() {
+        let mut bytes = encode(&Message::Heartbeat).unwrap();
+        bytes.push(0);
+        assert!(matches!(decode(&bytes, 1024), Err(ProtocolError::Decode(_))));
+    }
+
+    #[test]
+    fn truncated_frames_never_panic_and_never_decode() {
+        for msg in samples() {
+            let bytes = encode(&msg).unwrap();
+            for cut in 0..bytes.len() {
+                assert!(decode(&bytes[..cut], DEFAULT_MAX_FRAME).is_err(), "{} cut at {cut}", msg.kind());
+            }
+        }
+    }
+
+    #[test]
+    fn huge_declared_lengths_do_not_allocate() {
+        // A TileResult whose pixel binary claims 4 GiB but holds 3 bytes.
+        let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();
+        // enum as map {variant: [fields]}: fixmap(1), fixstr "TileResult", fixarray(4)
+        bytes.push(0x81);
+        bytes.push(0xa0 | 10);
+        bytes.extend_from_slice(b"TileResult");
+        bytes.extend_from_slice(&[0x94, 1, 1, 1, 0xc6, 0xff, 0xff, 0xff, 0xff, 1, 2, 3]);
+        assert!(decode(&bytes, DEFAULT_MAX_FRAME).is_err());
+        // And a Cancel whose tile array claims 2^32-1 entries.
+        let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();
+        bytes.push(0x81);
+        bytes.push(0xa0 | 6);
+        bytes.extend_from_slice(b"Cancel");
+        bytes.extend_from_slice(&[0x92, 1, 0xdd, 0xff, 0xff, 0xff, 0xff, 1]);
+        assert!(decode(&bytes, DEFAULT_MAX_FRAME).is_err());
+    }
+
+    #[test]
+    fn random_bytes_never_panic() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let templates: Vec<Vec<u8>> = samples().iter().map(|m| encode(m).unwrap()).collect();
+        for i in 0..20_000 {
+            let mut bytes = if i % 2 == 0 {
+                let len = (next() % 200) as usize;
+                let mut v: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+                if v.len() >= 2 {
+                    v[..2].copy_from_slice(&PROTOCOL_VERSION.to_be_bytes());
+                }
+                v
+            } else {
+                templates[(next() as usize) % templates.len()].clone()
+            };
+            // Flip a few bytes of valid messages: exercises deep decode paths.
+            for _ in 0..(next() % 4) {
+                if bytes.len() > 2 {
+                    let at = 2 + (next() as usize) % (bytes.len() - 2);
+                    bytes[at] = next() as u8;
+                }
+            }
+            let _ = decode(&bytes, 4096);
+        }
+    }
+}

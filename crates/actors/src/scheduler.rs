@@ -1,0 +1,600 @@
+//! The master's scheduling core: a plain state machine with no actors, no
+//! sockets and no clock.
+//!
+//! Like quinn-proto's `Connection`, it is driven from outside: inputs are
+//! `handle_*` methods, outputs come out of [`Scheduler::poll_output`], and time
+//! is an argument (`now`, a [`Duration`] since any fixed origin). The master
+//! actor feeds it network events and a periodic tick; tests feed it a virtual
+//! clock and simulated slaves, so "a slave went silent and its tiles were
+//! re-rendered elsewhere" runs in microseconds.
+//!
+//! What it decides:
+//! - **Work distribution.** A frame is cut into tiles ([`SchedulerConfig::tile_size`]);
+//!   each slave keeps up to `threads + queue_depth` tiles in flight, so network
+//!   latency hides behind queued work and faster slaves take more tiles (dynamic
+//!   load balancing rather than a static split).
+//! - **Smaller tiles at the end.** When fewer tiles remain queued than the
+//!   cluster has threads, the next tile is split in four (down to
+//!   [`SchedulerConfig::min_tile_size`]) so the frame does not wait on one big tile.
+//! - **Stragglers.** When the queue is empty but the frame is open, a slave with
+//!   an idle thread gets a copy of the oldest outstanding tile that has been
+//!   out longer than the frame's mean turnaround; the first result wins and the
+//!   other holder is told to cancel.
+//! - **Liveness.** Every message from a slave counts as a heartbeat; one silent
+//!   for [`SchedulerConfig::heartbeat_timeout`] is declared dead, as is one whose
+//!   connection closed, and its tiles go back to the front of the queue.
+//! - **Superseding.** A newer frame replaces the open one; the old frame's
+//!   tiles are cancelled and its late results are reported [`ResultOutcome::Stale`].
+//!
+//! Polling order for a driver: after any `handle_*` call (and on every timer
+//! tick, after [`Scheduler::handle_timeout`]), drain [`Scheduler::poll_output`].
+
+use crate::protocol::{FrameId, FrameStats, TileId, TileJob};
+use isin_tracer::Tile;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::time::Duration;
+
+/// Identifies a slave (assigned by the master at join).
+pub type SlaveId = u64;
+
+/// Scheduling knobs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SchedulerConfig {
+    /// Edge of the tiles a frame is cut into.
+    pub tile_size: u32,
+    /// Tiles are split near the end of a frame down to this edge.
+    pub min_tile_size: u32,
+    /// Tiles queued per slave beyond one per render thread.
+    pub queue_depth: u32,
+    /// A slave silent for this long is declared dead.
+    pub heartbeat_timeout: Duration,
+    /// Whether idle slaves may duplicate straggling tiles.
+    pub duplicate_stragglers: bool,
+}
+
+impl Default for SchedulerConfig {
+    fn default() -> Self {
+        Self {
+            tile_size: 32,
+            min_tile_size: 8,
+            queue_depth: 2,
+            heartbeat_timeout: Duration::from_secs(5),
+            duplicate_stragglers: true,
+        }
+    }
+}
+
+/// Why a slave was declared dead.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeathCause {
+    /// Nothing heard within the heartbeat timeout.
+    Timeout,
+    /// Its connection closed or broke.
+    Disconnected,
+}
+
+/// What the driver must do next.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Output {
+    /// Send these tiles of `frame` to `slave`.
+    Assign {
+        /// The slave.
+        slave: SlaveId,
+        /// The frame.
+        frame: FrameId,
+        /// The tiles, in the order they should be rendered.
+        tiles: Vec<TileJob>,
+        /// How many of them had belonged to a slave that died.
+        reassigned: u32,
+    },
+    /// Tell `slave` to drop these tiles if it has not started them.
+    Cancel {
+        /// The slave.
+        slave: SlaveId,
+        /// The frame.
+        frame: FrameId,
+        /// The tiles.
+        tiles: Vec<TileId>,
+    },
+    /// `slave` was declared dead; `requeued` of its tiles went back to the queue.
+    SlaveDead {
+        /// The slave.
+        slave: SlaveId,
+        /// Its name.
+        name: String,
+        /// Why.
+        cause: DeathCause,
+        /// How many tiles are now waiting for someone else.
+        requeued: u32,
+    },
+    /// Every pixel of `frame` has been delivered.
+    FrameDone {
+        /// The frame.
+        frame: FrameId,
+        /// How it went.
+        stats: FrameStats,
+    },
+}
+
+/// What became of a tile result.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResultOutcome {
+    /// First result for this tile: deliver its pixels.
+    Accepted {
+        /// Where the pixels go.
+        tile: Tile,
+    },
+    /// Another copy of the tile already won: drop it.
+    Duplicate,
+    /// The frame is no longer the open one: drop it.
+    Stale,
+    /// No such tile in the frame (or it was split after being handed out): drop it.
+    Unknown,
+}
+
+/// Why a frame could not be started.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum SchedulerError {
+    /// Frame ids must increase.
+    #[error("frame {new} is not newer than frame {current}")]
+    NotNewer {
+        /// The rejected id.
+        new: FrameId,
+        /// The latest id.
+        current: FrameId,
+    },
+    /// Zero-sized image.
+    #[error("empty image {0}x{1}")]
+    Empty(u32, u32),
+}
+
+/// A slave as the scheduler sees it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlaveInfo {
+    /// Its id.
+    pub id: SlaveId,
+    /// Its name.
+    pub name: String,
+    /// Its render threads.
+    pub threads: u32,
+    /// Tiles it holds now.
+    pub in_flight: usize,
+    /// Tiles of its that were accepted, over its life.
+    pub tiles_done: u64,
+    /// Pixels of its that were accepted, over its life.
+    pub pixels_done: u64,
+    /// Results it sent that lost to another copy or came too late.
+    pub wasted: u64,
+}
+
+#[derive(Debug)]
+struct SlaveState {
+    name: String,
+    threads: u32,
+    last_seen: Duration,
+    in_flight: BTreeSet<TileId>,
+    tiles_done: u64,
+    pixels_done: u64,
+    wasted: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum TileState {
+    Queued,
+    InFlight,
+    Done,
+    Split,
+}
+
+#[derive(Debug)]
+struct TileRec {
+    tile: Tile,
+    state: TileState,
+    holders: Vec<SlaveId>,
+    assigned_at: Duration,
+    /// Put back in the queue by a death and not handed out since.
+    requeued: bool,
+}
+
+#[derive(Debug)]
+struct FrameState {
+    id: FrameId,
+    tiles: Vec<TileRec>,
+    queue: VecDeque<TileId>,
+    remaining_pixels: u64,
+    started: Duration,
+    done: bool,
+    turnaround_sum: Duration,
+    turnaround_n: u32,
+    stats: FrameStats,
+}
+
+/// The scheduling state machine. See the [module docs](self).
+#[derive(Debug)]
+pub struct Scheduler {
+    config: SchedulerConfig,
+    slaves: BTreeMap<SlaveId, SlaveState>,
+    frame: Option<FrameState>,
+    last_frame: Option<FrameId>,
+    outputs: VecDeque<Output>,
+}
+
+impl Scheduler {
+    /// An idle scheduler with no slaves and no frame.
+    pub fn new(config: SchedulerConfig) -> Self {
+        let mut config = config;
+        config.tile_size = config.tile_size.max(1);
+        config.min_tile_size = config.min_tile_size.clamp(1, config.tile_size);
+        Self { config, slaves: BTreeMap::new(), frame: None, last_frame: None, outputs: VecDeque::new() }
+    }
+
+    // ---- getters -------------------------------------------------------
+
+    /// The configuration in force.
+    pub fn config(&self) -> &SchedulerConfig {
+        &self.config
+    }
+
+    /// The open frame, if any (a completed frame is not open).
+    pub fn open_frame(&self) -> Option<FrameId> {
+        self.frame.as_ref().filter(|f| !f.done).map(|f| f.id)
+    }
+
+    /// The rectangle of tile `id` of `frame`, if it is the current frame's.
+    pub fn tile(&self, frame: FrameId, id: TileId) -> Option<Tile> {
+        let f = self.frame.as_ref().filter(|f| f.id == frame)?;
+        f.tiles.get(id as usize).map(|r| r.tile)
+    }
+
+    /// Whether `slave` is alive in the scheduler's eyes.
+    pub fn has_slave(&self, slave: SlaveId) -> bool {
+        self.slaves.contains_key(&slave)
+    }
+
+    /// The live slaves, by id.
+    pub fn slaves(&self) -> Vec<SlaveInfo> {
+        self.slaves
+            .iter()
+            .map(|(&id, s)| SlaveInfo {
+                id,
+                name: s.name.clone(),
+                threads: s.threads,
+                in_flight: s.in_flight.len(),
+                tiles_done: s.tiles_done,
+                pixels_done: s.pixels_done,
+                wasted: s.wasted,
+            })
+            .collect()
+    }
+
+    /// The earliest time at which [`Scheduler::handle_timeout`] has work to do.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        self.slaves.values().map(|s| s.last_seen + self.config.heartbeat_timeout).min()
+    }
+
+    // ---- inputs ---------------------------------------------------------
+
+    /// A slave is ready for work (it may join in the middle of a frame).
+    pub fn handle_join(&mut self, now: Duration, slave: SlaveId, name: impl Into<String>, threads: u32) {
+        let state = SlaveState {
+            name: name.into(),
+            threads: threads.clamp(1, 1024),
+            last_seen: now,
+            in_flight: BTreeSet::new(),
+            tiles_done: 0,
+            pixels_done: 0,
+            wasted: 0,
+        };
+        if self.slaves.insert(slave, state).is_some() {
+            // Rejoining under the same id: forget what it held before.
+            tracing::debug!(slave, "slave re-joined under the same id");
+        }
+    }
+
+    /// Any sign of life from a slave.
+    pub fn handle_heartbeat(&mut self, now: Duration, slave: SlaveId) {
+        if let Some(s) = self.slaves.get_mut(&slave) {
+            s.last_seen = s.last_seen.max(now);
+        }
+    }
+
+    /// A slave's connection closed: declare it dead now.
+    pub fn handle_disconnect(&mut self, _now: Duration, slave: SlaveId) {
+        self.kill(slave, DeathCause::Disconnected);
+    }
+
+    /// Declares dead every slave silent for the heartbeat timeout.
+    pub fn handle_timeout(&mut self, now: Duration) {
+        let timeout = self.config.heartbeat_timeout;
+        let dead: Vec<SlaveId> =
+            self.slaves.iter().filter(|(_, s)| now >= s.last_seen + timeout).map(|(&id, _)| id).collect();
+        for id in dead {
+            self.kill(id, DeathCause::Timeout);
+        }
+    }
+
+    /// Starts a frame of `width × height`, superseding any open frame.
+    pub fn submit_frame(
+        &mut self,
+        now: Duration,
+        frame: FrameId,
+        width: u32,
+        height: u32,
+    ) -> Result<(), SchedulerError> {
+        if width == 0 || height == 0 {
+            return Err(SchedulerError::Empty(width, height));
+        }
+        if let Some(current) = self.last_frame.filter(|&c| frame <= c) {
+            return Err(SchedulerError::NotNewer { new: frame, current });
+        }
+        self.abandon_frame();
+        let tiles: Vec<TileRec> = Tile::grid(width, height, self.config.tile_size)
+            .into_iter()
+            .map(|tile| TileRec {
+                tile,
+                state: TileState::Queued,
+                holders: Vec::new(),
+                assigned_at: now,
+                requeued: false,
+            })
+            .collect();
+        self.frame = Some(FrameState {
+            id: frame,
+            queue: (0..tiles.len() as TileId).collect(),
+            tiles,
+            remaining_pixels: width as u64 * height as u64,
+            started: now,
+            done: false,
+            turnaround_sum: Duration::ZERO,
+            turnaround_n: 0,
+            stats: FrameStats::default(),
+        });
+        self.last_frame = Some(frame);
+        Ok(())
+    }
+
+    /// Drops the open frame (its requester went away): slaves are told to
+    /// cancel its tiles.
+    pub fn abandon_frame(&mut self) {
+        let Some(f) = self.frame.take() else { return };
+        if f.done {
+            return;
+        }
+        for (&id, s) in self.slaves.iter_mut() {
+            if !s.in_flight.is_empty() {
+                let tiles = std::mem::take(&mut s.in_flight).into_iter().collect();
+                self.outputs.push_back(Output::Cancel { slave: id, frame: f.id, tiles });
+            }
+        }
+    }
+
+    /// A slave returned tile `tile` of `frame`. Counts as a heartbeat.
+    pub fn handle_result(
+        &mut self,
+        now: Duration,
+        slave: SlaveId,
+        frame: FrameId,
+        tile: TileId,
+    ) -> ResultOutcome {
+        self.handle_heartbeat(now, slave);
+        let Some(f) = self.frame.as_mut().filter(|f| f.id == frame) else {
+            self.waste(slave);
+            return ResultOutcome::Stale;
+        };
+        if let Some(s) = self.slaves.get_mut(&slave) {
+            s.in_flight.remove(&tile);
+        }
+        let Some(rec) = f.tiles.get_mut(tile as usize) else {
+            self.waste(slave);
+            return ResultOutcome::Unknown;
+        };
+        match rec.state {
+            TileState::Done => {
+                self.waste(slave);
+                return ResultOutcome::Duplicate;
+            }
+            TileState::Split => {
+                self.waste(slave);
+                return ResultOutcome::Unknown;
+            }
+            TileState::Queued | TileState::InFlight => {}
+        }
+        rec.state = TileState::Done;
+        let rect = rec.tile;
+        let pixels = rect.pixel_count() as u64;
+        if rec.holders.contains(&slave) {
+            f.turnaround_sum += now.saturating_sub(rec.assigned_at);
+            f.turnaround_n += 1;
+        }
+        for other in std::mem::take(&mut rec.holders) {
+            if other == slave {
+                continue;
+            }
+            if let Some(s) = self.slaves.get_mut(&other)
+                && s.in_flight.remove(&tile)
+            {
+                self.outputs.push_back(Output::Cancel { slave: other, frame, tiles: vec![tile] });
+            }
+        }
+        f.remaining_pixels -= pixels.min(f.remaining_pixels);
+        f.stats.tiles += 1;
+        if let Some(s) = self.slaves.get_mut(&slave) {
+            s.tiles_done += 1;
+            s.pixels_done += pixels;
+            *f.stats.per_slave.entry(s.name.clone()).or_default() += 1;
+        }
+        if f.remaining_pixels == 0 {
+            f.done = true;
+            f.stats.micros = now.saturating_sub(f.started).as_micros() as u64;
+            let stats = f.stats.clone();
+            self.outputs.push_back(Output::FrameDone { frame, stats });
+            for (&id, s) in self.slaves.iter_mut() {
+                if !s.in_flight.is_empty() {
+                    let tiles = std::mem::take(&mut s.in_flight).into_iter().collect();
+                    self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
+                }
+            }
+        }
+        ResultOutcome::Accepted { tile: rect }
+    }
+
+    // ---- outputs --------------------------------------------------------
+
+    /// The next thing to do, if any. Hands out work when slaves have room.
+    pub fn poll_output(&mut self, now: Duration) -> Option<Output> {
+        if self.outputs.is_empty() {
+            self.schedule(now);
+        }
+        self.outputs.pop_front()
+    }
+
+    // ---- internals ------------------------------------------------------
+
+    fn waste(&mut self, slave: SlaveId) {
+        if let Some(s) = self.slaves.get_mut(&slave) {
+            s.wasted += 1;
+        }
+    }
+
+    fn kill(&mut self, slave: SlaveId, cause: DeathCause) {
+        let Some(s) = self.slaves.remove(&slave) else { return };
+        let mut requeued = 0;
+        if let Some(f) = self.frame.as_mut().filter(|f| !f.done) {
+            // Back to the front, in their original order.
+            for &tile in s.in_flight.iter().rev() {
+                let Some(rec) = f.tiles.get_mut(tile as usize) else { continue };
+                rec.holders.retain(|&h| h != slave);
+                if rec.state == TileState::InFlight && rec.holders.is_empty() {
+                    rec.state = TileState::Queued;
+                    rec.requeued = true;
+                    f.queue.push_front(tile);
+                    requeued += 1;
+                }
+            }
+            f.stats.requeued += requeued;
+        }
+        self.outputs.push_back(Output::SlaveDead { slave, name: s.name, cause, requeued });
+    }
+
+    fn schedule(&mut self, now: Duration) {
+        let Some(f) = self.frame.as_mut().filter(|f| !f.done) else { return };
+        let cfg = &self.config;
+        let total_threads: usize = self.slaves.values().map(|s| s.threads as usize).sum();
+        // Least-loaded slaves first, then round-robin one tile at a time.
+        let mut order: Vec<SlaveId> = self.slaves.keys().copied().collect();
+        order.sort_by_key(|id| {
+            let s = &self.slaves[id];
+            (s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize, *id)
+        });
+        let mut batches: BTreeMap<SlaveId, Vec<TileJob>> = BTreeMap::new();
+        let mut reassigned: BTreeMap<SlaveId, u32> = BTreeMap::new();
+        'rounds: loop {
+            let mut progressed = false;
+            for id in &order {
+                let s = self.slaves.get_mut(id).expect("ordered ids are live");
+                if s.in_flight.len() >= (s.threads + cfg.queue_depth) as usize {
+                    continue;
+                }
+                let Some(tile) = next_tile(f, cfg, total_threads) else { break 'rounds };
+                let rec = &mut f.tiles[tile as usize];
+                rec.state = TileState::InFlight;
+                rec.holders.push(*id);
+                rec.assigned_at = now;
+                if std::mem::take(&mut rec.requeued) {
+                    *reassigned.entry(*id).or_default() += 1;
+                }
+                s.in_flight.insert(tile);
+                batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
+                progressed = true;
+            }
+            if !progressed {
+                break;
+            }
+        }
+        if cfg.duplicate_stragglers && f.queue.is_empty() && f.turnaround_n > 0 {
+            let mean = f.turnaround_sum / f.turnaround_n;
+            for id in &order {
+                let s = self.slaves.get_mut(id).expect("ordered ids are live");
+                while s.in_flight.len() < s.threads as usize {
+                    let straggler = f
+                        .tiles
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, r)| {
+                            r.state == TileState::InFlight
+                                && r.holders.len() == 1
+                                && !r.holders.contains(id)
+                                && now.saturating_sub(r.assigned_at) > mean
+                        })
+                        .min_by_key(|(_, r)| r.assigned_at)
+                        .map(|(i, _)| i as TileId);
+                    let Some(tile) = straggler else { break };
+                    let rec = &mut f.tiles[tile as usize];
+                    rec.holders.push(*id);
+                    s.in_flight.insert(tile);
+                    f.stats.duplicated += 1;
+                    batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
+                }
+            }
+        }
+        for (slave, tiles) in batches {
+            let reassigned = reassigned.get(&slave).copied().unwrap_or(0);
+            self.outputs.push_back(Output::Assign { slave, frame: f.id, tiles, reassigned });
+        }
+    }
+}
+
+/// Takes the next queued tile, splitting it first when little work is left.
+fn next_tile(f: &mut FrameState, cfg: &SchedulerConfig, total_threads: usize) -> Option<TileId> {
+    loop {
+        let id = f.queue.pop_front()?;
+        let rec = &f.tiles[id as usize];
+        if rec.state != TileState::Queued {
+            continue; // delivered by another copy while queued, or split
+        }
+        let t = rec.tile;
+        let splittable = t.w > cfg.min_tile_size || t.h > cfg.min_tile_size;
+        if splittable && f.queue.len() < total_threads {
+            let children = split(t, cfg.min_tile_size);
+            let requeued = rec.requeued;
+            f.tiles[id as usize].state = TileState::Split;
+            let first = f.tiles.len() as TileId;
+            for i in (0..children.len()).rev() {
+                f.queue.push_front(first + i as TileId);
+            }
+            for c in children {
+                f.tiles.push(TileRec {
+                    tile: c,
+                    state: TileState::Queued,
+                    holders: Vec::new(),
+                    assigned_at: Duration::ZERO,
+                    requeued,
+                });
+            }
+            continue;
+        }
+        return Some(id);
+    }
+}
+
+/// Halves a tile along each axis that is larger than `min`.
+fn split(t: Tile, min: u32) -> Vec<Tile> {
+    let halves = |start: u32, len: u32| -> Vec<(u32, u32)> {
+        if len > min {
+            let a = len.div_ceil(2);
+            vec![(start, a), (start + a, len - a)]
+        } else {
+            vec![(start, len)]
+        }
+    };
+    let mut out = Vec::with_capacity(4);
+    for (y, h) in halves(t.y, t.h) {
+        for (x, w) in halves(t.x, t.w) {
+            out.push(Tile { x, y, w, h });
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests;

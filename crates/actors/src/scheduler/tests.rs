@@ -1,0 +1,463 @@
+//! Scheduler tests: a virtual clock (1 ms steps) and simulated slaves that
+//! render tiles in `threads` parallel lanes at a chosen speed.
+
+use super::*;
+use std::collections::HashMap;
+
+const MS: Duration = Duration::from_millis(1);
+
+/// Tiny xorshift so runs are reproducible without a dependency.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n.max(1)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Mode {
+    Alive,
+    /// Still connected, never answers again (hung process, cut cable).
+    Silent,
+    /// Connection closed.
+    Gone,
+}
+
+struct SimSlave {
+    /// Microseconds of virtual time per pixel.
+    us_per_pixel: u64,
+    mode: Mode,
+    queue: VecDeque<(FrameId, TileJob)>,
+    lanes: Vec<Option<(FrameId, TileJob, Duration)>>,
+    next_heartbeat: Duration,
+    received: u32,
+}
+
+#[derive(Default)]
+struct Log {
+    /// Accepted tiles per frame.
+    accepted: HashMap<FrameId, Vec<Tile>>,
+    done: Vec<(FrameId, FrameStats)>,
+    dead: Vec<(SlaveId, DeathCause, u32, Duration)>,
+    reassigned: u32,
+}
+
+struct Sim {
+    sched: Scheduler,
+    now: Duration,
+    slaves: BTreeMap<SlaveId, SimSlave>,
+    log: Log,
+    sizes: HashMap<FrameId, (u32, u32)>,
+    next_id: SlaveId,
+}
+
+impl Sim {
+    fn new(config: SchedulerConfig) -> Self {
+        Self {
+            sched: Scheduler::new(config),
+            now: Duration::ZERO,
+            slaves: BTreeMap::new(),
+            log: Log::default(),
+            sizes: HashMap::new(),
+            next_id: 1,
+        }
+    }
+
+    fn join(&mut self, threads: u32, us_per_pixel: u64) -> SlaveId {
+        let id = self.next_id;
+        self.next_id += 1;
+        self.slaves.insert(
+            id,
+            SimSlave {
+                us_per_pixel,
+                mode: Mode::Alive,
+                queue: VecDeque::new(),
+                lanes: vec![None; threads as usize],
+                next_heartbeat: self.now,
+                received: 0,
+            },
+        );
+        self.sched.handle_join(self.now, id, format!("sim{id}"), threads);
+        self.drain();
+        id
+    }
+
+    fn frame(&mut self, id: FrameId, w: u32, h: u32) {
+        self.sched.submit_frame(self.now, id, w, h).unwrap();
+        self.sizes.insert(id, (w, h));
+        self.drain();
+    }
+
+    fn drain(&mut self) {
+        while let Some(out) = self.sched.poll_output(self.now) {
+            match out {
+                Output::Assign { slave, frame, tiles, reassigned } => {
+                    let s = self.slaves.get_mut(&slave).expect("assigned to a known slave");
+                    assert_ne!(s.mode, Mode::Gone, "work sent to a disconnected slave");
+                    s.received += tiles.len() as u32;
+                    self.log.reassigned += reassigned;
+                    s.queue.extend(tiles.into_iter().map(|t| (frame, t)));
+                }
+                Output::Cancel { slave, frame, tiles } => {
+                    if let Some(s) = self.slaves.get_mut(&slave) {
+                        s.queue.retain(|(f, t)| !(*f == frame && tiles.contains(&t.id)));
+                    }
+                }
+                Output::SlaveDead { slave, cause, requeued, .. } => {
+                    self.log.dead.push((slave, cause, requeued, self.now))
+                }
+                Output::FrameDone { frame, stats } => self.log.done.push((frame, stats)),
+            }
+        }
+    }
+
+    fn step(&mut self) {
+        self.now += MS;
+        let now = self.now;
+        let mut results = Vec::new();
+        for (&id, s) in self.slaves.iter_mut() {
+            if s.mode != Mode::Alive {
+                continue;
+            }
+            for lane in s.lanes.iter_mut() {
+                if let Some((f, job, at)) = *lane
+                    && at <= now
+                {
+                    results.push((id, f, job));
+                    *lane = None;
+                }
+                if lane.is_none()
+                    && let Some((f, job)) = s.queue.pop_front()
+                {
+                    let cost = Duration::from_micros(job.tile.pixel_count() as u64 * s.us_per_pixel).max(MS);
+                    *lane = Some((f, job, now + cost));
+                }
+            }
+            if now >= s.next_heartbeat {
+                s.next_heartbeat = now + Duration::from_millis(100);
+                self.sched.handle_heartbeat(now, id);
+            }
+        }
+        for (slave, frame, job) in results {
+            match self.sched.handle_result(now, slave, frame, job.id) {
+                ResultOutcome::Accepted { tile } => {
+                    assert_eq!(tile, job.tile, "scheduler reports the rect it handed out");
+                    self.log.accepted.entry(frame).or_default().push(tile);
+                }
+                ResultOutcome::Duplicate | ResultOutcome::Stale | ResultOutcome::Unknown => {}
+            }
+            self.drain();
+        }
+        self.sched.handle_timeout(now);
+        self.drain();
+    }
+
+    fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Sim) -> bool) {
+        let end = self.now + limit;
+        while !done(self) {
+            assert!(self.now < end, "not done within {limit:?}");
+            self.step();
+        }
+    }
+
+    fn frame_done(&self, frame: FrameId) -> bool {
+        self.log.done.iter().any(|(f, _)| *f == frame)
+    }
+
+    fn silence(&mut self, id: SlaveId) {
+        self.slaves.get_mut(&id).unwrap().mode = Mode::Silent;
+    }
+
+    fn disconnect(&mut self, id: SlaveId) {
+        self.slaves.get_mut(&id).unwrap().mode = Mode::Gone;
+        self.sched.handle_disconnect(self.now, id);
+        self.drain();
+    }
+
+    /// Every pixel of `frame` delivered exactly once.
+    fn assert_exact_cover(&self, frame: FrameId) {
+        let (w, h) = self.sizes[&frame];
+        let mut count = vec![0u8; (w * h) as usize];
+        for t in self.log.accepted.get(&frame).map(Vec::as_slice).unwrap_or(&[]) {
+            for y in t.y..t.y + t.h {
+                for x in t.x..t.x + t.w {
+                    count[(y * w + x) as usize] += 1;
+                }
+            }
+        }
+        let missing = count.iter().filter(|&&c| c == 0).count();
+        let twice = count.iter().filter(|&&c| c > 1).count();
+        assert_eq!((missing, twice), (0, 0), "frame {frame}: pixels missing / delivered twice");
+    }
+}
+
+fn cfg() -> SchedulerConfig {
+    SchedulerConfig { heartbeat_timeout: Duration::from_millis(500), ..SchedulerConfig::default() }
+}
+
+#[test]
+fn one_slave_renders_a_whole_frame() {
+    let mut sim = Sim::new(cfg());
+    sim.join(2, 2);
+    sim.frame(1, 100, 70);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+}
+
+#[test]
+fn window_is_threads_plus_queue_depth() {
+    let mut sim = Sim::new(cfg());
+    let a = sim.join(3, 2);
+    sim.frame(1, 640, 480);
+    assert_eq!(sim.slaves[&a].queue.len(), 5);
+    assert_eq!(sim.sched.slaves()[0].in_flight, 5);
+}
+
+#[test]
+fn faster_slaves_take_more_tiles() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    let fast = sim.join(1, 1);
+    let slow = sim.join(1, 4);
+    sim.frame(1, 320, 256);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+    let by_id: BTreeMap<_, _> = sim.sched.slaves().into_iter().map(|s| (s.id, s.pixels_done)).collect();
+    assert!(by_id[&fast] > 2 * by_id[&slow], "{by_id:?}");
+}
+
+#[test]
+fn tiles_get_smaller_at_the_end_of_a_frame() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    sim.join(2, 1);
+    sim.join(2, 1);
+    sim.frame(1, 256, 256);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+    let tiles = &sim.log.accepted[&1];
+    assert_eq!(tiles.first().unwrap().w, 32);
+    assert!(tiles.iter().any(|t| t.w == 8 && t.h == 8), "no small tiles at the end");
+    assert!(tiles.iter().all(|t| t.w >= 8 && t.h >= 8));
+    // Small tiles only at the end: the first half are all full size.
+    assert!(tiles[..tiles.len() / 2].iter().all(|t| t.w == 32));
+}
+
+#[test]
+fn silent_slave_is_declared_dead_within_timeout_and_its_tiles_rerendered() {
+    // Without straggler duplication, so that only the timeout can save the frame.
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    let a = sim.join(2, 5);
+    let b = sim.join(2, 5);
+    let c = sim.join(2, 5);
+    sim.frame(1, 320, 240);
+    sim.run_until(Duration::from_secs(5), |s| s.log.accepted.get(&1).is_some_and(|v| v.len() > 10));
+    sim.silence(b);
+    let silenced_at = sim.now;
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+    let (slave, cause, requeued, at) = sim.log.dead[0];
+    assert_eq!((slave, cause), (b, DeathCause::Timeout));
+    assert!(requeued > 0, "the silent slave held tiles");
+    // Its last heartbeat was at most 100 ms before it went silent.
+    assert!(at <= silenced_at + Duration::from_millis(500) + MS, "declared dead at {at:?}");
+    assert!(at >= silenced_at + Duration::from_millis(400), "declared dead too early: {at:?}");
+    let alive: Vec<_> = sim.sched.slaves().into_iter().map(|s| s.id).collect();
+    assert_eq!(alive, vec![a, c]);
+}
+
+#[test]
+fn disconnected_slave_tiles_go_back_to_the_front_of_the_queue() {
+    let mut sim = Sim::new(cfg());
+    let a = sim.join(1, 5);
+    let b = sim.join(1, 5);
+    sim.frame(1, 640, 480);
+    sim.step();
+    let sb = &sim.slaves[&b];
+    let held: BTreeSet<TileId> =
+        sb.queue.iter().map(|(_, j)| j.id).chain(sb.lanes.iter().flatten().map(|(_, j, _)| j.id)).collect();
+    assert_eq!(held.len(), 3);
+    sim.disconnect(b);
+    assert_eq!(sim.log.dead[0].1, DeathCause::Disconnected);
+    assert_eq!(sim.log.dead[0].2, 3);
+    assert_eq!(sim.log.reassigned, 0);
+    // a gets b's tiles as soon as it has room, before the rest of the queue.
+    sim.run_until(Duration::from_secs(5), |s| s.slaves[&a].received >= 6);
+    let sa = &sim.slaves[&a];
+    let next: Vec<TileId> =
+        sa.queue.iter().map(|(_, j)| j.id).chain(sa.lanes.iter().flatten().map(|(_, j, _)| j.id)).collect();
+    for id in &held {
+        assert!(
+            next.contains(id) || sim.log.accepted[&1].contains(&sim.sched.tile(1, *id).unwrap()),
+            "tile {id} of the dead slave not reassigned first: {next:?}"
+        );
+    }
+    assert_eq!(sim.log.reassigned, 3, "the survivor reports taking over the dead slave's tiles");
+    sim.run_until(Duration::from_secs(120), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+}
+
+#[test]
+fn joining_slave_gets_work_in_the_current_frame() {
+    let mut sim = Sim::new(cfg());
+    sim.join(1, 5);
+    sim.frame(1, 320, 240);
+    sim.run_until(Duration::from_secs(5), |s| s.log.accepted.get(&1).is_some_and(|v| v.len() > 5));
+    let late = sim.join(2, 5);
+    assert!(sim.slaves[&late].received > 0, "a joining slave gets tiles at once");
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+    let info = sim.sched.slaves().into_iter().find(|s| s.id == late).unwrap();
+    assert!(info.tiles_done > 0);
+    assert!(sim.log.done[0].1.per_slave.contains_key("sim2"));
+}
+
+#[test]
+fn newer_frame_supersedes_and_stale_results_are_dropped() {
+    let mut sim = Sim::new(cfg());
+    let a = sim.join(2, 5);
+    sim.frame(1, 320, 240);
+    sim.run_until(Duration::from_secs(5), |s| s.log.accepted.get(&1).is_some_and(|v| v.len() > 3));
+    // Frame 1 tiles in lanes will finish after frame 2 is submitted.
+    sim.frame(2, 160, 120);
+    assert!(sim.slaves[&a].queue.iter().all(|(f, _)| *f == 2), "queued frame-1 tiles cancelled");
+    assert_eq!(sim.sched.handle_result(sim.now, a, 1, 0), ResultOutcome::Stale);
+    let before = sim.log.accepted[&1].len();
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
+    assert_eq!(sim.log.accepted[&1].len(), before, "no frame-1 tile accepted after frame 2 began");
+    assert!(!sim.frame_done(1));
+    sim.assert_exact_cover(2);
+    assert!(sim.sched.submit_frame(sim.now, 2, 10, 10).is_err(), "frame ids must increase");
+}
+
+#[test]
+fn idle_slave_duplicates_the_straggler_and_first_result_wins() {
+    let mut sim = Sim::new(cfg());
+    let fast = sim.join(1, 1);
+    let slow = sim.join(1, 200);
+    sim.frame(1, 64, 64);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+    let stats = &sim.log.done[0].1;
+    assert!(stats.duplicated > 0, "{stats:?}");
+    // The slow slave's tiles were won by the fast one; the frame finished long
+    // before the slow slave could render a single 32x32 tile (204 ms).
+    assert!(sim.now < Duration::from_millis(150), "took {:?}", sim.now);
+    assert!(!stats.per_slave.contains_key(&format!("sim{slow}")));
+    let _ = fast;
+}
+
+#[test]
+fn duplicate_result_is_reported_and_not_delivered_twice() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: true, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.submit_frame(Duration::ZERO, 1, 8, 8).unwrap();
+    while s.poll_output(Duration::ZERO).is_some() {}
+    // Slave 2 returns the tile although only slave 1 got it: still the first.
+    s.handle_join(Duration::ZERO, 2, "b", 1);
+    assert!(matches!(s.handle_result(MS, 2, 1, 0), ResultOutcome::Accepted { .. }));
+    assert_eq!(s.handle_result(2 * MS, 1, 1, 0), ResultOutcome::Duplicate);
+    assert_eq!(s.handle_result(2 * MS, 1, 1, 99), ResultOutcome::Unknown);
+}
+
+#[test]
+fn slave_killed_with_nothing_left_in_the_cluster_then_rejoining_finishes() {
+    let mut sim = Sim::new(cfg());
+    let a = sim.join(2, 5);
+    sim.frame(1, 200, 100);
+    sim.step();
+    sim.disconnect(a);
+    for _ in 0..50 {
+        sim.step();
+    }
+    assert!(!sim.frame_done(1));
+    sim.join(2, 5);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+}
+
+/// Randomised: slaves of random speeds join, go silent, disconnect; frames are
+/// superseded. Invariants: no work goes to a disconnected slave; every frame
+/// that completes is covered exactly once; the last frame always completes.
+#[test]
+fn randomised_sessions_never_lose_or_duplicate_a_pixel() {
+    for seed in 1..=40u64 {
+        let mut rng = Rng(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1);
+        let config = SchedulerConfig {
+            tile_size: [8, 16, 32, 48][rng.below(4) as usize],
+            min_tile_size: [4, 8][rng.below(2) as usize],
+            queue_depth: rng.below(4) as u32,
+            heartbeat_timeout: Duration::from_millis(200 + rng.below(400)),
+            duplicate_stragglers: rng.below(3) != 0,
+        };
+        let mut sim = Sim::new(config);
+        for _ in 0..1 + rng.below(4) {
+            sim.join(1 + rng.below(4) as u32, 1 + rng.below(20));
+        }
+        let mut frame = 0;
+        let frames = 3 + rng.below(4);
+        while frame < frames {
+            frame += 1;
+            let (w, h) = (1 + rng.below(200) as u32, 1 + rng.below(150) as u32);
+            sim.frame(frame, w, h);
+            let superseded = frame < frames && rng.below(3) == 0;
+            let steps = if superseded { rng.below(200) } else { u64::MAX };
+            let mut n = 0;
+            while !sim.frame_done(frame) && n < steps {
+                match rng.below(400) {
+                    0 => {
+                        sim.join(1 + rng.below(4) as u32, 1 + rng.below(20));
+                    }
+                    1 | 2 => {
+                        let live: Vec<_> = sim
+                            .slaves
+                            .iter()
+                            .filter(|(_, s)| s.mode == Mode::Alive)
+                            .map(|(&i, _)| i)
+                            .collect();
+                        if live.len() > 1 {
+                            let victim = live[rng.below(live.len() as u64) as usize];
+                            if rng.below(2) == 0 {
+                                sim.silence(victim);
+                            } else {
+                                sim.disconnect(victim);
+                            }
+                        }
+                    }
+                    _ => {}
+                }
+                sim.step();
+                n += 1;
+                assert!(n < 2_000_000, "seed {seed}: frame {frame} stuck");
+            }
+            if sim.frame_done(frame) {
+                sim.assert_exact_cover(frame);
+            }
+        }
+        assert!(sim.frame_done(frames), "seed {seed}: last frame incomplete");
+        let timeout = sim.sched.config().heartbeat_timeout;
+        for _ in 0..timeout.as_millis() + 2 {
+            sim.step();
+        }
+        // Every silent slave was eventually declared dead, by timeout.
+        for (&id, s) in &sim.slaves {
+            if s.mode == Mode::Silent {
+                assert!(
+                    sim.log.dead.iter().any(|&(d, c, _, _)| d == id && c == DeathCause::Timeout),
+                    "seed {seed}: silent slave {id} never declared dead"
+                );
+                assert!(!sim.sched.has_slave(id));
+            }
+        }
+        // Each accepted tile of a frame is unique (no double delivery even of
+        // identical rectangles).
+        for tiles in sim.log.accepted.values() {
+            let set: BTreeSet<_> = tiles.iter().map(|t| (t.x, t.y, t.w, t.h)).collect();
+            assert_eq!(set.len(), tiles.len(), "seed {seed}");
+        }
+    }
+}

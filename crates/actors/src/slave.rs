@@ -1,0 +1,382 @@
+//! The slave: joins a master, receives the scene once (cached by hash across
+//! reconnections), renders assigned tiles on its own rayon pool and streams
+//! the results back.
+//!
+//! The actor never renders: each tile is a job on the pool, and the job sends
+//! its encoded result straight into the connection (a [`FrameSender`] works
+//! from any thread), so no per-tile round trip through the actor is awaited.
+//! Queued jobs of a superseded frame or a cancelled tile are skipped when their
+//! turn comes.
+
+use crate::auth::Ticket;
+use crate::client::{self, JoinError};
+use crate::protocol::{self, FrameId, Message, Role, SceneHash, TileAssignment, TileId, TileResult};
+use crate::transport::{FrameSender, Transport, TransportError};
+use actix::prelude::*;
+use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
+use serde_bytes::ByteBuf;
+use std::collections::HashSet;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::oneshot;
+
+/// How a slave runs.
+#[derive(Clone, Debug)]
+pub struct SlaveOptions {
+    /// Name shown in the master's logs.
+    pub name: String,
+    /// Render threads.
+    pub threads: usize,
+    /// How often to tell the master we are alive.
+    pub heartbeat_interval: Duration,
+    /// A master silent for this long is presumed dead (we reconnect).
+    pub master_timeout: Duration,
+    /// Longest wait between reconnection attempts.
+    pub max_backoff: Duration,
+    /// Give up after this many failed attempts in a row (`None`: never).
+    pub max_attempts: Option<u32>,
+}
+
+impl Default for SlaveOptions {
+    fn default() -> Self {
+        Self {
+            name: "slave".into(),
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            heartbeat_interval: Duration::from_millis(500),
+            master_timeout: Duration::from_secs(10),
+            max_backoff: Duration::from_secs(5),
+            max_attempts: None,
+        }
+    }
+}
+
+/// What a slave renders with: loads a shipped scene, renders a tile of it.
+/// [`Tracer`] is the real one; tests plug in cheap fakes.
+pub trait Renderer: Send + Sync + 'static {
+    /// A loaded, renderable scene.
+    type Scene: Send + Sync + 'static;
+    /// Builds the scene from its bundle (runs on a blocking thread).
+    fn load(&self, bundle: SceneBundle) -> Result<Self::Scene, String>;
+    /// `tile.w * tile.h * 3` bytes of RGB8.
+    fn render(&self, scene: &Self::Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8>;
+}
+
+/// The isin ray tracer.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Tracer;
+
+impl Renderer for Tracer {
+    type Scene = Scene;
+
+    fn load(&self, bundle: SceneBundle) -> Result<Scene, String> {
+        let t0 = Instant::now();
+        let scene = bundle.load().map_err(|e| e.to_string())?;
+        tracing::info!(
+            "loaded scene {} ({} triangles) in {:.0} ms",
+            bundle.name,
+            scene.triangle_count(),
+            t0.elapsed().as_secs_f64() * 1e3
+        );
+        Ok(scene)
+    }
+
+    fn render(&self, scene: &Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8> {
+        isin_tracer::render_tile(scene, camera, settings, tile)
+    }
+}
+
+/// A loaded scene and the hash of the bundle it came from.
+pub struct SceneCache<S> {
+    /// Content hash.
+    pub hash: SceneHash,
+    /// The built scene.
+    pub scene: Arc<S>,
+}
+
+/// Counters shared with the render jobs.
+#[derive(Debug, Default)]
+pub struct SlaveCounters {
+    /// Tiles rendered and sent.
+    pub tiles: AtomicU64,
+    /// Tiles skipped because cancelled or superseded.
+    pub skipped: AtomicU64,
+}
+
+/// Runs a slave until it is refused or gives up: joins, serves, and on any
+/// network failure joins again with exponential backoff.
+pub async fn run<R: Renderer>(
+    transport: Arc<dyn Transport>,
+    ticket: Ticket,
+    opts: SlaveOptions,
+    renderer: Arc<R>,
+) -> Result<(), JoinError> {
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(opts.threads.max(1))
+            .thread_name(|i| format!("isin-render-{i}"))
+            .build()
+            .map_err(|e| JoinError::Scene(format!("cannot start render threads: {e}")))?,
+    );
+    let counters = Arc::new(SlaveCounters::default());
+    let mut cache: Option<SceneCache<R::Scene>> = None;
+    let mut backoff = Duration::from_millis(100);
+    let mut failures = 0u32;
+    loop {
+        match join(transport.as_ref(), &ticket, &opts, &renderer, &mut cache).await {
+            Ok(session) => {
+                backoff = Duration::from_millis(100);
+                failures = 0;
+                let why = serve(session, renderer.clone(), pool.clone(), counters.clone(), &opts).await;
+                tracing::warn!("lost the master ({why}); reconnecting");
+            }
+            Err(e) if !e.is_retryable() => return Err(e),
+            Err(e) => {
+                failures += 1;
+                if opts.max_attempts.is_some_and(|m| failures >= m) {
+                    return Err(e);
+                }
+                tracing::info!("cannot join {} yet ({e}); retrying in {backoff:?}", ticket.addr);
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(opts.max_backoff);
+            }
+        }
+    }
+}
+
+/// An authenticated, scene-synced connection, ready for tiles.
+pub struct Session<S> {
+    conn: crate::transport::Connection,
+    scene: Arc<S>,
+    name: String,
+}
+
+/// Connects, authenticates, and makes sure the master's scene is loaded.
+pub async fn join<R: Renderer>(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    opts: &SlaveOptions,
+    renderer: &Arc<R>,
+    cache: &mut Option<SceneCache<R::Scene>>,
+) -> Result<Session<R::Scene>, JoinError> {
+    let cached = cache.as_ref().map(|c| c.hash);
+    let (mut conn, welcome) =
+        client::handshake(transport, ticket, Role::Slave, &opts.name, opts.threads as u32, cached).await?;
+    if cached != Some(welcome.scene.hash) {
+        let (hash, bundle) = loop {
+            match client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120))
+                .await?
+            {
+                Message::SceneSync { hash, bundle } => break (hash, bundle),
+                Message::Heartbeat => continue,
+                Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
+                other => return Err(JoinError::Unexpected(other.kind())),
+            }
+        };
+        let bundle: SceneBundle = bundle.into();
+        if protocol::scene_hash(&bundle) != hash {
+            return Err(JoinError::Scene("scene bundle does not match its hash".into()));
+        }
+        // Loading builds a BVH: keep it off the async thread. A panicking
+        // loader is reported, not propagated.
+        let (tx, rx) = oneshot::channel();
+        let r = renderer.clone();
+        std::thread::spawn(move || {
+            let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| r.load(bundle)));
+            let _ = tx.send(out.unwrap_or_else(|_| Err("scene loader panicked".into())));
+        });
+        let scene = rx
+            .await
+            .map_err(|_| JoinError::Scene("scene loader vanished".into()))?
+            .map_err(JoinError::Scene)?;
+        *cache = Some(SceneCache { hash, scene: Arc::new(scene) });
+    }
+    let scene = cache.as_ref().map(|c| c.scene.clone()).ok_or(JoinError::Closed)?;
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash })?;
+    tracing::info!(master = %ticket.addr, "joined master {} as {}", ticket.addr, welcome.name);
+    Ok(Session { conn, scene, name: welcome.name })
+}
+
+/// Serves one session until the connection ends; returns why it ended.
+pub async fn serve<R: Renderer>(
+    session: Session<R::Scene>,
+    renderer: Arc<R>,
+    pool: Arc<rayon::ThreadPool>,
+    counters: Arc<SlaveCounters>,
+    opts: &SlaveOptions,
+) -> String {
+    let (done_tx, done_rx) = oneshot::channel();
+    let crate::transport::Connection { sender, mut receiver, .. } = session.conn;
+    let actor = SlaveActor {
+        sender,
+        scene: session.scene,
+        renderer,
+        pool,
+        latest: Arc::new(AtomicU64::new(0)),
+        cancelled: Arc::default(),
+        counters,
+        last_heard: Instant::now(),
+        heartbeat_interval: opts.heartbeat_interval,
+        master_timeout: opts.master_timeout,
+        done: Some(done_tx),
+        name: session.name,
+    };
+    let addr = actor.start();
+    tokio::spawn(async move {
+        while let Some(frame) = receiver.recv().await {
+            addr.do_send(Inbound(frame));
+        }
+        addr.do_send(Inbound(Err(TransportError::Closed)));
+    });
+    done_rx.await.unwrap_or_else(|_| "slave actor stopped".into())
+}
+
+/// The slave actor (see the [module docs](self)).
+pub struct SlaveActor<R: Renderer> {
+    sender: FrameSender,
+    scene: Arc<R::Scene>,
+    renderer: Arc<R>,
+    pool: Arc<rayon::ThreadPool>,
+    latest: Arc<AtomicU64>,
+    cancelled: Arc<Mutex<HashSet<(FrameId, TileId)>>>,
+    counters: Arc<SlaveCounters>,
+    last_heard: Instant,
+    heartbeat_interval: Duration,
+    master_timeout: Duration,
+    done: Option<oneshot::Sender<String>>,
+    name: String,
+}
+
+impl<R: Renderer> SlaveActor<R> {
+    fn finish(&mut self, why: String, ctx: &mut Context<Self>) {
+        self.sender.close();
+        if let Some(done) = self.done.take() {
+            let _ = done.send(why);
+        }
+        ctx.stop();
+    }
+
+    fn assign(&mut self, a: TileAssignment) {
+        if a.frame > self.latest.load(Ordering::Acquire) {
+            self.latest.store(a.frame, Ordering::Release);
+            if let Ok(mut c) = self.cancelled.lock() {
+                c.retain(|(f, _)| *f >= a.frame);
+            }
+        }
+        let (w, h) = (a.settings.width, a.settings.height);
+        for job in a.tiles {
+            let t = job.tile;
+            let inside = t.w > 0
+                && t.h > 0
+                && t.x.checked_add(t.w).is_some_and(|r| r <= w)
+                && t.y.checked_add(t.h).is_some_and(|b| b <= h);
+            if !inside {
+                tracing::error!(?t, "master assigned a tile outside the {w}x{h} image; skipped");
+                continue;
+            }
+            let (renderer, scene, sender, latest, cancelled, counters) = (
+                self.renderer.clone(),
+                self.scene.clone(),
+                self.sender.clone(),
+                self.latest.clone(),
+                self.cancelled.clone(),
+                self.counters.clone(),
+            );
+            let (frame, camera, settings) = (a.frame, a.camera, a.settings);
+            self.pool.spawn_fifo(move || {
+                // Skip tiles of superseded frames, cancelled tiles, and the
+                // leftovers of a session whose connection is gone.
+                let skip = sender.is_closed()
+                    || latest.load(Ordering::Acquire) > frame
+                    || cancelled.lock().map(|c| c.contains(&(frame, job.id))).unwrap_or(false);
+                if skip {
+                    counters.skipped.fetch_add(1, Ordering::Relaxed);
+                    return;
+                }
+                let t0 = Instant::now();
+                let pixels = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    renderer.render(&scene, &camera, &settings, t)
+                }));
+                let Ok(pixels) = pixels else {
+                    tracing::error!(
+                        ?t,
+                        frame,
+                        "render_tile panicked; tile dropped (the master will reassign it)"
+                    );
+                    return;
+                };
+                if pixels.len() != t.pixel_count() * 3 {
+                    tracing::error!(
+                        ?t,
+                        len = pixels.len(),
+                        "renderer returned the wrong number of bytes; dropped"
+                    );
+                    return;
+                }
+                let msg = Message::TileResult(TileResult {
+                    frame,
+                    id: job.id,
+                    tile: t,
+                    render_micros: t0.elapsed().as_micros() as u64,
+                    pixels: ByteBuf::from(pixels),
+                });
+                match protocol::encode(&msg) {
+                    Ok(bytes) => {
+                        let _ = sender.send(bytes);
+                        counters.tiles.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(e) => tracing::error!("cannot encode tile: {e}"),
+                }
+            });
+        }
+    }
+}
+
+impl<R: Renderer> Actor for SlaveActor<R> {
+    type Context = Context<Self>;
+
+    fn started(&mut self, ctx: &mut Self::Context) {
+        ctx.run_interval(self.heartbeat_interval, |s, ctx| {
+            if s.last_heard.elapsed() > s.master_timeout {
+                let why = format!("master silent for {:?}", s.master_timeout);
+                return s.finish(why, ctx);
+            }
+            if let Ok(hb) = protocol::encode(&Message::Heartbeat)
+                && s.sender.send(hb).is_err()
+            {
+                s.finish("connection closed".into(), ctx);
+            }
+        });
+    }
+}
+
+#[derive(Message)]
+#[rtype(result = "()")]
+struct Inbound(Result<Vec<u8>, TransportError>);
+
+impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
+    type Result = ();
+
+    fn handle(&mut self, Inbound(frame): Inbound, ctx: &mut Self::Context) {
+        self.last_heard = Instant::now();
+        let msg = match frame {
+            Ok(f) => protocol::decode(&f, protocol::DEFAULT_MAX_FRAME),
+            Err(e) => return self.finish(e.to_string(), ctx),
+        };
+        match msg {
+            Ok(Message::TileAssignment(a)) => self.assign(a),
+            Ok(Message::Cancel { frame, tiles }) => {
+                if let Ok(mut c) = self.cancelled.lock() {
+                    c.extend(tiles.into_iter().map(|t| (frame, t)));
+                }
+            }
+            Ok(Message::Heartbeat) => {}
+            Ok(Message::Error { message }) => tracing::warn!("master reports: {message}"),
+            Ok(Message::Reject { reason }) => {
+                self.finish(format!("master dropped {}: {reason}", self.name), ctx)
+            }
+            Ok(other) => tracing::warn!("ignoring unexpected {} from the master", other.kind()),
+            Err(e) => self.finish(format!("bad frame from the master: {e}"), ctx),
+        }
+    }
+}

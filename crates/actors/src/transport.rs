@@ -1,0 +1,242 @@
+//! The transport interface: what the actors need from a network, and nothing
+//! about which network it is.
+//!
+//! A [`Transport`] listens and connects; either way the result is a
+//! [`Connection`]: a [`FrameSender`] (cheap to clone, usable from any thread —
+//! render threads send their tiles straight into it) and a [`FrameReceiver`]
+//! yielding whole frames until the peer closes. Behind the pair run the
+//! transport's own tasks, so TCP (one length-delimited byte stream), QUIC (a
+//! stream per frame, or one long-lived stream) or an in-memory pipe all look the
+//! same to the actors. Every connection has byte and frame counters and a
+//! maximum frame length that can be raised once the peer has authenticated.
+//!
+//! [`stream`] holds the length-delimited codec over any byte stream (used by
+//! TCP and by the in-memory [`mem`] transport the tests use).
+
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use tokio::sync::{Notify, mpsc};
+
+pub mod mem;
+pub mod stream;
+
+/// A boxed, sendable future (the trait methods are object-safe this way).
+pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
+
+/// What can go wrong on a connection.
+#[derive(Debug, thiserror::Error)]
+pub enum TransportError {
+    /// Could not reach the peer.
+    #[error("cannot connect to {addr}: {reason}")]
+    Connect {
+        /// Where.
+        addr: String,
+        /// Why.
+        reason: String,
+    },
+    /// Could not bind.
+    #[error("cannot listen on {addr}: {reason}")]
+    Listen {
+        /// Where.
+        addr: String,
+        /// Why.
+        reason: String,
+    },
+    /// The peer announced a frame longer than allowed; the connection is closed.
+    #[error("peer announced a frame of {len} bytes, the maximum is {max}")]
+    FrameTooLarge {
+        /// Announced length.
+        len: u64,
+        /// Maximum.
+        max: usize,
+    },
+    /// The byte stream failed or ended inside a frame.
+    #[error("connection error: {0}")]
+    Io(#[from] std::io::Error),
+    /// The connection was closed locally.
+    #[error("connection closed")]
+    Closed,
+}
+
+/// Opens connections. Implemented by TCP and QUIC.
+pub trait Transport: Send + Sync + 'static {
+    /// Short name (`tcp`, `quic`, `mem`), as written in join tickets.
+    fn name(&self) -> &'static str;
+    /// Starts listening on `addr` (`HOST:PORT`; port 0 picks a free one).
+    fn listen<'a>(&'a self, addr: &'a str) -> BoxFuture<'a, Result<Box<dyn Listener>, TransportError>>;
+    /// Connects to a listener at `addr`. Must be called inside a tokio runtime.
+    fn connect<'a>(&'a self, addr: &'a str) -> BoxFuture<'a, Result<Connection, TransportError>>;
+}
+
+/// Accepts incoming connections.
+pub trait Listener: Send + 'static {
+    /// The address actually bound (with the real port when 0 was asked).
+    fn local_addr(&self) -> String;
+    /// The next incoming connection.
+    fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>>;
+}
+
+/// State shared by a connection's two halves and its transport tasks.
+#[derive(Debug)]
+pub struct ConnShared {
+    bytes_sent: AtomicU64,
+    bytes_received: AtomicU64,
+    frames_sent: AtomicU64,
+    frames_received: AtomicU64,
+    max_frame: AtomicUsize,
+    closed: AtomicBool,
+    /// Woken when the connection is closed locally.
+    pub close_notify: Notify,
+}
+
+impl ConnShared {
+    /// Fresh counters with a maximum frame length.
+    pub fn new(max_frame: usize) -> Arc<Self> {
+        Arc::new(Self {
+            bytes_sent: AtomicU64::new(0),
+            bytes_received: AtomicU64::new(0),
+            frames_sent: AtomicU64::new(0),
+            frames_received: AtomicU64::new(0),
+            max_frame: AtomicUsize::new(max_frame),
+            closed: AtomicBool::new(false),
+            close_notify: Notify::new(),
+        })
+    }
+
+    /// The largest frame currently accepted.
+    pub fn max_frame(&self) -> usize {
+        self.max_frame.load(Ordering::Relaxed)
+    }
+
+    /// Whether the connection was closed locally.
+    pub fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
+    }
+
+    /// Transports call this for every frame written (`wire` bytes incl. framing).
+    pub fn count_sent(&self, wire: u64) {
+        self.bytes_sent.fetch_add(wire, Ordering::Relaxed);
+        self.frames_sent.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Transports call this for every frame read (`wire` bytes incl. framing).
+    pub fn count_received(&self, wire: u64) {
+        self.bytes_received.fetch_add(wire, Ordering::Relaxed);
+        self.frames_received.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> ConnStats {
+        ConnStats {
+            bytes_sent: self.bytes_sent.load(Ordering::Relaxed),
+            bytes_received: self.bytes_received.load(Ordering::Relaxed),
+            frames_sent: self.frames_sent.load(Ordering::Relaxed),
+            frames_received: self.frames_received.load(Ordering::Relaxed),
+        }
+    }
+
+    fn close(&self) {
+        self.closed.store(true, Ordering::Release);
+        self.close_notify.notify_waiters();
+        self.close_notify.notify_one();
+    }
+}
+
+/// Byte and frame counters of a connection.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ConnStats {
+    /// Bytes written, framing included.
+    pub bytes_sent: u64,
+    /// Bytes read, framing included.
+    pub bytes_received: u64,
+    /// Frames written.
+    pub frames_sent: u64,
+    /// Frames read.
+    pub frames_received: u64,
+}
+
+/// What the writer side of a transport is asked to do, in order.
+#[derive(Debug)]
+pub enum Outgoing {
+    /// Send this frame.
+    Frame(Vec<u8>),
+    /// Flush what was queued before, then close.
+    Close,
+}
+
+/// Sends frames on a connection. Clone freely; usable from any thread.
+#[derive(Clone, Debug)]
+pub struct FrameSender {
+    tx: mpsc::UnboundedSender<Outgoing>,
+    shared: Arc<ConnShared>,
+}
+
+impl FrameSender {
+    /// A sender feeding `tx` (transport implementations build these).
+    pub fn new(tx: mpsc::UnboundedSender<Outgoing>, shared: Arc<ConnShared>) -> Self {
+        Self { tx, shared }
+    }
+
+    /// Queues a frame; `Err(Closed)` once the connection is closed.
+    pub fn send(&self, frame: Vec<u8>) -> Result<(), TransportError> {
+        if self.shared.is_closed() {
+            return Err(TransportError::Closed);
+        }
+        self.tx.send(Outgoing::Frame(frame)).map_err(|_| TransportError::Closed)
+    }
+
+    /// Flushes what was queued, then closes both directions.
+    pub fn close(&self) {
+        if !self.shared.is_closed() {
+            let _ = self.tx.send(Outgoing::Close);
+            self.shared.close();
+        }
+    }
+
+    /// Raises (or lowers) the largest frame accepted from the peer.
+    pub fn set_max_frame(&self, max: usize) {
+        self.shared.max_frame.store(max, Ordering::Relaxed);
+    }
+
+    /// The connection's counters.
+    pub fn stats(&self) -> ConnStats {
+        self.shared.stats()
+    }
+
+    /// Whether the connection is closed.
+    pub fn is_closed(&self) -> bool {
+        self.shared.is_closed() || self.tx.is_closed()
+    }
+}
+
+/// Receives whole frames until the peer closes (`None`) or the connection
+/// fails (one `Err`, then `None`).
+#[derive(Debug)]
+pub struct FrameReceiver {
+    rx: mpsc::Receiver<Result<Vec<u8>, TransportError>>,
+}
+
+impl FrameReceiver {
+    /// A receiver fed by a transport's reader task.
+    pub fn new(rx: mpsc::Receiver<Result<Vec<u8>, TransportError>>) -> Self {
+        Self { rx }
+    }
+
+    /// The next frame.
+    pub async fn recv(&mut self) -> Option<Result<Vec<u8>, TransportError>> {
+        self.rx.recv().await
+    }
+}
+
+/// One connection: both directions and the peer's address.
+#[derive(Debug)]
+pub struct Connection {
+    /// The peer's address, for logs.
+    pub peer: String,
+    /// Outgoing frames.
+    pub sender: FrameSender,
+    /// Incoming frames.
+    pub receiver: FrameReceiver,
+}

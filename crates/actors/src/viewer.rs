@@ -1,0 +1,208 @@
+//! The viewer: a client that asks the master for frames and receives their
+//! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
+//! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
+
+use crate::auth::Ticket;
+use crate::client::{self, JoinError};
+use crate::protocol::{self, FrameStats, Message, Role, SceneInfo};
+use crate::transport::{ConnStats, FrameSender, Transport, TransportError};
+use actix::prelude::*;
+use isin_tracer::{Camera, Frame, RenderSettings, Tile};
+use std::time::Duration;
+use tokio::sync::mpsc;
+
+/// What the viewer reports to whoever drives it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ViewerEvent {
+    /// A finished tile of request `request`.
+    Tile {
+        /// The request it answers.
+        request: u64,
+        /// Where it goes.
+        tile: Tile,
+        /// `w * h * 3` bytes of RGB8.
+        pixels: Vec<u8>,
+    },
+    /// Every tile of request `request` has arrived.
+    FrameDone {
+        /// The request.
+        request: u64,
+        /// How it went on the master.
+        stats: FrameStats,
+    },
+    /// The master could not serve a request.
+    Error(String),
+    /// The connection ended.
+    Closed(String),
+}
+
+/// The viewer actor: forwards the master's tiles to a channel.
+pub struct ViewerActor {
+    sender: FrameSender,
+    sink: mpsc::UnboundedSender<ViewerEvent>,
+    next_request: u64,
+}
+
+/// Asks for a frame; answers with the request number its tiles will carry.
+/// Requests are numbered 1, 2, 3… in the order the actor receives them, so a
+/// caller that cannot await the answer (a GUI thread using `do_send`) can count
+/// them itself. A newer request supersedes an older one: the older one's
+/// remaining tiles never come.
+#[derive(Message)]
+#[rtype(result = "u64")]
+pub struct RequestFrame {
+    /// Camera.
+    pub camera: Camera,
+    /// Resolution, samples and so on.
+    pub settings: RenderSettings,
+}
+
+/// Asks for the connection's byte counters.
+#[derive(Message)]
+#[rtype(result = "ConnStats")]
+pub struct GetWireStats;
+
+#[derive(Message)]
+#[rtype(result = "()")]
+struct Inbound(Result<Vec<u8>, TransportError>);
+
+impl Actor for ViewerActor {
+    type Context = Context<Self>;
+
+    fn started(&mut self, ctx: &mut Self::Context) {
+        ctx.run_interval(Duration::from_millis(500), |v, _| {
+            if let Ok(hb) = protocol::encode(&Message::Heartbeat) {
+                let _ = v.sender.send(hb);
+            }
+        });
+    }
+}
+
+impl Handler<RequestFrame> for ViewerActor {
+    type Result = u64;
+
+    fn handle(&mut self, msg: RequestFrame, _: &mut Self::Context) -> u64 {
+        self.next_request += 1;
+        let request = self.next_request;
+        let m = Message::FrameRequest { request, camera: msg.camera, settings: msg.settings };
+        match protocol::encode(&m) {
+            Ok(bytes) => {
+                let _ = self.sender.send(bytes);
+            }
+            Err(e) => {
+                let _ = self.sink.send(ViewerEvent::Error(e.to_string()));
+            }
+        }
+        request
+    }
+}
+
+impl Handler<GetWireStats> for ViewerActor {
+    type Result = MessageResult<GetWireStats>;
+
+    fn handle(&mut self, _: GetWireStats, _: &mut Self::Context) -> Self::Result {
+        MessageResult(self.sender.stats())
+    }
+}
+
+impl Handler<Inbound> for ViewerActor {
+    type Result = ();
+
+    fn handle(&mut self, Inbound(frame): Inbound, ctx: &mut Self::Context) {
+        let msg = frame.map_err(|e| e.to_string()).and_then(|f| {
+            protocol::decode(&f, protocol::DEFAULT_MAX_FRAME)
+                .map_err(|e| format!("bad frame from the master: {e}"))
+        });
+        let event = match msg {
+            Ok(Message::FrameTile(t)) => {
+                if t.pixels.len() != t.tile.pixel_count() * 3 {
+                    Some(ViewerEvent::Error(format!("tile {:?} with {} bytes", t.tile, t.pixels.len())))
+                } else {
+                    Some(ViewerEvent::Tile { request: t.request, tile: t.tile, pixels: t.pixels.into_vec() })
+                }
+            }
+            Ok(Message::FrameDone { request, stats }) => Some(ViewerEvent::FrameDone { request, stats }),
+            Ok(Message::Error { message }) => Some(ViewerEvent::Error(message)),
+            Ok(Message::Reject { reason }) => Some(ViewerEvent::Closed(format!("master refused: {reason}"))),
+            Ok(Message::Heartbeat) => None,
+            Ok(other) => Some(ViewerEvent::Error(format!("unexpected {} from the master", other.kind()))),
+            Err(e) => {
+                self.sender.close();
+                ctx.stop();
+                Some(ViewerEvent::Closed(e))
+            }
+        };
+        if let Some(e) = event {
+            let _ = self.sink.send(e);
+        }
+    }
+}
+
+/// Connects a viewer actor to the master of `ticket`. Must run inside an actix
+/// system. Returns the actor, the scene the master serves and the event stream.
+pub async fn connect(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    name: &str,
+) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
+    let (conn, welcome) = client::handshake(transport, ticket, Role::Viewer, name, 0, None).await?;
+    let (sink, events) = mpsc::unbounded_channel();
+    let crate::transport::Connection { sender, mut receiver, .. } = conn;
+    let addr = ViewerActor { sender, sink, next_request: 0 }.start();
+    let target = addr.clone();
+    tokio::spawn(async move {
+        while let Some(frame) = receiver.recv().await {
+            target.do_send(Inbound(frame));
+        }
+        target.do_send(Inbound(Err(TransportError::Closed)));
+    });
+    Ok((addr, welcome.scene, events))
+}
+
+/// Why a cluster frame failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    /// Could not join.
+    #[error(transparent)]
+    Join(#[from] JoinError),
+    /// The master answered with an error or went away.
+    #[error("{0}")]
+    Master(String),
+    /// The viewer actor is gone.
+    #[error("viewer actor stopped")]
+    Mailbox,
+}
+
+/// Requests one frame through `viewer` and waits until all its tiles arrived.
+pub async fn collect_frame(
+    viewer: &Addr<ViewerActor>,
+    events: &mut mpsc::UnboundedReceiver<ViewerEvent>,
+    camera: Camera,
+    settings: RenderSettings,
+) -> Result<(Frame, FrameStats), ViewerError> {
+    let request = viewer.send(RequestFrame { camera, settings }).await.map_err(|_| ViewerError::Mailbox)?;
+    let mut frame = Frame::new(settings.width, settings.height);
+    let mut covered = 0usize;
+    while let Some(ev) = events.recv().await {
+        match ev {
+            ViewerEvent::Tile { request: r, tile, pixels } if r == request => {
+                let inside = tile.x as u64 + tile.w as u64 <= settings.width as u64
+                    && tile.y as u64 + tile.h as u64 <= settings.height as u64;
+                if !inside {
+                    return Err(ViewerError::Master(format!("tile {tile:?} outside the image")));
+                }
+                frame.blit(tile, &pixels);
+                covered += tile.pixel_count();
+            }
+            ViewerEvent::FrameDone { request: r, stats } if r == request => {
+                if covered != settings.width as usize * settings.height as usize {
+                    return Err(ViewerError::Master(format!("frame done with {covered} pixels delivered")));
+                }
+                return Ok((frame, stats));
+            }
+            ViewerEvent::Tile { .. } | ViewerEvent::FrameDone { .. } => {}
+            ViewerEvent::Error(e) | ViewerEvent::Closed(e) => return Err(ViewerError::Master(e)),
+        }
+    }
+    Err(ViewerError::Master("connection closed".into()))
+}

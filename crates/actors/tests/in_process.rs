@@ -1,0 +1,294 @@
+//! The actors end to end in one process over the in-memory transport, with a
+//! fake renderer (a pixel's bytes are a hash of its coordinates and the
+//! camera), so these run without the ray tracer.
+
+use isin_actors::auth::Ticket;
+use isin_actors::client::JoinError;
+use isin_actors::master::{GetStatus, Master, MasterConfig};
+use isin_actors::slave::{self, Renderer, SlaveOptions};
+use isin_actors::transport::Transport;
+use isin_actors::transport::mem::MemTransport;
+use isin_actors::viewer;
+use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+/// Pixels from coordinates; counts loads and tiles.
+#[derive(Default)]
+struct Fake {
+    loads: AtomicU64,
+    tiles: AtomicU64,
+}
+
+fn pixel(cam: &Camera, x: u32, y: u32) -> [u8; 3] {
+    let h = (x as u64).wrapping_mul(0x9e37_79b9)
+        ^ (y as u64).wrapping_mul(0x85eb_ca6b)
+        ^ cam.eye.z.to_bits() as u64;
+    [h as u8, (h >> 8) as u8, (h >> 16) as u8]
+}
+
+impl Renderer for Fake {
+    type Scene = String;
+
+    fn load(&self, bundle: SceneBundle) -> Result<String, String> {
+        self.loads.fetch_add(1, Ordering::Relaxed);
+        Ok(bundle.source)
+    }
+
+    fn render(&self, _: &String, camera: &Camera, _: &RenderSettings, t: Tile) -> Vec<u8> {
+        self.tiles.fetch_add(1, Ordering::Relaxed);
+        let mut out = Vec::with_capacity(t.pixel_count() * 3);
+        for y in t.y..t.y + t.h {
+            for x in t.x..t.x + t.w {
+                out.extend_from_slice(&pixel(camera, x, y));
+            }
+        }
+        out
+    }
+}
+
+fn bundle() -> SceneBundle {
+    let mut assets = BTreeMap::new();
+    assets.insert("mesh.bin".to_string(), vec![42u8; 5000]);
+    SceneBundle { name: "fake.toml".into(), source: "fake scene".into(), assets }
+}
+
+fn settings(w: u32, h: u32) -> RenderSettings {
+    RenderSettings { width: w, height: h, ..RenderSettings::default() }
+}
+
+async fn start_master(t: &MemTransport, token: &str) -> (actix::Addr<Master>, Ticket) {
+    let cfg = MasterConfig::new(token.into(), bundle(), Camera::default(), settings(64, 48));
+    let listener = t.listen("master").await.unwrap();
+    let addr = Master::new(cfg).unwrap().serve(listener);
+    (addr, Ticket { transport: "mem".into(), token: token.into(), addr: "master".into() })
+}
+
+fn spawn_slave(t: &MemTransport, ticket: &Ticket, name: &str, fake: Arc<Fake>) {
+    let opts = SlaveOptions { name: name.into(), threads: 2, ..SlaveOptions::default() };
+    let t: Arc<dyn Transport> = Arc::new(t.clone());
+    let ticket = ticket.clone();
+    actix::spawn(async move {
+        let _ = slave::run(t, ticket, opts, fake).await;
+    });
+}
+
+async fn wait_slaves(master: &actix::Addr<Master>, n: usize) {
+    for _ in 0..2000 {
+        if master.send(GetStatus).await.unwrap().slaves.len() >= n {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    panic!("{n} slaves never joined");
+}
+
+#[actix::test]
+async fn frames_through_two_slaves_are_exact_and_scene_is_sent_once_each() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "s3cret").await;
+    let fakes = [Arc::new(Fake::default()), Arc::new(Fake::default())];
+    spawn_slave(&t, &ticket, "a", fakes[0].clone());
+    spawn_slave(&t, &ticket, "b", fakes[1].clone());
+    wait_slaves(&master, 2).await;
+
+    let (v, scene, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    assert_eq!(scene.name, "fake.toml");
+    for round in 0..3 {
+        let mut cam = Camera::default();
+        cam.eye.z += round as f32;
+        let s = settings(200, 150);
+        let (frame, stats) = viewer::collect_frame(&v, &mut events, cam, s).await.unwrap();
+        for y in 0..150 {
+            for x in 0..200 {
+                let i = ((y * 200 + x) * 3) as usize;
+                assert_eq!(frame.rgb[i..i + 3], pixel(&cam, x, y), "pixel {x},{y} round {round}");
+            }
+        }
+        assert!(stats.tiles >= 35);
+    }
+    for f in &fakes {
+        assert_eq!(f.loads.load(Ordering::Relaxed), 1);
+        assert!(f.tiles.load(Ordering::Relaxed) > 0, "both slaves rendered");
+    }
+    let status = master.send(GetStatus).await.unwrap();
+    assert_eq!(status.frames_done, 3);
+    assert!(status.wire.bytes_sent > 3 * 200 * 150 * 3, "tiles forwarded to the viewer are counted");
+}
+
+#[actix::test]
+async fn wrong_token_is_refused_with_a_clear_message_and_no_scene() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "right").await;
+    let wrong = Ticket { token: "wrong".into(), ..ticket.clone() };
+    match viewer::connect(&t, &wrong, "intruder").await {
+        Err(JoinError::Rejected(reason)) => assert!(reason.contains("wrong token"), "{reason}"),
+        other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
+    }
+    let fake = Arc::new(Fake::default());
+    let opts = SlaveOptions { name: "intruder".into(), threads: 1, ..SlaveOptions::default() };
+    let err = slave::run(Arc::new(t.clone()), wrong, opts, fake.clone()).await.unwrap_err();
+    assert!(matches!(err, JoinError::Rejected(_)), "{err}");
+    assert_eq!(fake.loads.load(Ordering::Relaxed), 0, "no scene reached the intruder");
+    let status = master.send(GetStatus).await.unwrap();
+    assert_eq!(status.refused, 2);
+    assert!(status.slaves.is_empty());
+}
+
+#[actix::test]
+async fn slave_joining_mid_session_gets_tiles() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    let first = Arc::new(Fake::default());
+    spawn_slave(&t, &ticket, "first", first.clone());
+    wait_slaves(&master, 1).await;
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    viewer::collect_frame(&v, &mut events, Camera::default(), settings(64, 64)).await.unwrap();
+    let late = Arc::new(Fake::default());
+    spawn_slave(&t, &ticket, "late", late.clone());
+    wait_slaves(&master, 2).await;
+    viewer::collect_frame(&v, &mut events, Camera::default(), settings(320, 240)).await.unwrap();
+    assert!(late.tiles.load(Ordering::Relaxed) > 0, "the late slave rendered tiles");
+}
+
+#[actix::test]
+async fn a_viewer_whose_frame_is_superseded_by_another_viewer_is_told() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    // No slaves yet: the first request stays open.
+    let (v1, _, mut e1) = viewer::connect(&t, &ticket, "one").await.unwrap();
+    let (v2, _, mut e2) = viewer::connect(&t, &ticket, "two").await.unwrap();
+    let first = v1.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
+    first.await.unwrap();
+    // Make sure the master has seen the first request before the second.
+    let mut seen = false;
+    for _ in 0..5000 {
+        if master.send(GetStatus).await.unwrap().frames_requested == 1 {
+            seen = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    assert!(seen, "the master never saw the first request");
+    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
+    let (frame, _) = viewer::collect_frame(&v2, &mut e2, Camera::default(), settings(32, 32)).await.unwrap();
+    assert_eq!(frame.width, 32);
+    loop {
+        match e1.recv().await.expect("viewer one hears back") {
+            viewer::ViewerEvent::Error(m) => {
+                assert!(m.contains("superseded"), "{m}");
+                break;
+            }
+            viewer::ViewerEvent::Tile { .. } => {}
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+}
+
+#[actix::test]
+async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by_others() {
+    use isin_actors::client;
+    use isin_actors::protocol::{self, Message, Role, TileResult};
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    // A hand-driven slave that lies about a tile's size.
+    let (mut conn, welcome) = client::handshake(&t, &ticket, Role::Slave, "liar", 1, None).await.unwrap();
+    let max = protocol::DEFAULT_MAX_FRAME;
+    loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
+            Message::SceneSync { .. } => break,
+            Message::Heartbeat => {}
+            other => panic!("unexpected {}", other.kind()),
+        }
+    }
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash }).unwrap();
+    wait_slaves(&master, 1).await;
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    let req = v.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
+    req.await.unwrap();
+    let assignment = loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
+            Message::TileAssignment(a) => break a,
+            Message::Heartbeat => {}
+            other => panic!("unexpected {}", other.kind()),
+        }
+    };
+    let job = assignment.tiles[0];
+    let lie = TileResult {
+        frame: assignment.frame,
+        id: job.id,
+        tile: job.tile,
+        render_micros: 1,
+        pixels: vec![0u8; 5].into(),
+    };
+    client::send_message(&conn, &Message::TileResult(lie)).unwrap();
+    let reason = loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await {
+            Ok(Message::Reject { reason }) => break reason,
+            Ok(_) => {}
+            Err(e) => panic!("connection ended without a reason: {e}"),
+        }
+    };
+    assert!(reason.contains("bytes"), "{reason}");
+    assert!(matches!(
+        client::recv_message(&mut conn, max, Duration::from_secs(10)).await,
+        Err(JoinError::Closed | JoinError::Transport(_))
+    ));
+    // An honest slave finishes the frame, the liar's tiles included.
+    spawn_slave(&t, &ticket, "honest", Arc::new(Fake::default()));
+    let mut covered = 0;
+    while let Some(ev) = events.recv().await {
+        match ev {
+            viewer::ViewerEvent::Tile { tile, pixels, .. } => {
+                assert_eq!(pixels.len(), tile.pixel_count() * 3);
+                covered += tile.pixel_count();
+            }
+            viewer::ViewerEvent::FrameDone { .. } => break,
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    assert_eq!(covered, 64 * 64);
+    assert_eq!(master.send(GetStatus).await.unwrap().deaths, 1);
+}
+
+#[actix::test]
+async fn absurd_frame_requests_get_an_error_and_the_viewer_stays_connected() {
+    let t = MemTransport::new();
+    let (_master, ticket) = start_master(&t, "tok").await;
+    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    for bad in [
+        settings(0, 10),
+        settings(100_000, 10),
+        RenderSettings { spp: 0, ..settings(8, 8) },
+        RenderSettings { max_depth: 1_000_000, ..settings(8, 8) },
+    ] {
+        let err = viewer::collect_frame(&v, &mut events, Camera::default(), bad).await;
+        assert!(matches!(err, Err(viewer::ViewerError::Master(_))), "{bad:?} accepted");
+    }
+    let mut cam = Camera::default();
+    cam.eye = cam.corners[0];
+    assert!(viewer::collect_frame(&v, &mut events, cam, settings(8, 8)).await.is_err(), "degenerate camera");
+    viewer::collect_frame(&v, &mut events, Camera::default(), settings(8, 8)).await.unwrap();
+}
+
+#[actix::test]
+async fn a_peer_speaking_another_protocol_version_is_told_so() {
+    use isin_actors::client;
+    use isin_actors::protocol::{self, Message};
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    let mut conn = t.connect(&ticket.addr).await.unwrap();
+    let challenge = client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap();
+    assert!(matches!(challenge, Message::Challenge { .. }));
+    let mut frame = protocol::encode(&Message::Heartbeat).unwrap();
+    frame[..2].copy_from_slice(&(protocol::PROTOCOL_VERSION + 1).to_be_bytes());
+    conn.sender.send(frame).unwrap();
+    match client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap() {
+        Message::Reject { reason } => assert!(reason.contains("protocol version"), "{reason}"),
+        other => panic!("expected a refusal, got {}", other.kind()),
+    }
+    assert_eq!(master.send(GetStatus).await.unwrap().refused, 1);
+}

@@ -1,0 +1,138 @@
+//! Shared pieces of the cluster commands, and the embedded default: master,
+//! local slaves and a viewer in one process over loopback TCP.
+
+use crate::assets::load_scene_file;
+use anyhow::Context;
+use isin_actors::auth::{self, Ticket};
+use isin_actors::master::{GetStatus, Master, MasterConfig};
+use isin_actors::slave::{self, SlaveOptions, Tracer};
+use isin_actors::transport::Transport;
+use isin_actors::viewer;
+use isin_tracer::{Camera, RenderSettings};
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The transport called `name` on the command line.
+pub fn transport(name: &str) -> anyhow::Result<Arc<dyn Transport>> {
+    match name {
+        "tcp" => Ok(Arc::new(isin_transport_tcp::TcpTransport::new())),
+        other => anyhow::bail!("unknown transport `{other}` (available: tcp)"),
+    }
+}
+
+/// A ticket from `--connect` (a full `isin://…` ticket, or `HOST:PORT` with `--token`).
+pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Result<Ticket> {
+    if connect.contains("://") {
+        let mut t: Ticket = connect.parse()?;
+        if let Some(tok) = token {
+            t.token = tok.to_string();
+        }
+        Ok(t)
+    } else {
+        let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
+        Ok(Ticket { transport: transport.to_string(), token: token.to_string(), addr: connect.to_string() })
+    }
+}
+
+/// Renders one frame through the cluster of `ticket`; the scene's camera and
+/// settings come from the master, with the given overrides.
+pub fn render_frame(
+    ticket: &Ticket,
+    width: Option<u32>,
+    height: Option<u32>,
+    spp: Option<u32>,
+) -> anyhow::Result<(isin_tracer::Frame, isin_actors::protocol::FrameStats, String, u64)> {
+    let transport = transport(&ticket.transport)?;
+    actix::System::new().block_on(async move {
+        let (v, scene, mut events) = viewer::connect(transport.as_ref(), ticket, "render").await?;
+        let mut settings = scene.settings;
+        settings.width = width.unwrap_or(settings.width);
+        settings.height = height.unwrap_or(settings.height);
+        settings.spp = spp.unwrap_or(settings.spp);
+        let (frame, stats) = viewer::collect_frame(&v, &mut events, scene.camera, settings).await?;
+        let wire = v.send(viewer::GetWireStats).await?;
+        Ok((frame, stats, scene.name, wire.bytes_received))
+    })
+}
+
+/// `isin` with no arguments: a whole cluster in one process.
+pub fn run_default() -> anyhow::Result<()> {
+    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper.toml");
+    let (scene, bundle) = load_scene_file(&scene_path)?;
+    let token = auth::generate_token()?;
+    let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let slaves = 2usize;
+    let threads = (cores / slaves).max(1);
+    let cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings);
+    let settings: RenderSettings = scene.settings;
+    let camera: Camera = scene.camera;
+    drop(scene);
+    actix::System::new().block_on(async move {
+        let tcp = transport("tcp")?;
+        let listener = tcp.listen("127.0.0.1:0").await?;
+        let ticket = Ticket { transport: "tcp".into(), token, addr: listener.local_addr() };
+        println!(
+            "embedded cluster: master on {} with {slaves} local slaves × {threads} threads",
+            ticket.addr
+        );
+        println!("join more slaves with: isin slave --connect {ticket}");
+        let master = Master::new(cfg)?.serve(listener);
+        for i in 0..slaves {
+            let opts = SlaveOptions { name: format!("local{i}"), threads, ..SlaveOptions::default() };
+            let (t, tk) = (tcp.clone(), ticket.clone());
+            actix::spawn(async move {
+                if let Err(e) = slave::run(t, tk, opts, Arc::new(Tracer)).await {
+                    tracing::error!("local slave stopped: {e}");
+                }
+            });
+        }
+        let (v, _, mut events) = viewer::connect(tcp.as_ref(), &ticket, "embedded-viewer").await?;
+        // A few camera moves, as a user at the viewer would make.
+        let mut cam = camera;
+        for step in 0..3 {
+            let t0 = Instant::now();
+            let (frame, stats) = viewer::collect_frame(&v, &mut events, cam, settings).await?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let per: Vec<String> = stats.per_slave.iter().map(|(k, n)| format!("{k}: {n}")).collect();
+            println!(
+                "frame {step}: {}x{} in {ms:.1} ms, {} tiles ({}), {} duplicated",
+                settings.width,
+                settings.height,
+                stats.tiles,
+                per.join(", "),
+                stats.duplicated
+            );
+            if step == 0 {
+                image::save_buffer(
+                    "paper.png",
+                    &frame.rgb,
+                    frame.width,
+                    frame.height,
+                    image::ColorType::Rgb8,
+                )
+                .context("cannot write paper.png")?;
+                println!("wrote paper.png");
+            }
+            cam.yaw(0.08);
+        }
+        let status = master.send(GetStatus).await?;
+        for s in &status.slaves {
+            println!(
+                "slave {:<10} {} threads, {} tiles, {:.2} Mpixels, {} wasted",
+                s.name,
+                s.threads,
+                s.tiles_done,
+                s.pixels_done as f64 / 1e6,
+                s.wasted
+            );
+        }
+        println!(
+            "wire: {:.2} MB received, {:.2} MB sent by the master",
+            status.wire.bytes_received as f64 / 1e6,
+            status.wire.bytes_sent as f64 / 1e6
+        );
+        actix::System::current().stop();
+        anyhow::Ok(())
+    })
+}

@@ -1,0 +1,70 @@
+//! `isin master`: serve a scene to slaves and viewers.
+
+use super::cluster;
+use crate::assets::load_scene_file;
+use clap::Args;
+use isin_actors::auth::{self, Ticket};
+use isin_actors::master::{Master, MasterConfig};
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Arguments of `isin master`.
+#[derive(Args, Debug)]
+pub struct MasterArgs {
+    /// Scene file (TOML).
+    pub scene: PathBuf,
+    /// Address to listen on (port 0 picks a free port; the ticket shows the real one).
+    #[arg(long, default_value = "0.0.0.0:7878")]
+    pub listen: String,
+    /// Transport.
+    #[arg(long, default_value = "tcp")]
+    pub transport: String,
+    /// Shared secret slaves and viewers must prove (generated if absent).
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Tile edge in pixels.
+    #[arg(long, default_value_t = 32)]
+    pub tile: u32,
+    /// Milliseconds of silence after which a slave is declared dead.
+    #[arg(long, default_value_t = 5000)]
+    pub heartbeat_timeout_ms: u64,
+    /// Do not hand idle slaves copies of straggling tiles.
+    #[arg(long)]
+    pub no_duplicates: bool,
+}
+
+/// Runs `isin master` until killed.
+pub fn run(args: MasterArgs) -> anyhow::Result<()> {
+    let (scene, bundle) = load_scene_file(&args.scene)?;
+    let token = match args.token {
+        Some(t) if t.is_empty() => anyhow::bail!("--token must not be empty"),
+        Some(t) => t,
+        None => auth::generate_token()?,
+    };
+    let mut cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings);
+    drop(scene);
+    cfg.scheduler.tile_size = args.tile.max(1);
+    cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
+    cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
+    let transport = cluster::transport(&args.transport)?;
+    actix::System::new().block_on(async move {
+        let listener = transport.listen(&args.listen).await?;
+        let addr = listener.local_addr();
+        let ticket = Ticket { transport: transport.name().to_string(), token, addr: addr.clone() };
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "listening {addr}")?;
+        writeln!(out, "ticket {ticket}")?;
+        writeln!(out, "join with: isin slave --connect {ticket}")?;
+        out.flush()?;
+        drop(out);
+        if addr.starts_with("0.0.0.0") || addr.starts_with("[::]") {
+            tracing::info!(
+                "listening on all interfaces: give slaves this machine's address in place of {addr}"
+            );
+        }
+        let _master = Master::new(cfg)?.serve(listener);
+        std::future::pending::<()>().await;
+        anyhow::Ok(())
+    })
+}

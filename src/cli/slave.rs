@@ -1,0 +1,42 @@
+//! `isin slave`: render tiles for a master.
+
+use super::cluster;
+use clap::Args;
+use isin_actors::slave::{self, SlaveOptions, Tracer};
+use std::sync::Arc;
+
+/// Arguments of `isin slave`.
+#[derive(Args, Debug)]
+pub struct SlaveArgs {
+    /// The master's join ticket (`isin://TOKEN@HOST:PORT`), or `HOST:PORT` with `--token`.
+    #[arg(long)]
+    pub connect: String,
+    /// The shared secret, when `--connect` is a bare address.
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Transport, when `--connect` is a bare address.
+    #[arg(long, default_value = "tcp")]
+    pub transport: String,
+    /// Render threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Name in the master's logs (default: host name and process id).
+    #[arg(long)]
+    pub name: Option<String>,
+}
+
+/// Runs `isin slave` until refused or killed.
+pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
+    let ticket = cluster::ticket(&args.connect, args.token.as_deref(), &args.transport)?;
+    let transport = cluster::transport(&ticket.transport)?;
+    let mut opts = SlaveOptions::default();
+    if let Some(n) = args.threads {
+        anyhow::ensure!(n > 0, "--threads must be at least 1");
+        opts.threads = n;
+    }
+    opts.name = args.name.unwrap_or_else(|| format!("slave-{}", std::process::id()));
+    actix::System::new().block_on(async move {
+        slave::run(transport, ticket, opts, Arc::new(Tracer)).await?;
+        anyhow::Ok(())
+    })
+}

@@ -1,0 +1,195 @@
+//! End-to-end tests of the cluster: real `isin master`, `isin slave` and
+//! `isin render --cluster` processes on loopback sockets.
+//!
+//! Each test body takes the transport it runs over; `cluster_test!` expands
+//! it once per transport, so the same assertions hold for TCP and (in a later
+//! issue) QUIC. Nothing waits on sleeps: tests wait for lines the processes
+//! print (the ticket, "joined", "dead", …) with a timeout.
+//!
+//! Contents:
+//! - `identical`: a frame through master + 3 slaves equals `isin render`.
+//! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
+//! - `hot_join`: a 4th slave joining mid-session receives tiles.
+//! - `hot_join_mid_frame`: a slave joining while a frame is open takes part in that frame.
+//! - `embedded_default…`: `isin` with no arguments renders through its in-process cluster,
+//!   identical to `isin render`.
+//! - `wrong_token`: refused with a clear message; no scene data reaches the intruder.
+//! - `garbage`: garbage bytes and an oversized length prefix; the master keeps rendering.
+//! - `slave_waits_for_master`: a slave started before its master joins once it is up.
+//! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
+//!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
+
+mod util;
+
+use util::{Cluster, Proc, Stream, Transport, assert_same_pixels, render_local};
+
+/// Runs `$body(transport)` as one `#[test]` per transport.
+macro_rules! cluster_test {
+    ($(#[$meta:meta])* $name:ident, $body:expr) => {
+        mod $name {
+            #[allow(unused_imports)]
+            use super::*;
+            $(#[$meta])*
+            #[test]
+            fn tcp() {
+                ($body)(Transport::Tcp)
+            }
+        }
+    };
+}
+
+const SMALL: &[&str] = &["--width", "160", "--height", "120"];
+/// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a
+/// test acts on it.
+const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "2"];
+
+cluster_test!(identical, |t: Transport| {
+    let c = Cluster::start(t, 3, &[]);
+    let (cluster, stdout) = c.render("frame.png", SMALL);
+    assert_same_pixels(&cluster, &render_local(SMALL), "cluster frame vs isin render");
+    // Work really was spread: at least two slaves delivered tiles.
+    let line = stdout.lines().find(|l| l.starts_with("tiles")).expect("tiles line");
+    assert!(line.matches('#').count() >= 2, "{line}");
+});
+
+cluster_test!(kill_mid_frame, |t: Transport| {
+    let mut c = Cluster::start(t, 3, &[]);
+    let (mut render, out) = c.render_async("frame.png", SLOW);
+    // The master hands every slave its window as soon as the frame arrives.
+    c.master.wait_for(Stream::Err, "frame requested");
+    c.slaves[1].kill9();
+    c.master.wait_for(Stream::Err, "dead (Disconnected)");
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    let dead = c.master.wait_for(Stream::Err, "dead (Disconnected)");
+    assert!(!dead.contains("; 0 tiles requeued"), "the killed slave held tiles: {dead}");
+    c.master.wait_for(Stream::Err, "reassigned");
+    assert_same_pixels(&util::pixels(&out), &render_local(SLOW), "frame after a slave's kill");
+});
+
+cluster_test!(hot_join, |t: Transport| {
+    let mut c = Cluster::start(t, 3, &[]);
+    c.render("before.png", SMALL);
+    c.add_slave("late");
+    c.wait_joined(4);
+    let (pixels, stdout) = c.render("after.png", SLOW);
+    let line = stdout.lines().find(|l| l.starts_with("tiles")).expect("tiles line").to_string();
+    let late = line.split(['(', ',', ')']).map(str::trim).find(|s| s.starts_with("late#"));
+    let n: u32 = late.and_then(|s| s.split(": ").nth(1)).and_then(|n| n.parse().ok()).unwrap_or(0);
+    assert!(n > 0, "the late slave rendered no tile: {line}");
+    assert_same_pixels(&pixels, &render_local(SLOW), "frame with the late slave");
+});
+
+cluster_test!(wrong_token, |t: Transport| {
+    let c = Cluster::start(t, 1, &[]);
+    let wrong = t.ticket("not-the-token", &c.addr);
+    // A viewer…
+    let (mut p, out) = {
+        let scene = util::scene();
+        let o = c.dir.path().join("intruder.png");
+        let args = ["render", scene.to_str().unwrap(), "--cluster", &wrong, "-o", o.to_str().unwrap()];
+        (Proc::spawn("intruder render", &args, "info"), o)
+    };
+    assert!(!p.wait_exit().success());
+    p.wait_for(Stream::Err, "wrong token");
+    assert!(!out.exists());
+    // …and a slave are refused, and the slave gives up instead of retrying.
+    let mut s = Proc::spawn("intruder slave", &["slave", "--connect", &wrong, "--threads", "1"], "debug");
+    assert!(!s.wait_exit().success());
+    s.wait_for(Stream::Err, "wrong token");
+    assert!(
+        s.matching(Stream::Err, |l| l.contains("loaded scene") || l.contains("joined")).is_empty(),
+        "{}",
+        s.dump()
+    );
+    c.master.wait_for_n(Stream::Err, "wrong token", 2);
+    assert!(
+        c.master.matching(Stream::Err, |l| l.contains("sending scene")).len() == 1,
+        "only the real slave got the scene"
+    );
+    // The cluster still works.
+    c.render("ok.png", SMALL);
+});
+
+cluster_test!(garbage, |t: Transport| {
+    let c = Cluster::start(t, 2, &[]);
+    // Random bytes.
+    let junk: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&junk);
+    // A length prefix of 4 GiB − 1.
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&u32::MAX.to_be_bytes());
+    // A well-framed message that is not a message.
+    let bogus = [&8u32.to_be_bytes()[..], &[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]].concat();
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&bogus);
+    c.master.wait_for_n(Stream::Err, "bad frame", 3);
+    // A peer that connects and says nothing does not block anyone either.
+    let _idle = util::RawPeer::connect(t, &c.addr);
+    let (pixels, _) = c.render("after-garbage.png", SMALL);
+    assert_same_pixels(&pixels, &render_local(SMALL), "frame after garbage");
+});
+
+cluster_test!(slave_waits_for_master, |t: Transport| {
+    // Start the slave before the master exists.
+    let addr = t.free_addr();
+    let ticket = t.ticket("tok", &addr);
+    let slave = Proc::spawn("early slave", &["slave", "--connect", &ticket, "--threads", "1"], "info");
+    slave.wait_for(Stream::Err, "retrying");
+    let scene = util::scene();
+    let master = Proc::spawn(
+        "master",
+        &["master", scene.to_str().unwrap(), "--listen", &addr, "--token", "tok", "--transport", t.name()],
+        "info",
+    );
+    master.wait_for(Stream::Out, "ticket ");
+    slave.wait_for(Stream::Err, "joined master");
+    master.wait_for(Stream::Err, "joined with");
+});
+
+cluster_test!(silent_slave_times_out_and_rejoins_with_cached_scene, |t: Transport| {
+    // A slave frozen with SIGSTOP keeps its socket open but says nothing: only
+    // the heartbeat timeout can find it out.
+    let c = Cluster::start(t, 2, &["--heartbeat-timeout-ms", "1000"]);
+    let (mut render, out) = c.render_async("frame.png", SLOW);
+    c.master.wait_for(Stream::Err, "frame requested");
+    let pid = c.slaves[0].pid() as libc::pid_t;
+    // SAFETY: signalling a child process this test started.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0);
+    c.master.wait_for(Stream::Err, "dead (Timeout)");
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    assert_same_pixels(&util::pixels(&out), &render_local(SLOW), "frame with a frozen slave");
+    // Thawed, it finds its connection closed, reconnects, and is not sent the
+    // scene again.
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGCONT) }, 0);
+    c.slaves[0].wait_for_n(Stream::Err, "joined master", 2);
+    c.master.wait_for(Stream::Err, "(scene cached)");
+    c.wait_joined(3);
+    assert_eq!(c.slaves[0].matching(Stream::Err, |l| l.contains("loaded scene")).len(), 1);
+    c.render("after.png", SMALL);
+});
+
+cluster_test!(hot_join_mid_frame, |t: Transport| {
+    // A frame of ≈ 2 CPU seconds: the newcomer joins while it is being rendered
+    // and takes part in it.
+    const BIG: &[&str] = &["--width", "640", "--height", "480", "--spp", "2"];
+    let mut c = Cluster::start(t, 1, &[]);
+    let (mut render, out) = c.render_async("frame.png", BIG);
+    c.master.wait_for(Stream::Err, "frame requested");
+    c.add_slave("newcomer");
+    c.wait_joined(2);
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    let line = render.wait_for(Stream::Out, "tiles ");
+    assert!(line.contains("newcomer#"), "the newcomer rendered no tile of the open frame: {line}");
+    assert_same_pixels(&util::pixels(&out), &render_local(BIG), "frame finished with a newcomer");
+});
+
+#[test]
+fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
+    // `isin` with no arguments: master + local slaves in one process.
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = Proc::spawn_in("isin (no arguments)", dir.path(), &[], "info");
+    assert!(p.wait_exit().success(), "{}", p.dump());
+    p.wait_for(Stream::Out, "frame 2:");
+    assert_eq!(p.matching(Stream::Out, |l| l.starts_with("slave ")).len(), 2, "{}", p.dump());
+    let cluster = util::pixels(&dir.path().join("paper.png"));
+    assert_same_pixels(&cluster, &render_local(&[]), "embedded cluster frame vs isin render");
+}
