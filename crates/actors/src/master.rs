@@ -377,8 +377,11 @@ impl Master {
                 match self.sched.handle_result(now, id, r.frame, r.id) {
                     ResultOutcome::Accepted { tile } => {
                         if let Some(spec) = self.frame.as_ref().filter(|f| f.id == r.frame) {
+                            let slave_name = self.peers.get(&id).map(|p| p.name.clone()).unwrap_or_default();
                             let msg = Message::FrameTile(FrameTile {
                                 request: spec.request,
+                                slave: id,
+                                slave_name,
                                 tile,
                                 pixels: r.pixels,
                             });

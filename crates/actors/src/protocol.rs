@@ -160,6 +160,10 @@ pub struct TileResult {
 pub struct FrameTile {
     /// The viewer's request number.
     pub request: u64,
+    /// The id of the slave that rendered it (its [`Welcome::id`]).
+    pub slave: u64,
+    /// That slave's name (as in [`FrameStats::per_slave`]).
+    pub slave_name: String,
     /// Where the pixels go.
     pub tile: Tile,
     /// `w * h * 3` bytes of sRGB RGB8, row-major.
@@ -216,7 +220,8 @@ pub enum Message {
     },
     /// Viewer → master: render a frame (supersedes any earlier request).
     FrameRequest {
-        /// The viewer's request number, echoed in replies.
+        /// The viewer's own number for the request (its window's frame id),
+        /// echoed in the replies.
         request: u64,
         /// Camera to render with.
         camera: Camera,
@@ -411,6 +416,8 @@ mod tests {
             }),
             Message::FrameTile(FrameTile {
                 request: 3,
+                slave: 12,
+                slave_name: "box#12".into(),
                 tile: Tile { x: 1, y: 2, w: 3, h: 4 },
                 pixels: ByteBuf::from(vec![9u8; 36]),
             }),

@@ -18,6 +18,10 @@ pub enum ViewerEvent {
     Tile {
         /// The request it answers.
         request: u64,
+        /// The id of the slave that rendered it.
+        slave: u64,
+        /// That slave's name.
+        slave_name: String,
         /// Where it goes.
         tile: Tile,
         /// `w * h * 3` bytes of RGB8.
@@ -44,10 +48,9 @@ pub struct ViewerActor {
 }
 
 /// Asks for a frame; answers with the request number its tiles will carry.
-/// Requests are numbered 1, 2, 3… in the order the actor receives them, so a
-/// caller that cannot await the answer (a GUI thread using `do_send`) can count
-/// them itself. A newer request supersedes an older one: the older one's
-/// remaining tiles never come.
+/// The actor numbers these requests itself, above every number used so far
+/// (callers that cannot await the answer use [`RequestFrameAs`]). A newer
+/// request supersedes an older one: the older one's remaining tiles never come.
 #[derive(Message)]
 #[rtype(result = "u64")]
 pub struct RequestFrame {
@@ -56,6 +59,27 @@ pub struct RequestFrame {
     /// Resolution, samples and so on.
     pub settings: RenderSettings,
 }
+
+/// Asks for a frame under the caller's own request number (e.g. a window's
+/// frame id), which its tiles and `FrameDone` will carry: nothing to count or
+/// map, so a GUI thread can post it with `do_send`. Numbers should increase;
+/// later [`RequestFrame`]s are numbered above it.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct RequestFrameAs {
+    /// The request number.
+    pub request: u64,
+    /// Camera.
+    pub camera: Camera,
+    /// Resolution, samples and so on.
+    pub settings: RenderSettings,
+}
+
+/// Closes the connection to the master and stops the actor (the master and
+/// its slaves stay up for the next viewer).
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct Disconnect;
 
 /// Asks for the connection's byte counters.
 #[derive(Message)]
@@ -78,13 +102,10 @@ impl Actor for ViewerActor {
     }
 }
 
-impl Handler<RequestFrame> for ViewerActor {
-    type Result = u64;
-
-    fn handle(&mut self, msg: RequestFrame, _: &mut Self::Context) -> u64 {
-        self.next_request += 1;
-        let request = self.next_request;
-        let m = Message::FrameRequest { request, camera: msg.camera, settings: msg.settings };
+impl ViewerActor {
+    fn request(&mut self, request: u64, camera: Camera, settings: RenderSettings) {
+        self.next_request = self.next_request.max(request);
+        let m = Message::FrameRequest { request, camera, settings };
         match protocol::encode(&m) {
             Ok(bytes) => {
                 let _ = self.sender.send(bytes);
@@ -93,7 +114,33 @@ impl Handler<RequestFrame> for ViewerActor {
                 let _ = self.sink.send(ViewerEvent::Error(e.to_string()));
             }
         }
+    }
+}
+
+impl Handler<RequestFrame> for ViewerActor {
+    type Result = u64;
+
+    fn handle(&mut self, msg: RequestFrame, _: &mut Self::Context) -> u64 {
+        let request = self.next_request + 1;
+        self.request(request, msg.camera, msg.settings);
         request
+    }
+}
+
+impl Handler<RequestFrameAs> for ViewerActor {
+    type Result = ();
+
+    fn handle(&mut self, msg: RequestFrameAs, _: &mut Self::Context) {
+        self.request(msg.request, msg.camera, msg.settings);
+    }
+}
+
+impl Handler<Disconnect> for ViewerActor {
+    type Result = ();
+
+    fn handle(&mut self, _: Disconnect, ctx: &mut Self::Context) {
+        self.sender.close();
+        ctx.stop();
     }
 }
 
@@ -118,7 +165,13 @@ impl Handler<Inbound> for ViewerActor {
                 if t.pixels.len() != t.tile.pixel_count() * 3 {
                     Some(ViewerEvent::Error(format!("tile {:?} with {} bytes", t.tile, t.pixels.len())))
                 } else {
-                    Some(ViewerEvent::Tile { request: t.request, tile: t.tile, pixels: t.pixels.into_vec() })
+                    Some(ViewerEvent::Tile {
+                        request: t.request,
+                        slave: t.slave,
+                        slave_name: t.slave_name,
+                        tile: t.tile,
+                        pixels: t.pixels.into_vec(),
+                    })
                 }
             }
             Ok(Message::FrameDone { request, stats }) => Some(ViewerEvent::FrameDone { request, stats }),
@@ -185,7 +238,7 @@ pub async fn collect_frame(
     let mut covered = 0usize;
     while let Some(ev) = events.recv().await {
         match ev {
-            ViewerEvent::Tile { request: r, tile, pixels } if r == request => {
+            ViewerEvent::Tile { request: r, tile, pixels, .. } if r == request => {
                 let inside = tile.x as u64 + tile.w as u64 <= settings.width as u64
                     && tile.y as u64 + tile.h as u64 <= settings.height as u64;
                 if !inside {
