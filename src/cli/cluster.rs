@@ -1,7 +1,9 @@
 //! Shared pieces of the cluster commands, and the embedded default: master,
-//! local slaves and a viewer in one process over loopback TCP.
+//! local slaves and a viewer in one process over loopback TCP — the viewer
+//! window when there is a display, a few frames to `paper.png` otherwise.
 
 use crate::assets::load_scene_file;
+use actix::Addr;
 use anyhow::Context;
 use isin_actors::auth::{self, Ticket};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
@@ -56,37 +58,92 @@ pub fn render_frame(
     })
 }
 
-/// `isin` with no arguments: a whole cluster in one process.
-pub fn run_default() -> anyhow::Result<()> {
-    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper.toml");
-    let (scene, bundle) = load_scene_file(&scene_path)?;
-    let token = auth::generate_token()?;
+/// Local slaves of the embedded default.
+const DEFAULT_SLAVES: usize = 2;
+
+/// The default scene, `scenes/paper.toml`.
+fn default_scene() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper.toml")
+}
+
+/// Starts a master on loopback and `slaves` local slaves splitting the cores;
+/// must run inside an actix system. Returns the master and its ticket.
+async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Addr<Master>, Ticket)> {
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-    let slaves = 2usize;
     let threads = (cores / slaves).max(1);
-    let cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings);
+    let tcp = transport("tcp")?;
+    let listener = tcp.listen("127.0.0.1:0").await?;
+    let ticket = Ticket { transport: "tcp".into(), token: cfg.token.clone(), addr: listener.local_addr() };
+    println!("embedded cluster: master on {} with {slaves} local slaves × {threads} threads", ticket.addr);
+    println!("join more slaves with: isin slave --connect {ticket}");
+    let master = Master::new(cfg)?.serve(listener);
+    for i in 0..slaves {
+        let opts = SlaveOptions { name: format!("local{i}"), threads, ..SlaveOptions::default() };
+        let (t, tk) = (tcp.clone(), ticket.clone());
+        actix::spawn(async move {
+            if let Err(e) = slave::run(t, tk, opts, Arc::new(Tracer)).await {
+                tracing::error!("local slave stopped: {e}");
+            }
+        });
+    }
+    Ok((master, ticket))
+}
+
+/// `isin` with no arguments: a whole cluster in one process, shown in the
+/// viewer window when there is a display.
+pub fn run_default() -> anyhow::Result<()> {
+    match isin_viewer::check_display() {
+        Ok(()) => run_default_window(),
+        Err(e) => {
+            run_default_headless()?;
+            println!("{e}");
+            println!(
+                "the viewer needs a display: `isin view scenes/paper.toml` (or `isin view --connect TICKET` \
+                 on a cluster); headless, `isin render scenes/paper.toml -o out.png`"
+            );
+            Ok(())
+        }
+    }
+}
+
+/// The embedded cluster on a thread of its own, the viewer window on the main thread.
+fn run_default_window() -> anyhow::Result<()> {
+    let (scene, bundle) = load_scene_file(&default_scene())?;
+    let token = auth::generate_token()?;
+    let extent = super::view::scene_extent(&scene);
+    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings);
+    drop(scene);
+    let (ticket_tx, ticket_rx) = std::sync::mpsc::channel();
+    std::thread::Builder::new()
+        .name("isin-embedded-cluster".into())
+        .spawn(move || {
+            actix::System::new().block_on(async move {
+                let started = start_embedded(cfg, DEFAULT_SLAVES).await;
+                let ok = started.is_ok();
+                let _ = ticket_tx.send(started.map(|(_, ticket)| ticket));
+                if ok {
+                    // Serves until the process ends with the window.
+                    std::future::pending::<()>().await;
+                }
+            });
+        })
+        .context("cannot start the embedded cluster")?;
+    let ticket = ticket_rx.recv().context("the embedded cluster did not start")??;
+    super::view::run_remote(ticket, Some(extent), &super::view::WindowArgs::default())
+}
+
+/// Without a display: a few frames through the embedded cluster, the first
+/// written to `paper.png`.
+fn run_default_headless() -> anyhow::Result<()> {
+    let (scene, bundle) = load_scene_file(&default_scene())?;
+    let token = auth::generate_token()?;
+    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings);
     let settings: RenderSettings = scene.settings;
     let camera: Camera = scene.camera;
     drop(scene);
     actix::System::new().block_on(async move {
+        let (master, ticket) = start_embedded(cfg, DEFAULT_SLAVES).await?;
         let tcp = transport("tcp")?;
-        let listener = tcp.listen("127.0.0.1:0").await?;
-        let ticket = Ticket { transport: "tcp".into(), token, addr: listener.local_addr() };
-        println!(
-            "embedded cluster: master on {} with {slaves} local slaves × {threads} threads",
-            ticket.addr
-        );
-        println!("join more slaves with: isin slave --connect {ticket}");
-        let master = Master::new(cfg)?.serve(listener);
-        for i in 0..slaves {
-            let opts = SlaveOptions { name: format!("local{i}"), threads, ..SlaveOptions::default() };
-            let (t, tk) = (tcp.clone(), ticket.clone());
-            actix::spawn(async move {
-                if let Err(e) = slave::run(t, tk, opts, Arc::new(Tracer)).await {
-                    tracing::error!("local slave stopped: {e}");
-                }
-            });
-        }
         let (v, _, mut events) = viewer::connect(tcp.as_ref(), &ticket, "embedded-viewer").await?;
         // A few camera moves, as a user at the viewer would make.
         let mut cam = camera;

@@ -4,6 +4,7 @@ mod bench;
 mod cluster;
 mod fly;
 mod master;
+mod remote;
 mod render;
 mod slave;
 mod view;

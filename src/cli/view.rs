@@ -1,18 +1,23 @@
 //! `isin view`: the interactive window.
 //!
-//! Today the frames come from an in-process [`LocalSource`]. Any other
-//! [`FrameSource`] (the cluster's) plugs in through [`run_with_source`]: it
-//! needs only the source, the starting camera, the render settings and the
-//! scene's size (for navigation speeds).
+//! `isin view SCENE` renders in-process ([`LocalSource`]); `isin view --connect
+//! TICKET` shows what a cluster renders ([`run_remote`], through
+//! [`super::remote::Remote`]). Any [`FrameSource`] plugs in through
+//! [`run_with_source`]: it needs only the source, the starting camera, the
+//! render settings and the scene's size (for navigation speeds).
 
+use super::cluster;
+use super::remote::Remote;
 use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
+use isin_actors::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings};
 use isin_viewer::stats::Summary;
 use isin_viewer::{CameraPath, FrameReport};
 use isin_viewer::{
-    Controls, FrameSource, LocalSource, Quality, Recorder, Session, SessionConfig, ViewerEvent, ViewerOptions,
+    Controls, FrameSource, LocalSource, Quality, Recorder, Session, SessionConfig, SourceStatus, ViewerEvent,
+    ViewerOptions,
 };
 use std::cell::RefCell;
 use std::io::Write;
@@ -61,7 +66,8 @@ pub struct WindowArgs {
     #[arg(long, default_value = ".")]
     pub screenshot_dir: PathBuf,
     /// Print a line "frame N complete: ..." on stdout as each pass is shown
-    /// (for scripts and tests).
+    /// (for scripts and tests); with a cluster, also a "status: ..." line
+    /// (live slaves, tiles per slave, bytes received, transport).
     #[arg(long)]
     pub print_frames: bool,
     /// Play a camera path back in the window (each camera as soon as the
@@ -95,11 +101,22 @@ impl Default for WindowArgs {
 /// Arguments of `isin view`.
 #[derive(Args, Debug)]
 pub struct ViewArgs {
-    /// Scene file (TOML).
-    pub scene: PathBuf,
+    /// Scene file (TOML); not needed with --connect, where the master's scene is shown.
+    #[arg(required_unless_present = "connect")]
+    pub scene: Option<PathBuf>,
+    /// Show what a cluster renders: the master's join ticket
+    /// (`isin://TOKEN@HOST:PORT`), or `HOST:PORT` with `--token`.
+    #[arg(long, value_name = "TICKET")]
+    pub connect: Option<String>,
+    /// The shared secret, when `--connect` is a bare address.
+    #[arg(long, requires = "connect")]
+    pub token: Option<String>,
+    /// Transport, when `--connect` is a bare address.
+    #[arg(long, default_value = "tcp")]
+    pub transport: String,
     #[command(flatten)]
     pub window: WindowArgs,
-    /// Render threads (default: all cores).
+    /// Render threads (default: all cores; without --connect).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Tile edge in pixels.
@@ -107,18 +124,53 @@ pub struct ViewArgs {
     pub tile: u32,
 }
 
-/// Runs `isin view SCENE` with an in-process renderer.
+/// Runs `isin view SCENE` with an in-process renderer, or `isin view
+/// --connect TICKET` on a cluster.
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
-    // Fail before the (possibly slow) scene load when no window can open.
+    // Fail before the (possibly slow) scene load or connection when no window can open.
     isin_viewer::check_display()?;
-    let (scene, _bundle) = load_scene_file(&args.scene)?;
+    if let Some(connect) = &args.connect {
+        let ticket = cluster::ticket(connect, args.token.as_deref(), &args.transport)?;
+        return run_remote(ticket, None, &args.window);
+    }
+    let scene_path = args.scene.context("a scene file is needed without --connect")?;
+    let (scene, _bundle) = load_scene_file(&scene_path)?;
     let camera = scene.camera;
     let settings = scene.settings;
     let extent = scene_extent(&scene);
     let source = LocalSource::new(Arc::new(scene), args.threads.unwrap_or(0), args.tile)?;
-    let title = format!("isin — {}", args.scene.display());
-    run_with_source(Box::new(source), camera, settings, extent, &args.window, title)
+    let title = format!("isin — {}", scene_path.display());
+    run_with_source(Box::new(source), camera, settings, extent, &args.window, title, None)
 }
+
+/// Opens the viewer on the cluster of `ticket`: the master's scene, camera and
+/// settings. `extent` (the scene's size, for navigation steps) is guessed
+/// from the camera when not known ([`extent_from_camera`]). Closing the window
+/// disconnects; the master and its slaves stay up.
+pub fn run_remote(ticket: Ticket, extent: Option<f32>, window: &WindowArgs) -> anyhow::Result<()> {
+    let addr = ticket.addr.clone();
+    let (remote, source) = Remote::connect(ticket, format!("view-{}", std::process::id()))?;
+    let scene = remote.scene.clone();
+    let extent = extent.unwrap_or_else(|| extent_from_camera(&scene.camera));
+    let title = format!("isin — {} via {addr}", scene.name);
+    let feed = remote.feed.clone();
+    let status: StatusFn = Box::new(move || feed.status());
+    let result =
+        run_with_source(Box::new(source), scene.camera, scene.settings, extent, window, title, Some(status));
+    remote.finish();
+    result
+}
+
+/// A scene size for navigation steps when only the camera is known: the
+/// viewer of a cluster does not load the scene. Scenes are usually framed a
+/// few eye-to-plane distances across.
+pub fn extent_from_camera(camera: &Camera) -> f32 {
+    let d = camera.eye_distance().abs().max(camera.plane_x().length());
+    if d.is_finite() { 4.0 * d } else { 0.0 }
+}
+
+/// Reads a source's counters for `--print-frames` status lines.
+pub type StatusFn = Box<dyn Fn() -> SourceStatus>;
 
 /// Diagonal of the scene's bounding box (0 for an empty scene).
 pub fn scene_extent(scene: &isin_tracer::Scene) -> f32 {
@@ -136,6 +188,7 @@ pub fn run_with_source(
     extent: f32,
     window: &WindowArgs,
     title: String,
+    status: Option<StatusFn>,
 ) -> anyhow::Result<()> {
     if let Some(w) = window.width {
         settings.width = w;
@@ -185,6 +238,19 @@ pub fn run_with_source(
                 }
                 let mut out = std::io::stdout().lock();
                 let _ = writeln!(out, "{line}");
+                if let Some(status) = &status {
+                    let s = status();
+                    let tiles: Vec<String> =
+                        s.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
+                    let _ = writeln!(
+                        out,
+                        "status: {} live slaves  tiles {}  {} bytes received  transport {}",
+                        s.live_slaves,
+                        tiles.join(" "),
+                        s.bytes_received,
+                        s.transport
+                    );
+                }
                 let _ = out.flush();
             }
             ViewerEvent::ScreenshotSaved(path) => println!("screenshot {}", path.display()),

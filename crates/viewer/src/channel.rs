@@ -74,6 +74,11 @@ impl SourceFeed {
         *self.shared.status.lock().unwrap_or_else(PoisonError::into_inner) = status;
     }
 
+    /// The counters as last set.
+    pub fn status(&self) -> SourceStatus {
+        self.shared.status.lock().unwrap_or_else(PoisonError::into_inner).clone()
+    }
+
     /// Changes the counters in place.
     pub fn update_status(&self, update: impl FnOnce(&mut SourceStatus)) {
         update(&mut self.shared.status.lock().unwrap_or_else(PoisonError::into_inner));
@@ -144,6 +149,7 @@ mod tests {
         assert!(source.try_next().is_none());
         assert_eq!(source.status().bytes_received, 3);
         assert_eq!(source.status().tiles_per_slave, [(4, 1)]);
+        assert_eq!(feed.status(), source.status(), "both ends see the same counters");
         drop(source);
         assert!(!feed.send(SourceEvent::Failed("gone".into())), "the producer learns the window is gone");
     }

@@ -1,0 +1,202 @@
+//! The cluster-backed frame source: the viewer window drawing what a master's
+//! slaves render (`isin view --connect TICKET` and the default `isin`).
+//!
+//! winit needs the main thread, so the actix system that holds the viewer
+//! actor runs on a thread of its own. The window's requests cross over through
+//! [`isin_viewer::channel_source`]: each [`FrameRequest`] becomes a
+//! [`RequestFrameAs`] carrying the window's frame id, so the master's replies
+//! come back tagged with it (nothing to map). Tiles become
+//! [`SourceEvent::Tile`]s owned by the slave that rendered them; `FrameDone`
+//! becomes [`SourceEvent::FrameComplete`] after the status counters (live
+//! slaves, tiles per slave, bytes received on the connection) are updated.
+//!
+//! When the window closes, its end of the channel is dropped; the thread then
+//! disconnects from the master (which keeps its slaves for the next viewer)
+//! and stops its system.
+
+use super::cluster;
+use anyhow::Context;
+use isin_actors::auth::Ticket;
+use isin_actors::client::HANDSHAKE_TIMEOUT;
+use isin_actors::protocol::SceneInfo;
+use isin_actors::viewer::{self, Disconnect, GetWireStats, RequestFrameAs, ViewerActor, ViewerEvent};
+use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate};
+use std::collections::{BTreeMap, BTreeSet};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+
+/// How often the bytes-received counter is refreshed between frames.
+const WIRE_POLL: Duration = Duration::from_millis(250);
+
+/// A viewer connected to a master; its source goes to the window.
+pub struct Remote {
+    /// The producing end, for reading the counters (e.g. `--print-frames`).
+    pub feed: SourceFeed,
+    /// What the master serves: the starting camera and settings.
+    pub scene: SceneInfo,
+    thread: JoinHandle<()>,
+}
+
+impl Remote {
+    /// Connects to the master of `ticket` as viewer `name`; returns once the
+    /// master has welcomed us, with the source to give the window.
+    pub fn connect(ticket: Ticket, name: String) -> anyhow::Result<(Remote, ChannelSource)> {
+        let addr = ticket.addr.clone();
+        let (requests, request_rx) = mpsc::unbounded_channel::<FrameRequest>();
+        let (source, feed) = isin_viewer::channel_source(move |r| {
+            let _ = requests.send(r);
+        });
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let thread_feed = feed.clone();
+        let thread = std::thread::Builder::new()
+            .name("isin-viewer-link".into())
+            .spawn(move || {
+                actix::System::new().block_on(async move {
+                    let transport = match cluster::transport(&ticket.transport) {
+                        Ok(t) => t,
+                        Err(e) => {
+                            let _ = ready_tx.send(Err(e));
+                            return;
+                        }
+                    };
+                    let (viewer, scene, events) =
+                        match viewer::connect(transport.as_ref(), &ticket, &name).await {
+                            Ok(v) => v,
+                            Err(e) => {
+                                let _ = ready_tx.send(Err(anyhow::Error::new(e)));
+                                return;
+                            }
+                        };
+                    let _ = ready_tx.send(Ok(scene));
+                    let link = Link {
+                        viewer,
+                        feed: thread_feed,
+                        transport: ticket.transport.clone(),
+                        current: None,
+                        frame_slaves: BTreeSet::new(),
+                        tiles: BTreeMap::new(),
+                    };
+                    link.run(request_rx, events).await;
+                    actix::System::current().stop();
+                });
+            })
+            .context("cannot start the viewer's network thread")?;
+        let scene = match ready_rx.recv_timeout(HANDSHAKE_TIMEOUT * 2) {
+            Ok(Ok(scene)) => scene,
+            Ok(Err(e)) => return Err(e.context(format!("cannot join the master at {addr}"))),
+            Err(_) => anyhow::bail!("the master did not welcome the viewer in time"),
+        };
+        tracing::info!(scene = %scene.name, "viewer connected");
+        Ok((Remote { feed, scene, thread }, source))
+    }
+
+    /// Waits for the network thread to finish (call after the window, and
+    /// with it the source, is gone: that is what ends the link).
+    pub fn finish(self) {
+        if self.thread.join().is_err() {
+            tracing::error!("the viewer's network thread panicked");
+        }
+    }
+}
+
+/// The network side of a [`Remote`].
+struct Link {
+    viewer: actix::Addr<ViewerActor>,
+    feed: SourceFeed,
+    transport: String,
+    /// The latest request and when it was posted.
+    current: Option<(u64, Instant)>,
+    /// Slaves that delivered tiles of the latest request.
+    frame_slaves: BTreeSet<u64>,
+    /// Tiles received per slave id, over the whole session.
+    tiles: BTreeMap<u32, u64>,
+}
+
+impl Link {
+    async fn run(
+        mut self,
+        mut requests: mpsc::UnboundedReceiver<FrameRequest>,
+        mut events: mpsc::UnboundedReceiver<ViewerEvent>,
+    ) {
+        let mut poll = tokio::time::interval(WIRE_POLL);
+        poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        self.update_status(0).await;
+        loop {
+            tokio::select! {
+                r = requests.recv() => {
+                    let Some(r) = r else { break }; // the window closed
+                    self.current = Some((r.frame_id, Instant::now()));
+                    self.frame_slaves.clear();
+                    self.viewer.do_send(RequestFrameAs {
+                        request: r.frame_id,
+                        camera: r.camera,
+                        settings: r.settings,
+                    });
+                }
+                ev = events.recv() => {
+                    let Some(ev) = ev else {
+                        self.feed.send(SourceEvent::Failed("the connection to the master closed".into()));
+                        break;
+                    };
+                    if !self.on_event(ev).await {
+                        break;
+                    }
+                }
+                _ = poll.tick() => self.update_status(self.live()).await,
+            }
+        }
+        // Closes the connection: the master drops this viewer and keeps its slaves.
+        let _ = self.viewer.send(Disconnect).await;
+    }
+
+    /// Live slaves: those that delivered tiles of the latest frame.
+    fn live(&self) -> usize {
+        self.feed.status().live_slaves
+    }
+
+    /// Handles one event of the viewer actor; false when the link is over.
+    async fn on_event(&mut self, ev: ViewerEvent) -> bool {
+        match ev {
+            ViewerEvent::Tile { request, slave, tile, pixels, .. } => {
+                if self.current.is_some_and(|(id, _)| id == request) {
+                    self.frame_slaves.insert(slave);
+                }
+                let owner = u32::try_from(slave).unwrap_or(u32::MAX);
+                *self.tiles.entry(owner).or_default() += 1;
+                self.feed.send(SourceEvent::Tile(TileUpdate { frame_id: request, tile, rgb: pixels, owner }))
+            }
+            ViewerEvent::FrameDone { request, stats } => {
+                let elapsed = match self.current {
+                    Some((id, at)) if id == request => at.elapsed(),
+                    _ => Duration::from_micros(stats.micros),
+                };
+                let live = if self.current.is_some_and(|(id, _)| id == request) {
+                    self.frame_slaves.len()
+                } else {
+                    stats.per_slave.len()
+                };
+                self.update_status(live).await;
+                self.feed.send(SourceEvent::FrameComplete { frame_id: request, elapsed })
+            }
+            ViewerEvent::Error(message) => self.feed.send(SourceEvent::Failed(message)),
+            ViewerEvent::Closed(message) => {
+                self.feed.send(SourceEvent::Failed(message));
+                false
+            }
+        }
+    }
+
+    async fn update_status(&self, live_slaves: usize) {
+        let bytes_received = match self.viewer.send(GetWireStats).await {
+            Ok(wire) => wire.bytes_received,
+            Err(_) => self.feed.status().bytes_received,
+        };
+        self.feed.set_status(SourceStatus {
+            live_slaves,
+            tiles_per_slave: self.tiles.iter().map(|(&k, &v)| (k, v)).collect(),
+            bytes_received,
+            transport: self.transport.clone(),
+        });
+    }
+}
