@@ -9,7 +9,14 @@
 //! complete: view V pass P spp S ..."), printed after the pass is on screen:
 //! each move key starts exactly one new view, and `--max-spp 4` makes a view's
 //! image final once a line with `spp 4` for it appears.
+//!
+//! The cluster test runs `isin master` and two `isin slave`s with the harness
+//! of the cluster tests (`tests/cluster/util.rs`) and `isin view --connect`.
 
+#[path = "cluster/util.rs"]
+mod util;
+
+use std::ffi::OsString;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -176,55 +183,11 @@ impl Viewer {
     }
 }
 
-/// Mean and variance of luminance below the status text (top 40 rows).
-fn stats(img: &image::RgbImage) -> (f64, f64) {
-    let lum: Vec<f64> = img
-        .enumerate_pixels()
-        .filter(|(_, y, _)| *y >= 40)
-        .map(|(_, _, p)| 0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64)
-        .collect();
-    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
-    let var = lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64;
-    (mean, var)
-}
-
-fn mean_abs_diff(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
-    assert_eq!(a.dimensions(), b.dimensions());
-    let sum: u64 =
-        a.as_raw().iter().zip(b.as_raw()).map(|(&x, &y)| (x as i32 - y as i32).unsigned_abs() as u64).sum();
-    sum as f64 / a.as_raw().len() as f64
-}
-
-#[test]
-fn view_moves_on_key_presses_and_quits_on_escape() {
-    let scene = repo().join("scenes/paper.toml");
-    assert!(scene.exists(), "{} is missing", scene.display());
-    let (_xvfb, display) = match start_xvfb() {
-        Ok(x) => x,
-        Err(why) => {
-            // Written to the real stderr so the reason shows without --nocapture.
-            use std::io::Write;
-            let _ =
-                writeln!(std::io::stderr(), "SKIPPED view_moves_on_key_presses_and_quits_on_escape: {why}");
-            return;
-        }
-    };
-    for tool in ["xdotool", "import"] {
-        assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
-    }
-    let artefacts = repo().join("target/test-artifacts/viewer");
-    std::fs::create_dir_all(&artefacts).unwrap();
-    let shots = tempfile::tempdir().unwrap();
-    let recording = shots.path().join("recorded.path.toml");
-
+/// Starts `isin ARGS…` (a viewer) on `display` and waits for its window.
+fn open_viewer(display: &str, args: &[OsString]) -> Viewer {
+    let display = display.to_string();
     let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
-        .arg("view")
-        .arg(&scene)
-        .args(["--width", "320", "--height", "240", "--print-frames", "--max-spp", &MAX_SPP.to_string()])
-        .arg("--screenshot-dir")
-        .arg(shots.path())
-        .arg("--record")
-        .arg(&recording)
+        .args(args)
         .env("DISPLAY", &display)
         .env_remove("WAYLAND_DISPLAY")
         .env("RUST_LOG", "warn")
@@ -266,7 +229,62 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
         );
         std::thread::sleep(Duration::from_millis(50)); // polling interval
     };
-    let mut v = Viewer { child, lines, log: Vec::new(), display, window };
+    Viewer { child, lines, log: Vec::new(), display, window }
+}
+
+/// Mean and variance of luminance below the status text (top 40 rows).
+fn stats(img: &image::RgbImage) -> (f64, f64) {
+    let lum: Vec<f64> = img
+        .enumerate_pixels()
+        .filter(|(_, y, _)| *y >= 40)
+        .map(|(_, _, p)| 0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64)
+        .collect();
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    let var = lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64;
+    (mean, var)
+}
+
+fn mean_abs_diff(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let sum: u64 =
+        a.as_raw().iter().zip(b.as_raw()).map(|(&x, &y)| (x as i32 - y as i32).unsigned_abs() as u64).sum();
+    sum as f64 / a.as_raw().len() as f64
+}
+
+#[test]
+fn view_moves_on_key_presses_and_quits_on_escape() {
+    let scene = repo().join("scenes/paper.toml");
+    assert!(scene.exists(), "{} is missing", scene.display());
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            // Written to the real stderr so the reason shows without --nocapture.
+            use std::io::Write;
+            let _ =
+                writeln!(std::io::stderr(), "SKIPPED view_moves_on_key_presses_and_quits_on_escape: {why}");
+            return;
+        }
+    };
+    for tool in ["xdotool", "import"] {
+        assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
+    }
+    let artefacts = repo().join("target/test-artifacts/viewer");
+    std::fs::create_dir_all(&artefacts).unwrap();
+    let shots = tempfile::tempdir().unwrap();
+    let recording = shots.path().join("recorded.path.toml");
+
+    let mut args: Vec<OsString> = vec!["view".into(), scene.into()];
+    args.extend(
+        ["--width", "320", "--height", "240", "--print-frames", "--max-spp", &MAX_SPP.to_string()]
+            .map(OsString::from),
+    );
+    args.extend([
+        "--screenshot-dir".into(),
+        shots.path().into(),
+        "--record".into(),
+        recording.clone().into(),
+    ]);
+    let mut v = open_viewer(&display, &args);
 
     v.wait_view_final(0);
     let before = v.screenshot(&artefacts.join("before.png"));
@@ -382,4 +400,115 @@ fn fly_replays_the_shipped_path_into_pngs() {
         "only {changes} of {} frames differ from the previous",
         frames.len()
     );
+}
+
+/// A parsed `--print-frames` status line of a cluster-backed viewer:
+/// "status: N live slaves  tiles ID:COUNT ID:COUNT  B bytes received  transport T".
+#[derive(Debug)]
+struct Status {
+    live: usize,
+    tiles: Vec<(u32, u64)>,
+    transport: String,
+}
+
+fn parse_status(line: &str) -> Option<Status> {
+    let rest = line.strip_prefix("status: ")?;
+    let words: Vec<&str> = rest.split_whitespace().collect();
+    let live = words.first()?.parse().ok()?;
+    let at = words.iter().position(|w| *w == "tiles")?;
+    let tiles = words[at + 1..]
+        .iter()
+        .map_while(|w| {
+            let (id, n) = w.split_once(':')?;
+            Some((id.parse().ok()?, n.parse().ok()?))
+        })
+        .collect();
+    let transport = words.iter().position(|w| *w == "transport").and_then(|i| words.get(i + 1))?;
+    Some(Status { live, tiles, transport: transport.to_string() })
+}
+
+/// How many pixels of `img` (below the status text) have exactly the overlay
+/// colour of `owner`.
+fn overlay_pixels(img: &image::RgbImage, owner: u32) -> usize {
+    let c = isin_viewer::raster::owner_colour(owner);
+    let rgb = [(c >> 16) as u8, (c >> 8) as u8, c as u8];
+    img.enumerate_pixels().filter(|(_, y, p)| *y >= 40 && p.0 == rgb).count()
+}
+
+#[test]
+fn view_connects_to_a_cluster_and_leaves_it_running() {
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            use std::io::Write;
+            let _ = writeln!(
+                std::io::stderr(),
+                "SKIPPED view_connects_to_a_cluster_and_leaves_it_running: {why}"
+            );
+            return;
+        }
+    };
+    for tool in ["xdotool", "import"] {
+        assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
+    }
+    let artefacts = repo().join("target/test-artifacts/viewer-cluster");
+    std::fs::create_dir_all(&artefacts).unwrap();
+    let cluster = util::Cluster::start(util::Transport::Tcp, 2, &[]);
+
+    // No scene file: the master's scene, camera and settings are shown.
+    let args: Vec<OsString> = [
+        "view",
+        "--connect",
+        &cluster.ticket,
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--print-frames",
+        "--max-spp",
+        &MAX_SPP.to_string(),
+    ]
+    .map(OsString::from)
+    .to_vec();
+    let mut v = open_viewer(&display, &args);
+    v.wait_view_final(0);
+    // The status printed after that frame: both slaves live and delivering tiles.
+    let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+    let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
+    assert_eq!(status.live, 2, "{line}");
+    assert_eq!(status.transport, "tcp", "{line}");
+    let owners: Vec<u32> = status.tiles.iter().filter(|(_, n)| *n > 0).map(|(id, _)| *id).collect();
+    assert_eq!(owners.len(), 2, "tiles from both slaves: {line}");
+    let before = v.screenshot(&artefacts.join("before.png"));
+    assert_eq!(before.dimensions(), (320, 240), "the window opens at the render size");
+
+    // The overlay on, then one step forward: a new view, refined to MAX_SPP.
+    v.press("o");
+    v.press("w");
+    v.wait_view_final(1);
+    let after = v.screenshot(&artefacts.join("after.png"));
+    let (mean_b, var_b) = stats(&before);
+    let (mean_a, var_a) = stats(&after);
+    println!("before: mean {mean_b:.1} var {var_b:.1}; after: mean {mean_a:.1} var {var_a:.1}");
+    for (name, mean, var) in [("before", mean_b, var_b), ("after", mean_a, var_a)] {
+        assert!(var > 50.0, "{name} screenshot looks blank (luminance variance {var:.1})");
+        assert!(mean > 5.0 && mean < 250.0, "{name} screenshot is uniformly dark or bright ({mean:.1})");
+    }
+    let diff = mean_abs_diff(&before, &after);
+    println!("mean absolute difference between before and after: {diff:.2}");
+    assert!(diff > 2.0, "the view did not change after moving (difference {diff:.2})");
+    // The overlay draws tile borders in each slave's colour: both appear.
+    for &owner in &owners {
+        let n = overlay_pixels(&after, owner);
+        assert!(n > 100, "slave {owner}'s tiles are not outlined ({n} pixels of its colour)");
+        assert!(overlay_pixels(&before, owner) < n, "the overlay was off before");
+    }
+
+    v.press("Escape");
+    let exit = v.wait_exit();
+    assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
+    // The master and its slaves stay up for the next viewer.
+    let (pixels, said) = cluster.render("after-viewer.png", &["--width", "64", "--height", "48"]);
+    assert_eq!(pixels.len(), 64 * 48 * 3);
+    assert!(said.contains("tiles"), "{said}");
 }

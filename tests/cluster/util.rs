@@ -120,6 +120,9 @@ impl Proc {
             .args(args)
             .env("RUST_LOG", log)
             .env("RUST_BACKTRACE", "0")
+            // Headless: `isin` with no arguments must not try to open a window.
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY")
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
