@@ -190,6 +190,9 @@ fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
     assert!(p.wait_exit().success(), "{}", p.dump());
     p.wait_for(Stream::Out, "frame 2:");
     assert_eq!(p.matching(Stream::Out, |l| l.starts_with("slave ")).len(), 2, "{}", p.dump());
+    // Without a display it says so, and where the window and the file renderer are.
+    let hint = p.matching(Stream::Out, |l| l.contains("isin view") && l.contains("isin render"));
+    assert!(!hint.is_empty(), "no pointer to isin view / isin render\n{}", p.dump());
     let cluster = util::pixels(&dir.path().join("paper.png"));
     assert_same_pixels(&cluster, &render_local(&[]), "embedded cluster frame vs isin render");
 }
