@@ -131,6 +131,9 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     isin_viewer::check_display()?;
     if let Some(connect) = &args.connect {
         let ticket = cluster::ticket(connect, args.token.as_deref(), &args.transport)?;
+        if let Some(scene) = &args.scene {
+            tracing::warn!("showing the master's scene; {} is not loaded", scene.display());
+        }
         return run_remote(ticket, None, &args.window);
     }
     let scene_path = args.scene.context("a scene file is needed without --connect")?;

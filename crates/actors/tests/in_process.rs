@@ -292,3 +292,43 @@ async fn a_peer_speaking_another_protocol_version_is_told_so() {
     }
     assert_eq!(master.send(GetStatus).await.unwrap().refused, 1);
 }
+
+#[actix::test]
+async fn a_request_under_the_callers_number_comes_back_tagged_with_it_and_the_slaves() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    spawn_slave(&t, &ticket, "left", Arc::default());
+    spawn_slave(&t, &ticket, "right", Arc::default());
+    wait_slaves(&master, 2).await;
+    let slaves: BTreeMap<String, u64> =
+        master.send(GetStatus).await.unwrap().slaves.iter().map(|s| (s.name.clone(), s.id)).collect();
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "gui").await.unwrap();
+    // The caller's own numbers, as a window's frame ids; a later actor-numbered
+    // request is numbered above them.
+    let s = settings(256, 128);
+    v.do_send(viewer::RequestFrameAs { request: 41, camera: Camera::default(), settings: s });
+    let mut by_slave: BTreeMap<u64, usize> = BTreeMap::new();
+    loop {
+        match events.recv().await.unwrap() {
+            viewer::ViewerEvent::Tile { request, slave, slave_name, .. } => {
+                assert_eq!(request, 41);
+                assert_eq!(slaves.get(&slave_name), Some(&slave), "{slave_name} is slave {slave}");
+                *by_slave.entry(slave).or_default() += 1;
+            }
+            viewer::ViewerEvent::FrameDone { request, stats } => {
+                assert_eq!(request, 41);
+                assert_eq!(by_slave.values().sum::<usize>(), stats.tiles as usize);
+                break;
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    assert_eq!(by_slave.len(), 2, "both slaves rendered tiles: {by_slave:?}");
+    let next = v.send(viewer::RequestFrame { camera: Camera::default(), settings: s }).await.unwrap();
+    assert_eq!(next, 42);
+    let _ = v.send(viewer::Disconnect).await;
+    // The event stream ends after Disconnect (at most a Closed note first).
+    while let Some(ev) = events.recv().await {
+        assert!(matches!(ev, viewer::ViewerEvent::Closed(_)), "{ev:?} after Disconnect");
+    }
+}
