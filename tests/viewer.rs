@@ -512,3 +512,44 @@ fn view_connects_to_a_cluster_and_leaves_it_running() {
     assert_eq!(pixels.len(), 64 * 48 * 3);
     assert!(said.contains("tiles"), "{said}");
 }
+
+#[test]
+fn isin_without_arguments_opens_the_viewer_on_its_embedded_cluster() {
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            use std::io::Write;
+            let _ = writeln!(
+                std::io::stderr(),
+                "SKIPPED isin_without_arguments_opens_the_viewer_on_its_embedded_cluster: {why}"
+            );
+            return;
+        }
+    };
+    for tool in ["xdotool", "import"] {
+        assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
+    }
+    let artefacts = repo().join("target/test-artifacts/viewer-default");
+    std::fs::create_dir_all(&artefacts).unwrap();
+    // No command: only the window options.
+    let args: Vec<OsString> =
+        ["--width", "320", "--height", "240", "--print-frames", "--max-spp", &MAX_SPP.to_string()]
+            .map(OsString::from)
+            .to_vec();
+    let mut v = open_viewer(&display, &args);
+    v.wait_view_final(0);
+    let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+    let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
+    assert_eq!(
+        (status.live, status.transport.as_str()),
+        (2, "tcp"),
+        "two local slaves over loopback: {line}"
+    );
+    let shot = v.screenshot(&artefacts.join("default.png"));
+    assert_eq!(shot.dimensions(), (320, 240));
+    let (mean, var) = stats(&shot);
+    assert!(var > 50.0 && mean > 5.0 && mean < 250.0, "blank window (mean {mean:.1}, variance {var:.1})");
+    v.press("Escape");
+    let exit = v.wait_exit();
+    assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
+}

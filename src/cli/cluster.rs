@@ -91,9 +91,9 @@ async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Add
 
 /// `isin` with no arguments: a whole cluster in one process, shown in the
 /// viewer window when there is a display.
-pub fn run_default() -> anyhow::Result<()> {
+pub fn run_default(window: &super::view::WindowArgs) -> anyhow::Result<()> {
     match isin_viewer::check_display() {
-        Ok(()) => run_default_window(),
+        Ok(()) => run_default_window(window),
         Err(e) => {
             run_default_headless()?;
             println!("{e}");
@@ -107,7 +107,7 @@ pub fn run_default() -> anyhow::Result<()> {
 }
 
 /// The embedded cluster on a thread of its own, the viewer window on the main thread.
-fn run_default_window() -> anyhow::Result<()> {
+fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
     let (scene, bundle) = load_scene_file(&default_scene())?;
     let token = auth::generate_token()?;
     let extent = super::view::scene_extent(&scene);
@@ -129,7 +129,7 @@ fn run_default_window() -> anyhow::Result<()> {
         })
         .context("cannot start the embedded cluster")?;
     let ticket = ticket_rx.recv().context("the embedded cluster did not start")??;
-    super::view::run_remote(ticket, Some(extent), &super::view::WindowArgs::default())
+    super::view::run_remote(ticket, Some(extent), window)
 }
 
 /// Without a display: a few frames through the embedded cluster, the first

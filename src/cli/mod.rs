@@ -12,11 +12,19 @@ mod view;
 use clap::{Parser, Subcommand};
 
 /// isin — an interactive, distributed CPU ray tracer.
+///
+/// Without a command: a master and local slaves in this process, shown in the
+/// viewer window on scenes/paper.toml (the window options below apply); with
+/// no display, a few frames rendered to paper.png.
 #[derive(Parser, Debug)]
-#[command(version, about, long_about = None)]
+#[command(version, about, long_about = None, args_conflicts_with_subcommands = true)]
+#[command(after_help = view::KEYS_HELP)]
 pub struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
+    /// Window options of the default viewer.
+    #[command(flatten)]
+    window: view::WindowArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -47,7 +55,7 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Master(args)) => master::run(args),
         Some(Command::Slave(args)) => slave::run(args),
         Some(Command::Bench(args)) => bench::run(args),
-        None => cluster::run_default(),
+        None => cluster::run_default(&cli.window),
     }
 }
 

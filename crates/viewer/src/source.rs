@@ -6,7 +6,7 @@
 //! not rendered yet, and the window ignores tiles of frames it no longer wants.
 //!
 //! Two sources exist: [`crate::LocalSource`] renders in-process on a rayon pool;
-//! the cluster-backed source (in the binary's cluster wiring) forwards requests
+//! the cluster-backed source (the binary's `src/cli/remote.rs`) forwards requests
 //! to the master and relays the tiles its slaves return. Both look the same to
 //! the window, which is all the window knows about.
 //!
