@@ -43,7 +43,7 @@ impl Default for QuicOptions {
     fn default() -> Self {
         Self {
             keep_alive: Duration::from_secs(1),
-            idle_timeout: Duration::from_secs(5),
+            idle_timeout: Duration::from_secs(3),
             socket_buffer: 4 << 20,
             max_ack_delay: Some(Duration::from_millis(5)),
             max_concurrent_streams: 256,

@@ -298,7 +298,7 @@ async fn sequence(
             biased;
             _ = shared.close_notify.notified() => return Read::Stopped,
             _ = tx.closed() => return Read::Stopped,
-            ev = ctrl_rx.recv() => match ev {
+            ev = ctrl_rx.recv(), if seq.end.is_none() => match ev {
                 Some(Ctrl::Frame { indep_before, data }) => seq.push_ordered(indep_before, data),
                 Some(Ctrl::End { indep_total }) => seq.end = Some(indep_total),
                 Some(Ctrl::Failed(err, code)) => return fail(err, code).await,

@@ -30,8 +30,10 @@
 //! configurations so TLS over TCP can use the same identity and pinning.
 //!
 //! ## Tuning
-//! [`QuicOptions`]: 1 s keep-alives and a 5 s idle timeout (a silent peer is
-//! gone within seconds, like the heartbeat logic expects), 4 MiB UDP socket
+//! [`QuicOptions`]: 1 s keep-alives and a 3 s idle timeout (a vanished peer
+//! sends no FIN over UDP; this way its connection ends — `recv` yields `None`
+//! — before the master's 5 s heartbeat timeout, as a killed TCP peer's
+//! would), 4 MiB UDP socket
 //! buffers set explicitly, windows for many 12–100 KB tiles in flight, and a
 //! 5 ms ACK delay requested from the peer so a lost last packet is probed
 //! quickly.
@@ -76,7 +78,7 @@ const ACCEPT_QUEUE: usize = 64;
 #[derive(Clone)]
 pub struct QuicTransport {
     server: Option<Arc<QuicServerConfig>>,
-    client: Option<Arc<QuicClientConfig>>,
+    pinned: Option<Fingerprint>,
     identity: Option<Fingerprint>,
     options: QuicOptions,
     classify: Classifier,
@@ -86,7 +88,7 @@ impl std::fmt::Debug for QuicTransport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("QuicTransport")
             .field("identity", &self.identity)
-            .field("client", &self.client.is_some())
+            .field("pinned", &self.pinned)
             .field("options", &self.options)
             .finish_non_exhaustive()
     }
@@ -97,9 +99,14 @@ fn quic_server_config(identity: &Identity) -> Result<QuicServerConfig, TlsError>
     QuicServerConfig::try_from(tls).map_err(|e| TlsError::Quic(e.to_string()))
 }
 
-fn quic_client_config(pinned: Fingerprint) -> Result<QuicClientConfig, TlsError> {
-    let tls = tls::client_config(pinned, &[tls::ALPN_QUIC])?;
-    QuicClientConfig::try_from(tls).map_err(|e| TlsError::Quic(e.to_string()))
+/// A client configuration around its own verifier (kept to explain failures).
+fn quic_client_config(
+    pinned: Fingerprint,
+) -> Result<(QuicClientConfig, Arc<tls::PinnedServerVerifier>), TlsError> {
+    let verifier = Arc::new(tls::PinnedServerVerifier::new(pinned, &tls::provider()));
+    let tls = tls::client_config_with(verifier.clone(), &[tls::ALPN_QUIC])?;
+    let quic = QuicClientConfig::try_from(tls).map_err(|e| TlsError::Quic(e.to_string()))?;
+    Ok((quic, verifier))
 }
 
 impl QuicTransport {
@@ -108,7 +115,7 @@ impl QuicTransport {
     pub fn server(identity: &Identity) -> Result<Self, TlsError> {
         Ok(Self {
             server: Some(Arc::new(quic_server_config(identity)?)),
-            client: None,
+            pinned: None,
             identity: Some(identity.fingerprint()),
             options: QuicOptions::default(),
             classify: wire::protocol_classifier,
@@ -118,9 +125,11 @@ impl QuicTransport {
     /// A slave's or viewer's side: connects to a master whose certificate has
     /// the fingerprint `pinned` (from the join ticket), and to nothing else.
     pub fn client(pinned: Fingerprint) -> Result<Self, TlsError> {
+        // Fail early if the configuration cannot be built; connect builds a fresh one.
+        quic_client_config(pinned)?;
         Ok(Self {
             server: None,
-            client: Some(Arc::new(quic_client_config(pinned)?)),
+            pinned: Some(pinned),
             identity: None,
             options: QuicOptions::default(),
             classify: wire::protocol_classifier,
@@ -130,7 +139,8 @@ impl QuicTransport {
     /// Both sides at once: listens with `identity` and connects to masters
     /// pinning `pinned` (e.g. an embedded cluster in one process).
     pub fn both(identity: &Identity, pinned: Fingerprint) -> Result<Self, TlsError> {
-        Ok(Self { client: Some(Arc::new(quic_client_config(pinned)?)), ..Self::server(identity)? })
+        quic_client_config(pinned)?;
+        Ok(Self { pinned: Some(pinned), ..Self::server(identity)? })
     }
 
     /// Replaces the tuning.
@@ -176,14 +186,13 @@ fn endpoint(
 }
 
 /// Explains a failed QUIC connection attempt in words a user can act on.
-fn describe(e: &quinn::ConnectionError) -> String {
-    let text = e.to_string();
-    if text.contains("fingerprint") {
-        text
+fn describe(e: &quinn::ConnectionError, verifier: &tls::PinnedServerVerifier) -> String {
+    if let Some(mismatch) = verifier.rejected() {
+        mismatch.to_string()
     } else if matches!(e, quinn::ConnectionError::TimedOut) {
-        "no answer (is the master running, is UDP reachable?)".to_string()
+        "no answer (is the master running, and UDP to it allowed?)".to_string()
     } else {
-        text
+        e.to_string()
     }
 }
 
@@ -213,21 +222,22 @@ impl Transport for QuicTransport {
     fn connect<'a>(&'a self, addr: &'a str) -> BoxFuture<'a, Result<Connection, TransportError>> {
         Box::pin(async move {
             let err = |reason: String| TransportError::Connect { addr: addr.to_string(), reason };
-            let crypto = self.client.clone().ok_or_else(|| {
+            let pinned = self.pinned.ok_or_else(|| {
                 err("no certificate fingerprint to pin (QUIC needs the one in the join ticket)".into())
             })?;
+            let (crypto, verifier) = quic_client_config(pinned).map_err(|e| err(e.to_string()))?;
             let target = resolve(addr).await.map_err(err)?;
             let bind: SocketAddr = if target.is_ipv6() { "[::]:0".parse() } else { "0.0.0.0:0".parse() }
                 .map_err(|_| err("".into()))?;
             let endpoint = endpoint(bind, None, &self.options).map_err(|e| err(e.to_string()))?;
-            let mut client = quinn::ClientConfig::new(crypto);
+            let mut client = quinn::ClientConfig::new(Arc::new(crypto));
             client.transport_config(self.transport_config());
             let conn = endpoint
                 .connect_with(client, target, tls::SERVER_NAME)
                 .map_err(|e| err(e.to_string()))?
                 .await
-                .map_err(|e| err(describe(&e)))?;
-            let (mut send, recv) = conn.open_bi().await.map_err(|e| err(describe(&e)))?;
+                .map_err(|e| err(describe(&e, &verifier)))?;
+            let (mut send, recv) = conn.open_bi().await.map_err(|e| err(describe(&e, &verifier)))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
             Ok(conn::spawn(conn, send, recv, Some(endpoint), self.classify, &self.options))
         })

@@ -21,7 +21,7 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer, Serve
 use rustls::{DigitallySignedStruct, SignatureScheme};
 use sha2::{Digest, Sha256};
 use std::fmt;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 /// ALPN protocol of isin over QUIC.
 pub const ALPN_QUIC: &[u8] = b"isin-quic/1";
@@ -173,9 +173,17 @@ pub fn server_config(identity: &Identity, alpn: &[&[u8]]) -> Result<rustls::Serv
 /// A TLS 1.3 client configuration that trusts only the server certificate
 /// whose SHA-256 is `pinned`, offering `alpn`.
 pub fn client_config(pinned: Fingerprint, alpn: &[&[u8]]) -> Result<rustls::ClientConfig, TlsError> {
-    let provider = provider();
-    let verifier = Arc::new(PinnedServerVerifier::new(pinned, &provider));
-    let mut cfg = rustls::ClientConfig::builder_with_provider(provider)
+    client_config_with(Arc::new(PinnedServerVerifier::new(pinned, &provider())), alpn)
+}
+
+/// [`client_config`] around a verifier the caller keeps, e.g. to ask it after
+/// a failed handshake whether the fingerprint was the reason
+/// ([`PinnedServerVerifier::rejected`]).
+pub fn client_config_with(
+    verifier: Arc<PinnedServerVerifier>,
+    alpn: &[&[u8]],
+) -> Result<rustls::ClientConfig, TlsError> {
+    let mut cfg = rustls::ClientConfig::builder_with_provider(provider())
         .with_protocol_versions(&[&rustls::version::TLS13])?
         .dangerous()
         .with_custom_certificate_verifier(verifier)
@@ -185,7 +193,7 @@ pub fn client_config(pinned: Fingerprint, alpn: &[&[u8]]) -> Result<rustls::Clie
 }
 
 /// The certificate a server presented did not have the pinned fingerprint.
-#[derive(Debug, thiserror::Error)]
+#[derive(Clone, Debug, thiserror::Error)]
 #[error(
     "server certificate fingerprint {got} does not match the ticket's {want} \
      (wrong ticket, or not the master it names)"
@@ -203,12 +211,24 @@ pub struct FingerprintMismatch {
 pub struct PinnedServerVerifier {
     pinned: Fingerprint,
     algorithms: WebPkiSupportedAlgorithms,
+    rejected: Mutex<Option<FingerprintMismatch>>,
 }
 
 impl PinnedServerVerifier {
     /// A verifier pinning `pinned`, checking signatures with `provider`'s algorithms.
     pub fn new(pinned: Fingerprint, provider: &CryptoProvider) -> Self {
-        Self { pinned, algorithms: provider.signature_verification_algorithms }
+        Self { pinned, algorithms: provider.signature_verification_algorithms, rejected: Mutex::new(None) }
+    }
+
+    /// The fingerprint this verifier trusts.
+    pub fn pinned(&self) -> Fingerprint {
+        self.pinned
+    }
+
+    /// The last certificate refused for its fingerprint, if any (TLS stacks
+    /// report verifier errors in their own words; this is the clear one).
+    pub fn rejected(&self) -> Option<FingerprintMismatch> {
+        self.rejected.lock().ok().and_then(|r| r.clone())
     }
 }
 
@@ -227,6 +247,9 @@ impl ServerCertVerifier for PinnedServerVerifier {
         } else {
             tracing::warn!(%got, want = %self.pinned, "server certificate does not match the pinned fingerprint");
             let err = FingerprintMismatch { want: self.pinned, got };
+            if let Ok(mut slot) = self.rejected.lock() {
+                *slot = Some(err.clone());
+            }
             Err(rustls::Error::InvalidCertificate(rustls::CertificateError::Other(rustls::OtherError(
                 Arc::new(err),
             ))))
@@ -310,8 +333,9 @@ mod tests {
         let name = ServerName::try_from(SERVER_NAME).unwrap();
         let now = UnixTime::now();
         assert!(v.verify_server_cert(a.cert_der(), &[], &name, &[], now).is_ok());
-        let err = v.verify_server_cert(b.cert_der(), &[], &name, &[], now).unwrap_err();
-        let text = err.to_string();
+        assert!(v.rejected().is_none());
+        assert!(v.verify_server_cert(b.cert_der(), &[], &name, &[], now).is_err());
+        let text = v.rejected().expect("mismatch recorded").to_string();
         assert!(text.contains(&a.fingerprint().to_string()), "{text}");
         assert!(text.contains(&b.fingerprint().to_string()), "{text}");
     }
