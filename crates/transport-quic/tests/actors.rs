@@ -74,7 +74,7 @@ async fn start_master() -> Setup {
     let listener = server.listen("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr();
     let master = Master::new(cfg).unwrap().serve(listener);
-    let ticket = Ticket { transport: "quic".into(), token: "tok".into(), addr };
+    let ticket: Ticket = format!("isin+quic://tok@{addr}").parse().unwrap();
     Setup { master, ticket, client: QuicTransport::client(id.fingerprint()).unwrap() }
 }
 
