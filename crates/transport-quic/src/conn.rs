@@ -43,9 +43,15 @@ pub const CLOSE_TOO_LARGE: u32 = 2;
 const INBOUND_QUEUE: usize = 64;
 /// Read-ahead events from the control reader and the acceptor.
 const EVENT_QUEUE: usize = 64;
-/// Bytes of independent frames held back waiting for an ordered frame before
-/// the sequencer stops taking more (the streams then wait in quinn's windows).
+/// Bytes of frames of one kind held back, waiting for frames of the other
+/// kind, before the sequencer stops reading more of that kind (the peer's
+/// streams then wait in quinn's flow-control windows). Reading stops only
+/// where it cannot unblock anything, so this never deadlocks: see
+/// [`Sequencer::want_ordered`] and [`Sequencer::want_independent`].
 const MAX_PENDING_BYTES: usize = 64 << 20;
+/// Independent frames held back beyond this while an ordered frame waits for
+/// an earlier one that never comes: the peer is flooding, not lagging.
+const MAX_WAITING_BYTES: usize = 4 * MAX_PENDING_BYTES;
 /// Largest allocation made ahead of the bytes actually arriving.
 const PREALLOC: usize = 1 << 20;
 
@@ -200,19 +206,20 @@ struct Sequencer {
     ordered: VecDeque<(u64, Vec<u8>)>,
     /// Independent frames keyed by the ordered count each awaits.
     waiting: BTreeMap<u64, Vec<Vec<u8>>>,
-    pending_bytes: usize,
+    ordered_bytes: usize,
+    waiting_bytes: usize,
     end: Option<u64>,
     no_more_streams: bool,
 }
 
 impl Sequencer {
     fn push_ordered(&mut self, indep_before: u64, data: Vec<u8>) {
-        self.pending_bytes += data.len();
+        self.ordered_bytes += data.len();
         self.ordered.push_back((indep_before, data));
     }
 
     fn push_indep(&mut self, ordered_before: u64, data: Vec<u8>) {
-        self.pending_bytes += data.len();
+        self.waiting_bytes += data.len();
         self.waiting.entry(ordered_before).or_default().push(data);
     }
 
@@ -226,21 +233,36 @@ impl Sequencer {
                 entry.remove();
             }
             self.indep_done += 1;
-            self.pending_bytes -= data.len();
+            self.waiting_bytes -= data.len();
             return Some(data);
         }
         if self.ordered.front().is_some_and(|(before, _)| *before <= self.indep_done) {
             let (_, data) = self.ordered.pop_front()?;
             self.ordered_done += 1;
-            self.pending_bytes -= data.len();
+            self.ordered_bytes -= data.len();
             return Some(data);
         }
         None
     }
 
+    /// Whether to read the control stream now. Past the limit, the queue's head
+    /// waits for an independent frame, which more control frames cannot supply.
+    fn want_ordered(&self) -> bool {
+        self.end.is_none() && self.ordered_bytes < MAX_PENDING_BYTES
+    }
+
+    /// Whether to take frame streams now: below the limit, or whenever an
+    /// ordered frame waits (what it waits for may be the next stream).
+    fn want_independent(&self) -> bool {
+        !self.no_more_streams && (self.waiting_bytes < MAX_PENDING_BYTES || !self.ordered.is_empty())
+    }
+
     /// `Some(Ok)` once the peer's direction ended cleanly, `Some(Err)` if it
     /// can no longer end cleanly.
     fn finished(&self) -> Option<Result<(), String>> {
+        if self.waiting_bytes > MAX_WAITING_BYTES {
+            return Some(Err(format!("peer sent {} bytes of frames out of order", self.waiting_bytes)));
+        }
         let total = self.end?;
         if self.ordered.is_empty() && self.waiting.is_empty() && self.indep_done >= total {
             return Some(Ok(()));
@@ -298,7 +320,7 @@ async fn sequence(
             biased;
             _ = shared.close_notify.notified() => return Read::Stopped,
             _ = tx.closed() => return Read::Stopped,
-            ev = ctrl_rx.recv(), if seq.end.is_none() => match ev {
+            ev = ctrl_rx.recv(), if seq.want_ordered() => match ev {
                 Some(Ctrl::Frame { indep_before, data }) => seq.push_ordered(indep_before, data),
                 Some(Ctrl::End { indep_total }) => seq.end = Some(indep_total),
                 Some(Ctrl::Failed(err, code)) => return fail(err, code).await,
@@ -308,7 +330,7 @@ async fn sequence(
                 }
                 None => return Read::Lost,
             },
-            ev = indep_rx.recv(), if seq.pending_bytes < MAX_PENDING_BYTES && !seq.no_more_streams => match ev {
+            ev = indep_rx.recv(), if seq.want_independent() => match ev {
                 Some(Indep::Frame { ordered_before, data }) => seq.push_indep(ordered_before, data),
                 Some(Indep::Failed(err, code)) => return fail(err, code).await,
                 Some(Indep::NoMore) | None => seq.no_more_streams = true,
@@ -494,5 +516,64 @@ async fn read_frame_stream(mut recv: RecvStream, shared: Arc<ConnShared>) -> Opt
             Some(Indep::Failed(io::Error::from(io::ErrorKind::UnexpectedEof).into(), CLOSE_PROTOCOL))
         }
         Err(ReadFail::Other(why)) => Some(Indep::Failed(invalid(&why), CLOSE_PROTOCOL)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_wait_exactly_for_what_was_sent_before_them() {
+        let mut s = Sequencer::default();
+        // Sent: I0, O0 (after 1 independent), I1 (after 1 ordered), I2 (after 1 ordered).
+        s.push_indep(1, b"I1".to_vec());
+        s.push_ordered(1, b"O0".to_vec());
+        assert_eq!(s.pop(), None, "O0 waits for I0, I1 waits for O0");
+        assert!(s.want_independent() && s.want_ordered());
+        s.push_indep(0, b"I0".to_vec());
+        assert_eq!(s.pop().as_deref(), Some(&b"I0"[..]));
+        assert_eq!(s.pop().as_deref(), Some(&b"O0"[..]));
+        assert_eq!(s.pop().as_deref(), Some(&b"I1"[..]));
+        assert_eq!(s.pop(), None);
+        s.end = Some(3);
+        assert_eq!(s.finished(), None, "I2 announced but not here yet");
+        s.push_indep(1, b"I2".to_vec());
+        assert_eq!(s.pop().as_deref(), Some(&b"I2"[..]));
+        assert_eq!(s.finished(), Some(Ok(())));
+        assert_eq!((s.ordered_bytes, s.waiting_bytes), (0, 0));
+    }
+
+    #[test]
+    fn reading_stops_only_where_it_cannot_help() {
+        let mut s = Sequencer::default();
+        // A huge ordered frame waiting for a tile sent before it: keep taking
+        // streams (the tile is among them), stop reading the control stream.
+        s.push_ordered(1, vec![0; MAX_PENDING_BYTES]);
+        assert!(!s.want_ordered());
+        assert!(s.want_independent());
+        // Tiles waiting for an ordered frame not read yet: keep reading control.
+        let mut s = Sequencer::default();
+        s.push_indep(1, vec![0; MAX_PENDING_BYTES]);
+        assert!(s.want_ordered());
+        assert!(!s.want_independent());
+    }
+
+    #[test]
+    fn a_peer_that_lies_about_its_frames_is_caught() {
+        let mut s = Sequencer::default();
+        s.end = Some(2);
+        s.no_more_streams = true;
+        assert!(matches!(s.finished(), Some(Err(_))));
+        let mut s = Sequencer::default();
+        s.push_indep(5, vec![1]);
+        s.end = Some(1);
+        assert!(matches!(s.finished(), Some(Err(_))), "depends on ordered frames never sent");
+        let mut s = Sequencer::default();
+        s.push_ordered(1, vec![]);
+        for _ in 0..5 {
+            s.push_indep(9, vec![0; MAX_PENDING_BYTES]);
+        }
+        assert!(matches!(s.finished(), Some(Err(_))), "flood");
     }
 }
