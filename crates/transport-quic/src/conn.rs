@@ -561,9 +561,7 @@ mod tests {
 
     #[test]
     fn a_peer_that_lies_about_its_frames_is_caught() {
-        let mut s = Sequencer::default();
-        s.end = Some(2);
-        s.no_more_streams = true;
+        let s = Sequencer { end: Some(2), no_more_streams: true, ..Sequencer::default() };
         assert!(matches!(s.finished(), Some(Err(_))));
         let mut s = Sequencer::default();
         s.push_indep(5, vec![1]);
