@@ -4,7 +4,8 @@
 //! acknowledgement; the slave keeps `WINDOW` tiles in flight.
 //!
 //! Prints tiles/s, process CPU time per tile (both ends together: user +
-//! system) and the tile round-trip p50/p99.
+//! system), the tile round-trip p50/p99, the interface's byte count per tile
+//! and, for QUIC, the UDP bytes quinn sent per tile (slave side).
 //!
 //! ```text
 //! cargo run --release -p isin-transport-quic --example loopback_bench [-- TILES WINDOW]
@@ -104,8 +105,10 @@ fn main() {
         let quic_client = QuicTransport::client(id.fingerprint()).expect("client");
         let tcp = TcpTransport::new();
         println!("{tiles} tiles of {} bytes, {window} in flight, loopback, one process", tile(0).len());
-        println!("| transport | tiles/s | CPU µs/tile (both ends) | RTT p50 ms | RTT p99 ms | interface bytes/tile |");
-        println!("|---|---|---|---|---|---|");
+        println!(
+            "| transport | tiles/s | CPU µs/tile (both ends) | RTT p50 ms | RTT p99 ms | interface bytes/tile | UDP bytes/tile |"
+        );
+        println!("|---|---|---|---|---|---|---|");
         // Warm up both, then measure.
         run(&tcp, &tcp, 500, window).await;
         run(&quic_server, &quic_client, 500, window).await;
@@ -113,9 +116,14 @@ fn main() {
             ("TCP", &tcp as &dyn Transport, &tcp as &dyn Transport),
             ("QUIC", &quic_server, &quic_client),
         ] {
+            let udp0 = quic_client.wire_stats().udp_tx_bytes;
             let o = run(s, c, tiles, window).await;
+            let udp = match name {
+                "QUIC" => format!("{:.0}", (quic_client.wire_stats().udp_tx_bytes - udp0) as f64 / tiles as f64),
+                _ => "–".to_string(),
+            };
             println!(
-                "| {name} | {:.0} | {:.1} | {:.3} | {:.3} | {:.0} |",
+                "| {name} | {:.0} | {:.1} | {:.3} | {:.3} | {:.0} | {udp} |",
                 o.tiles_per_s, o.cpu_us_per_tile, o.p50_ms, o.p99_ms, o.wire_bytes_per_tile
             );
         }

@@ -22,6 +22,7 @@
 //! TCP peer killed by a signal would.
 
 use crate::config::QuicOptions;
+use crate::stats::Registry;
 use crate::wire::{self, Classifier, Delivery};
 use isin_actors::transport::{ConnShared, Connection, FrameReceiver, FrameSender, Outgoing, TransportError};
 use quinn::{ConnectionError, ReadError, RecvStream, SendStream, VarInt};
@@ -80,7 +81,9 @@ pub fn spawn(
     endpoint: Option<quinn::Endpoint>,
     classify: Classifier,
     opts: &QuicOptions,
+    registry: Arc<Registry>,
 ) -> Connection {
+    registry.add(&conn);
     let peer = conn.remote_address().to_string();
     let shared = ConnShared::new(isin_actors::protocol::HANDSHAKE_MAX_FRAME);
     let (out_tx, out_rx) = mpsc::unbounded_channel();
@@ -98,6 +101,7 @@ pub fn spawn(
         let (wrote, read) = tokio::join!(writer, reader);
         tracing::debug!(peer = %p, ?wrote, ?read, "QUIC connection done");
         conn.close(VarInt::from_u32(CLOSE_DONE), b"done");
+        registry.remove(&conn);
         if let Some(ep) = endpoint {
             // Let the close reach the peer before the socket goes.
             let _ = tokio::time::timeout(Duration::from_secs(1), ep.wait_idle()).await;

@@ -55,11 +55,13 @@
 
 pub mod config;
 mod conn;
+pub mod stats;
 pub mod tls;
 pub mod wire;
 
 pub use config::QuicOptions;
 pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
+pub use stats::WireStats;
 
 use isin_actors::transport::{BoxFuture, Connection, Listener, Transport, TransportError};
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
@@ -82,6 +84,7 @@ pub struct QuicTransport {
     identity: Option<Fingerprint>,
     options: QuicOptions,
     classify: Classifier,
+    registry: Arc<stats::Registry>,
 }
 
 impl std::fmt::Debug for QuicTransport {
@@ -119,6 +122,7 @@ impl QuicTransport {
             identity: Some(identity.fingerprint()),
             options: QuicOptions::default(),
             classify: wire::protocol_classifier,
+            registry: Arc::default(),
         })
     }
 
@@ -133,6 +137,7 @@ impl QuicTransport {
             identity: None,
             options: QuicOptions::default(),
             classify: wire::protocol_classifier,
+            registry: Arc::default(),
         })
     }
 
@@ -159,6 +164,12 @@ impl QuicTransport {
     /// The fingerprint of the certificate this side presents when listening.
     pub fn fingerprint(&self) -> Option<Fingerprint> {
         self.identity
+    }
+
+    /// What QUIC put on the wire over every connection this transport (and its
+    /// clones) made or accepted: UDP bytes, datagrams, losses.
+    pub fn wire_stats(&self) -> WireStats {
+        self.registry.snapshot()
     }
 
     /// The tuning in use.
@@ -213,7 +224,13 @@ impl Transport for QuicTransport {
             let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
             let local = endpoint.local_addr().map_err(|e| err(e.to_string()))?.to_string();
             let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
-            let task = tokio::spawn(accept_loop(endpoint.clone(), tx, self.classify, self.options.clone()));
+            let task = tokio::spawn(accept_loop(
+                endpoint.clone(),
+                tx,
+                self.classify,
+                self.options.clone(),
+                self.registry.clone(),
+            ));
             tracing::debug!(addr = %local, "QUIC listening");
             Ok(Box::new(QuicListener { endpoint, addr: local, rx, task }) as Box<dyn Listener>)
         })
@@ -239,7 +256,15 @@ impl Transport for QuicTransport {
                 .map_err(|e| err(describe(&e, &verifier)))?;
             let (mut send, recv) = conn.open_bi().await.map_err(|e| err(describe(&e, &verifier)))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
-            Ok(conn::spawn(conn, send, recv, Some(endpoint), self.classify, &self.options))
+            Ok(conn::spawn(
+                conn,
+                send,
+                recv,
+                Some(endpoint),
+                self.classify,
+                &self.options,
+                self.registry.clone(),
+            ))
         })
     }
 }
@@ -276,15 +301,17 @@ async fn accept_loop(
     tx: mpsc::Sender<Connection>,
     classify: Classifier,
     opts: QuicOptions,
+    registry: Arc<stats::Registry>,
 ) {
     while let Some(incoming) = endpoint.accept().await {
         let tx = tx.clone();
         let opts = opts.clone();
+        let registry = registry.clone();
         tokio::spawn(async move {
             let remote = incoming.remote_address();
             match tokio::time::timeout(opts.handshake_timeout, establish(incoming)).await {
                 Ok(Ok((conn, send, recv))) => {
-                    let c = conn::spawn(conn, send, recv, None, classify, &opts);
+                    let c = conn::spawn(conn, send, recv, None, classify, &opts, registry);
                     // If nobody accepts any more, dropping `c` closes it.
                     let _ = tx.send(c).await;
                 }

@@ -120,7 +120,7 @@ async fn receive_checked(conn: &mut Connection, sent: &[Vec<u8>]) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn many_frames_round_trip_both_ways_with_ordering_rules_and_counters() {
-    let (mut c, mut s, _l, _t) = pair(1 << 20).await;
+    let (mut c, mut s, _l, client) = pair(1 << 20).await;
     let up = plan(300, 200_000);
     let down = plan(300, 150_000);
     // Both directions at once, senders on plain threads as render threads would.
@@ -139,6 +139,15 @@ async fn many_frames_round_trip_both_ways_with_ordering_rules_and_counters() {
     assert_eq!(sst.bytes_received, cst.bytes_sent);
     assert_eq!(sst.bytes_sent, wire_bytes(&down));
     assert_eq!(cst.bytes_received, sst.bytes_sent);
+    // QUIC's own count of UDP bytes covers the frames plus packet overhead
+    // (headers, AEAD tags, ACKs), which is small for large frames.
+    let w = client.wire_stats();
+    assert_eq!(w.connections, 1);
+    assert!(
+        w.udp_tx_bytes > cst.bytes_sent && w.udp_tx_bytes < cst.bytes_sent + cst.bytes_sent / 10,
+        "{w:?}"
+    );
+    assert!(w.udp_rx_bytes > cst.bytes_received, "{w:?}");
 }
 
 #[tokio::test]
