@@ -104,6 +104,9 @@ fn main() {
         let quic_server = QuicTransport::server(&id).expect("server");
         let quic_client = QuicTransport::client(id.fingerprint()).expect("client");
         let tcp = TcpTransport::new();
+        // Same, but every frame on the control stream: the cost of a stream per tile.
+        let one_server = quic_server.clone().with_classifier(isin_transport_quic::wire::all_ordered);
+        let one_client = quic_client.clone().with_classifier(isin_transport_quic::wire::all_ordered);
         println!("{tiles} tiles of {} bytes, {window} in flight, loopback, one process", tile(0).len());
         println!(
             "| transport | tiles/s | CPU µs/tile (both ends) | RTT p50 ms | RTT p99 ms | interface bytes/tile | UDP bytes/tile |"
@@ -115,11 +118,12 @@ fn main() {
         for (name, s, c) in [
             ("TCP", &tcp as &dyn Transport, &tcp as &dyn Transport),
             ("QUIC", &quic_server, &quic_client),
+            ("QUIC, one stream", &one_server, &one_client),
         ] {
             let udp0 = quic_client.wire_stats().udp_tx_bytes;
             let o = run(s, c, tiles, window).await;
             let udp = match name {
-                "QUIC" => format!("{:.0}", (quic_client.wire_stats().udp_tx_bytes - udp0) as f64 / tiles as f64),
+                "QUIC" | "QUIC, one stream" => format!("{:.0}", (quic_client.wire_stats().udp_tx_bytes - udp0) as f64 / tiles as f64),
                 _ => "–".to_string(),
             };
             println!(
