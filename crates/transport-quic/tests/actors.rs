@@ -162,3 +162,21 @@ async fn a_slave_that_vanishes_is_dropped_and_frames_go_on() {
     // A vanished peer is a closed connection, not a misbehaving one.
     assert_eq!(s.master.send(GetStatus).await.unwrap().refused, 0);
 }
+
+#[actix::test]
+async fn a_slave_joining_mid_session_over_quic_gets_tiles() {
+    let s = start_master().await;
+    let first = Arc::new(Fake::default());
+    spawn_slave(&s.client, &s.ticket, "first", first.clone());
+    wait_until(&s.master, "1 slave", |st| st.slaves.len() == 1).await;
+    let (v, _, mut events) = viewer::connect(&s.client, &s.ticket, "viewer").await.unwrap();
+    let cam = Camera::default();
+    viewer::collect_frame(&v, &mut events, cam, settings(64, 64)).await.unwrap();
+    let late = Arc::new(Fake::default());
+    spawn_slave(&s.client, &s.ticket, "late", late.clone());
+    wait_until(&s.master, "2 slaves", |st| st.slaves.len() == 2).await;
+    let (frame, _) = viewer::collect_frame(&v, &mut events, cam, settings(320, 240)).await.unwrap();
+    check(&frame, &cam, 320, 240);
+    assert_eq!(late.loads.load(Ordering::Relaxed), 1, "the late slave received the scene");
+    assert!(late.tiles.load(Ordering::Relaxed) > 0, "the late slave rendered tiles");
+}

@@ -393,3 +393,16 @@ async fn misuse_is_reported_not_panicked() {
     assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
     assert_eq!(server.name(), "quic");
 }
+
+#[tokio::test]
+async fn dropping_the_listener_refuses_newcomers_but_keeps_established_connections() {
+    let (mut c, mut s, l, client) = pair(1 << 20).await;
+    let addr = l.local_addr();
+    drop(l);
+    let err = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap_err();
+    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    c.sender.send(frame(0, 1, 100)).unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 1);
+    s.sender.send(frame(1, 2, 100)).unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, c.receiver.recv()).await.unwrap().unwrap().unwrap()), 2);
+}
