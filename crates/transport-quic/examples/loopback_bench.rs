@@ -7,9 +7,17 @@
 //! system), the tile round-trip p50/p99, the interface's byte count per tile
 //! and, for QUIC, the UDP bytes quinn sent per tile (slave side).
 //!
+//! With `LOSS` (per mille) above 0, the QUIC runs go through an in-process
+//! UDP relay that drops that share of datagrams each way (TCP cannot, and is
+//! left out): a stream per tile against all tiles on one stream shows what
+//! head-of-line blocking costs.
+//!
 //! ```text
-//! cargo run --release -p isin-transport-quic --example loopback_bench [-- TILES WINDOW]
+//! cargo run --release -p isin-transport-quic --example loopback_bench [-- TILES WINDOW LOSS]
 //! ```
+
+#[path = "../tests/relay/mod.rs"]
+mod relay;
 
 use isin_actors::protocol::{self, DEFAULT_MAX_FRAME, Message, TileResult};
 use isin_actors::transport::Transport;
@@ -46,9 +54,22 @@ struct Outcome {
     wire_bytes_per_tile: f64,
 }
 
-async fn run(server: &dyn Transport, client: &dyn Transport, tiles: u32, window: usize) -> Outcome {
+async fn run(
+    server: &dyn Transport,
+    client: &dyn Transport,
+    tiles: u32,
+    window: usize,
+    loss: u64,
+) -> Outcome {
     let mut listener = server.listen("127.0.0.1:0").await.expect("listen");
-    let addr = listener.local_addr();
+    let mut addr = listener.local_addr();
+    let _relay = if loss > 0 {
+        let r = relay::Relay::start(addr.parse().expect("address"), loss, 0x5eed).await;
+        addr = r.addr.to_string();
+        Some(r)
+    } else {
+        None
+    };
     let mut slave = client.connect(&addr).await.expect("connect");
     let mut master = listener.accept().await.expect("accept");
     master.sender.set_max_frame(DEFAULT_MAX_FRAME);
@@ -97,6 +118,7 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let tiles: u32 = args.next().and_then(|a| a.parse().ok()).unwrap_or(20_000);
     let window: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(16);
+    let loss: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(0);
     let rt =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().expect("runtime");
     rt.block_on(async {
@@ -107,21 +129,28 @@ fn main() {
         // Same, but every frame on the control stream: the cost of a stream per tile.
         let one_server = quic_server.clone().with_classifier(isin_transport_quic::wire::all_ordered);
         let one_client = quic_client.clone().with_classifier(isin_transport_quic::wire::all_ordered);
-        println!("{tiles} tiles of {} bytes, {window} in flight, loopback, one process", tile(0).len());
+        println!(
+            "{tiles} tiles of {} bytes, {window} in flight, loopback, one process, {:.1} % loss",
+            tile(0).len(),
+            loss as f64 / 10.0
+        );
         println!(
             "| transport | tiles/s | CPU µs/tile (both ends) | RTT p50 ms | RTT p99 ms | interface bytes/tile | UDP bytes/tile |"
         );
         println!("|---|---|---|---|---|---|---|");
         // Warm up both, then measure.
-        run(&tcp, &tcp, 500, window).await;
-        run(&quic_server, &quic_client, 500, window).await;
+        run(&tcp, &tcp, 500, window, 0).await;
+        run(&quic_server, &quic_client, 500, window, 0).await;
         for (name, s, c) in [
             ("TCP", &tcp as &dyn Transport, &tcp as &dyn Transport),
             ("QUIC", &quic_server, &quic_client),
             ("QUIC, one stream", &one_server, &one_client),
         ] {
+            if loss > 0 && name == "TCP" {
+                continue;
+            }
             let udp0 = quic_client.wire_stats().udp_tx_bytes;
-            let o = run(s, c, tiles, window).await;
+            let o = run(s, c, tiles, window, if name == "TCP" { 0 } else { loss }).await;
             let udp = match name {
                 "QUIC" | "QUIC, one stream" => format!("{:.0}", (quic_client.wire_stats().udp_tx_bytes - udp0) as f64 / tiles as f64),
                 _ => "–".to_string(),
