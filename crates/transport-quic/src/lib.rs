@@ -182,9 +182,17 @@ impl QuicTransport {
     }
 }
 
+/// The address to use for `HOST:PORT`: IPv4 when the name has both (a lost
+/// UDP handshake is only noticed after the idle timeout, so unlike TCP there
+/// is no quick trying of each address in turn; masters mostly listen on IPv4).
 async fn resolve(addr: &str) -> Result<SocketAddr, String> {
-    let mut addrs = tokio::net::lookup_host(addr).await.map_err(|e| e.to_string())?;
-    addrs.next().ok_or_else(|| "no address found".to_string())
+    let addrs: Vec<SocketAddr> = tokio::net::lookup_host(addr).await.map_err(|e| e.to_string())?.collect();
+    addrs
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(addrs.first())
+        .copied()
+        .ok_or_else(|| "no address found".to_string())
 }
 
 fn endpoint(

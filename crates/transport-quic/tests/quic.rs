@@ -389,6 +389,13 @@ async fn misuse_is_reported_not_panicked() {
     assert!(err.to_string().contains("certificate"), "{err}");
     let err = server.connect("127.0.0.1:9").await.unwrap_err();
     assert!(err.to_string().contains("fingerprint"), "{err}");
+    // Names resolve (IPv4 first).
+    let mut l = listen(&server).await;
+    let port = l.local_addr().rsplit_once(':').unwrap().1.to_string();
+    let c = timeout(BOUND, client.connect(&format!("localhost:{port}"))).await.unwrap().unwrap();
+    c.sender.send(frame(0, 4, 9)).unwrap();
+    let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 4);
     let err = client.connect("no-such-host.invalid:1").await.unwrap_err();
     assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
     assert_eq!(server.name(), "quic");
