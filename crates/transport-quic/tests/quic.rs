@@ -413,3 +413,49 @@ async fn dropping_the_listener_refuses_newcomers_but_keeps_established_connectio
     s.sender.send(frame(1, 2, 100)).unwrap();
     assert_eq!(check_payload(&timeout(BOUND, c.receiver.recv()).await.unwrap().unwrap().unwrap()), 2);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_clients_at_once_each_get_their_own_frames() {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let addr = l.local_addr();
+    let clients: Vec<_> = (0..16u8)
+        .map(|k| {
+            let (client, addr) = (client.clone(), addr.clone());
+            tokio::spawn(async move {
+                let mut c = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap();
+                c.sender.set_max_frame(1 << 20);
+                // Announce who we are, then expect 40 frames echoed back in a legal order.
+                c.sender.send(vec![0, k]).unwrap();
+                let frames = plan(40, 20_000);
+                for f in &frames {
+                    c.sender.send(f.clone()).unwrap();
+                }
+                receive_checked(&mut c, &frames).await;
+                c.sender.close();
+            })
+        })
+        .collect();
+    let mut servers = Vec::new();
+    for _ in 0..16 {
+        let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+        s.sender.set_max_frame(1 << 20);
+        servers.push(tokio::spawn(async move {
+            let hello = timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap();
+            assert_eq!(hello.len(), 2);
+            while let Some(f) = timeout(BOUND, s.receiver.recv()).await.unwrap() {
+                s.sender.send(f.unwrap()).unwrap();
+            }
+            hello[1]
+        }));
+    }
+    for c in clients {
+        timeout(BOUND, c).await.unwrap().unwrap();
+    }
+    let mut seen = HashSet::new();
+    for s in servers {
+        assert!(seen.insert(timeout(BOUND, s).await.unwrap().unwrap()));
+    }
+    assert_eq!(seen.len(), 16);
+    assert_eq!(server.wire_stats().connections, 16);
+}
