@@ -425,8 +425,10 @@ async fn many_clients_at_once_each_get_their_own_frames() {
             tokio::spawn(async move {
                 let mut c = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap();
                 c.sender.set_max_frame(1 << 20);
-                // Announce who we are, then expect 40 frames echoed back in a legal order.
+                // Announce who we are; once the server has raised its limit (its
+                // "go"), send 40 frames and expect them echoed back in a legal order.
                 c.sender.send(vec![0, k]).unwrap();
+                assert_eq!(timeout(BOUND, c.receiver.recv()).await.unwrap().unwrap().unwrap(), b"go");
                 let frames = plan(40, 20_000);
                 for f in &frames {
                     c.sender.send(f.clone()).unwrap();
@@ -443,6 +445,7 @@ async fn many_clients_at_once_each_get_their_own_frames() {
         servers.push(tokio::spawn(async move {
             let hello = timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap();
             assert_eq!(hello.len(), 2);
+            s.sender.send(b"go".to_vec()).unwrap();
             while let Some(f) = timeout(BOUND, s.receiver.recv()).await.unwrap() {
                 s.sender.send(f.unwrap()).unwrap();
             }
