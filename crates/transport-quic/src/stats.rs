@@ -27,6 +27,10 @@ pub struct WireStats {
     pub lost_bytes: u64,
     /// Times the congestion controller backed off.
     pub congestion_events: u64,
+    /// ACK frames sent.
+    pub acks_sent: u64,
+    /// ACK_FREQUENCY frames sent (our request for a shorter ACK delay).
+    pub ack_frequency_sent: u64,
 }
 
 impl WireStats {
@@ -39,6 +43,8 @@ impl WireStats {
         self.lost_packets += s.path.lost_packets;
         self.lost_bytes += s.path.lost_bytes;
         self.congestion_events += s.path.congestion_events;
+        self.acks_sent += s.frame_tx.acks;
+        self.ack_frequency_sent += s.frame_tx.ack_frequency;
     }
 }
 

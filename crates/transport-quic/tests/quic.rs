@@ -148,6 +148,8 @@ async fn many_frames_round_trip_both_ways_with_ordering_rules_and_counters() {
         "{w:?}"
     );
     assert!(w.udp_rx_bytes > cst.bytes_received, "{w:?}");
+    // The shorter ACK delay was requested from the peer (ACK-frequency extension).
+    assert!(w.ack_frequency_sent >= 1 && w.acks_sent > 0, "{w:?}");
 }
 
 #[tokio::test]
