@@ -20,7 +20,7 @@
 mod relay;
 
 use isin_actors::protocol::{self, DEFAULT_MAX_FRAME, Message, TileResult};
-use isin_actors::transport::Transport;
+use isin_actors::transport::{Connection, Transport};
 use isin_transport_quic::QuicTransport;
 use isin_transport_quic::tls::Identity;
 use isin_transport_tcp::TcpTransport;
@@ -51,6 +51,7 @@ struct Outcome {
     cpu_us_per_tile: f64,
     p50_ms: f64,
     p99_ms: f64,
+    max_ms: f64,
     wire_bytes_per_tile: f64,
 }
 
@@ -70,19 +71,28 @@ async fn run(
     } else {
         None
     };
-    let mut slave = client.connect(&addr).await.expect("connect");
-    let mut master = listener.accept().await.expect("accept");
+    let slave = client.connect(&addr).await.expect("connect");
+    let master = listener.accept().await.expect("accept");
+    let echo = tokio::spawn(echo(master));
+    let o = drive(slave, tiles, window).await;
+    let _ = echo.await;
+    o
+}
+
+/// The master's side: answers every tile with a `Heartbeat`.
+async fn echo(mut master: Connection) {
     master.sender.set_max_frame(DEFAULT_MAX_FRAME);
-    slave.sender.set_max_frame(DEFAULT_MAX_FRAME);
     let ack = protocol::encode(&Message::Heartbeat).expect("encodable");
-    let echo = tokio::spawn(async move {
-        while let Some(Ok(_)) = master.receiver.recv().await {
-            if master.sender.send(ack.clone()).is_err() {
-                break;
-            }
+    while let Some(Ok(_)) = master.receiver.recv().await {
+        if master.sender.send(ack.clone()).is_err() {
+            break;
         }
-        master
-    });
+    }
+}
+
+/// The slave's side: `tiles` tiles, `window` in flight.
+async fn drive(mut slave: Connection, tiles: u32, window: usize) -> Outcome {
+    slave.sender.set_max_frame(DEFAULT_MAX_FRAME);
     let frames: Vec<Vec<u8>> = (0..tiles).map(tile).collect();
     let (t0, c0) = (Instant::now(), cpu_time());
     let mut sent_at = VecDeque::with_capacity(window);
@@ -102,7 +112,6 @@ async fn run(
     let (wall, cpu) = (t0.elapsed(), cpu_time() - c0);
     let wire = slave.sender.stats().bytes_sent as f64 / tiles as f64;
     slave.sender.close();
-    let _ = echo.await;
     rtts.sort();
     let q = |p: f64| rtts[((rtts.len() - 1) as f64 * p) as usize].as_secs_f64() * 1e3;
     Outcome {
@@ -110,12 +119,65 @@ async fn run(
         cpu_us_per_tile: cpu.as_secs_f64() * 1e6 / tiles as f64,
         p50_ms: q(0.5),
         p99_ms: q(0.99),
+        max_ms: q(1.0),
         wire_bytes_per_tile: wire,
     }
 }
 
+/// Two-process mode, e.g. across network namespaces:
+/// `serve ADDR tcp|quic` prints the certificate fingerprint and echoes every
+/// connection; `send ADDR tcp|quic|quic1 FINGERPRINT TILES WINDOW` prints one
+/// table row (`quic1`: every frame on one stream).
+fn two_process(args: &[String]) -> bool {
+    let rt =
+        || tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().expect("rt");
+    match args {
+        [mode, addr, kind] if mode == "serve" => {
+            let id = Identity::generate().expect("identity");
+            let t: Box<dyn Transport> = match kind.as_str() {
+                "tcp" => Box::new(TcpTransport::new()),
+                _ => Box::new(QuicTransport::server(&id).expect("server")),
+            };
+            println!("fp={}", id.fingerprint());
+            rt().block_on(async {
+                let mut l = t.listen(addr).await.expect("listen");
+                println!("listening {}", l.local_addr());
+                while let Ok(c) = l.accept().await {
+                    tokio::spawn(echo(c));
+                }
+            });
+            true
+        }
+        [mode, addr, kind, fp, tiles, window] if mode == "send" => {
+            let fp = fp.parse().expect("fingerprint");
+            let t: Box<dyn Transport> = match kind.as_str() {
+                "tcp" => Box::new(TcpTransport::new()),
+                "quic1" => Box::new(
+                    QuicTransport::client(fp)
+                        .expect("client")
+                        .with_classifier(isin_transport_quic::wire::all_ordered),
+                ),
+                _ => Box::new(QuicTransport::client(fp).expect("client")),
+            };
+            let (tiles, window) = (tiles.parse().expect("tiles"), window.parse().expect("window"));
+            let o =
+                rt().block_on(async { drive(t.connect(addr).await.expect("connect"), tiles, window).await });
+            println!(
+                "| {kind} | {:.0} | {:.1} | {:.3} | {:.3} | {:.1} | {:.0} |",
+                o.tiles_per_s, o.cpu_us_per_tile, o.p50_ms, o.p99_ms, o.max_ms, o.wire_bytes_per_tile
+            );
+            true
+        }
+        _ => false,
+    }
+}
+
 fn main() {
-    let mut args = std::env::args().skip(1);
+    let all: Vec<String> = std::env::args().skip(1).collect();
+    if two_process(&all) {
+        return;
+    }
+    let mut args = all.into_iter();
     let tiles: u32 = args.next().and_then(|a| a.parse().ok()).unwrap_or(20_000);
     let window: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(16);
     let loss: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(0);
@@ -135,9 +197,9 @@ fn main() {
             loss as f64 / 10.0
         );
         println!(
-            "| transport | tiles/s | CPU µs/tile (both ends) | RTT p50 ms | RTT p99 ms | interface bytes/tile | UDP bytes/tile |"
+            "| transport | tiles/s | CPU µs/tile (both ends) | RTT p50 ms | RTT p99 ms | max ms | interface bytes/tile | UDP bytes/tile |"
         );
-        println!("|---|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|---|");
         // Warm up both, then measure.
         run(&tcp, &tcp, 500, window, 0).await;
         run(&quic_server, &quic_client, 500, window, 0).await;
@@ -156,8 +218,8 @@ fn main() {
                 _ => "–".to_string(),
             };
             println!(
-                "| {name} | {:.0} | {:.1} | {:.3} | {:.3} | {:.0} | {udp} |",
-                o.tiles_per_s, o.cpu_us_per_tile, o.p50_ms, o.p99_ms, o.wire_bytes_per_tile
+                "| {name} | {:.0} | {:.1} | {:.3} | {:.3} | {:.1} | {:.0} | {udp} |",
+                o.tiles_per_s, o.cpu_us_per_tile, o.p50_ms, o.p99_ms, o.max_ms, o.wire_bytes_per_tile
             );
         }
     });
