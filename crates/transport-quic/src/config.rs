@@ -29,6 +29,10 @@ pub struct QuicOptions {
     pub max_concurrent_streams: u32,
     /// Receive window of each stream, bytes (a tile is 12–100 KB).
     pub stream_window: u32,
+    /// Receive window of the whole connection, bytes: what a peer can make
+    /// this side buffer before it reads (quinn's default is unlimited, so a
+    /// peer that has not even authenticated could fill every stream's window).
+    pub connection_window: u32,
     /// Send buffer of the whole connection, bytes.
     pub send_window: u64,
     /// How long a graceful close may wait for the peer to acknowledge what was
@@ -48,6 +52,7 @@ impl Default for QuicOptions {
             max_ack_delay: Some(Duration::from_millis(5)),
             max_concurrent_streams: 256,
             stream_window: 2 << 20,
+            connection_window: 32 << 20,
             send_window: 32 << 20,
             linger: Duration::from_secs(5),
             handshake_timeout: Duration::from_secs(10),
@@ -66,6 +71,7 @@ impl QuicOptions {
         t.max_concurrent_bidi_streams(VarInt::from_u32(1));
         t.max_concurrent_uni_streams(VarInt::from_u32(self.max_concurrent_streams));
         t.stream_receive_window(VarInt::from_u32(self.stream_window));
+        t.receive_window(VarInt::from_u32(self.connection_window.max(self.stream_window)));
         t.send_window(self.send_window);
         if let Some(delay) = self.max_ack_delay {
             let mut ack = AckFrequencyConfig::default();

@@ -44,15 +44,17 @@ pub const CLOSE_TOO_LARGE: u32 = 2;
 const INBOUND_QUEUE: usize = 64;
 /// Read-ahead events from the control reader and the acceptor.
 const EVENT_QUEUE: usize = 64;
-/// Bytes of frames of one kind held back, waiting for frames of the other
-/// kind, before the sequencer stops reading more of that kind (the peer's
-/// streams then wait in quinn's flow-control windows). Reading stops only
-/// where it cannot unblock anything, so this never deadlocks: see
-/// [`Sequencer::want_ordered`] and [`Sequencer::want_independent`].
+/// Bytes of ordered frames held back (waiting for an earlier independent
+/// frame) before the sequencer stops reading the control stream. That stream's
+/// unread data then waits in its own flow-control window, which is smaller than
+/// the connection's, so frame streams keep arriving: no deadlock.
 const MAX_PENDING_BYTES: usize = 64 << 20;
-/// Independent frames held back beyond this while an ordered frame waits for
-/// an earlier one that never comes: the peer is flooding, not lagging.
-const MAX_WAITING_BYTES: usize = 4 * MAX_PENDING_BYTES;
+/// Independent frames held back (waiting for an ordered frame) beyond this:
+/// the peer is flooding, not lagging, and the connection is closed. Frame
+/// streams are never left unread instead — unread streams would hold the
+/// connection's flow-control window, and the ordered frame they wait for could
+/// then not arrive.
+const MAX_WAITING_BYTES: usize = 256 << 20;
 /// Largest allocation made ahead of the bytes actually arriving.
 const PREALLOC: usize = 1 << 20;
 
@@ -255,10 +257,10 @@ impl Sequencer {
         self.end.is_none() && self.ordered_bytes < MAX_PENDING_BYTES
     }
 
-    /// Whether to take frame streams now: below the limit, or whenever an
-    /// ordered frame waits (what it waits for may be the next stream).
+    /// Whether to take frame streams now: always, until there are no more
+    /// (see [`MAX_WAITING_BYTES`]).
     fn want_independent(&self) -> bool {
-        !self.no_more_streams && (self.waiting_bytes < MAX_PENDING_BYTES || !self.ordered.is_empty())
+        !self.no_more_streams
     }
 
     /// `Some(Ok)` once the peer's direction ended cleanly, `Some(Err)` if it
@@ -556,11 +558,11 @@ mod tests {
         s.push_ordered(1, vec![0; MAX_PENDING_BYTES]);
         assert!(!s.want_ordered());
         assert!(s.want_independent());
-        // Tiles waiting for an ordered frame not read yet: keep reading control.
+        // Tiles waiting for an ordered frame not read yet: keep reading both.
         let mut s = Sequencer::default();
         s.push_indep(1, vec![0; MAX_PENDING_BYTES]);
         assert!(s.want_ordered());
-        assert!(!s.want_independent());
+        assert!(s.want_independent());
     }
 
     #[test]
@@ -573,9 +575,7 @@ mod tests {
         assert!(matches!(s.finished(), Some(Err(_))), "depends on ordered frames never sent");
         let mut s = Sequencer::default();
         s.push_ordered(1, vec![]);
-        for _ in 0..5 {
-            s.push_indep(9, vec![0; MAX_PENDING_BYTES]);
-        }
+        s.push_indep(9, vec![0; MAX_WAITING_BYTES + 1]);
         assert!(matches!(s.finished(), Some(Err(_))), "flood");
     }
 }
