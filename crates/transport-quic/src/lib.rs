@@ -34,9 +34,17 @@
 //! sends no FIN over UDP; this way its connection ends — `recv` yields `None`
 //! — before the master's 5 s heartbeat timeout, as a killed TCP peer's
 //! would), 4 MiB UDP socket
-//! buffers set explicitly, windows for many 12–100 KB tiles in flight, and a
-//! 5 ms ACK delay requested from the peer so a lost last packet is probed
-//! quickly.
+//! buffers set explicitly, 256 frame streams of 2 MiB windows in a bounded
+//! 32 MiB connection window (room for many 12–100 KB tiles in flight, but not
+//! for a peer to make this side buffer without limit), and a 5 ms ACK delay
+//! requested from the peer so a lost last packet is probed quickly.
+//!
+//! ## Counting
+//! Each connection counts frames and their framing like every transport
+//! (`ConnStats`); [`QuicTransport::wire_stats`] adds what QUIC itself put on
+//! the wire over all of a transport's connections — UDP bytes and datagrams,
+//! losses, ACKs — for cross-checking (about 2.5 % over the frame bytes for
+//! 12 KB tiles on loopback).
 //!
 //! ## Example
 //! ```no_run
