@@ -96,7 +96,7 @@ pub fn run_default() -> anyhow::Result<()> {
         let (v, _, mut events) = viewer::connect(tcp.as_ref(), &ticket, "embedded-viewer").await?;
         // A few camera moves, as a user at the viewer would make.
         let mut cam = camera;
-        for step in 0..5 {
+        for step in 0..3 {
             let t0 = Instant::now();
             let (frame, stats) = viewer::collect_frame(&v, &mut events, cam, settings).await?;
             let ms = t0.elapsed().as_secs_f64() * 1e3;

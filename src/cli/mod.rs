@@ -1,5 +1,6 @@
 //! Command-line interface.
 
+mod bench;
 mod cluster;
 mod master;
 mod render;
@@ -23,6 +24,8 @@ enum Command {
     Master(master::MasterArgs),
     /// Render tiles for a master.
     Slave(slave::SlaveArgs),
+    /// Benchmarks (`isin bench cluster`).
+    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line and runs the chosen command.
@@ -33,6 +36,7 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Render(args)) => render::run(args),
         Some(Command::Master(args)) => master::run(args),
         Some(Command::Slave(args)) => slave::run(args),
+        Some(Command::Bench(args)) => bench::run(args),
         None => cluster::run_default(),
     }
 }

@@ -72,15 +72,16 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
             .expect("static template"),
     );
     let t1 = Instant::now();
-    let frame = pool
-        .install(|| isin_tracer::render_frame(&scene, &scene.camera, &settings, args.tile, &|n| bar.inc(n)));
+    let (frame, rays) = pool.install(|| {
+        isin_tracer::render::render_frame_stats(&scene, &scene.camera, &settings, args.tile, &|n| bar.inc(n))
+    });
     let render_time = t1.elapsed();
     bar.finish_and_clear();
 
     image::save_buffer(&args.output, &frame.rgb, frame.width, frame.height, image::ColorType::Rgb8)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
 
-    let primary = pixels * settings.spp as u64;
+    let secs = render_time.as_secs_f64();
     println!("scene      {}", args.scene.display());
     println!(
         "resolution {}x{}, {} spp, {} threads",
@@ -92,7 +93,14 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     println!("triangles  {}", scene.triangle_count());
     println!("load+BVH   {:.1} ms", load_time.as_secs_f64() * 1e3);
     println!("render     {:.1} ms", render_time.as_secs_f64() * 1e3);
-    println!("primary    {:.2} Mrays/s", primary as f64 / render_time.as_secs_f64() / 1e6);
+    println!(
+        "rays       {:.2} M ({:.2} M primary, {:.2} M secondary, {:.2} M shadow): {:.2} Mrays/s",
+        rays.total() as f64 / 1e6,
+        rays.primary as f64 / 1e6,
+        rays.secondary as f64 / 1e6,
+        rays.shadow as f64 / 1e6,
+        rays.total() as f64 / secs / 1e6
+    );
     println!("wrote      {}", args.output.display());
     Ok(())
 }

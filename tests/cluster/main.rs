@@ -10,9 +10,14 @@
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
+//! - `hot_join_mid_frame`: a slave joining while a frame is open takes part in that frame.
+//! - `embedded_default…`: `isin` with no arguments renders through its in-process cluster,
+//!   identical to `isin render`.
 //! - `wrong_token`: refused with a clear message; no scene data reaches the intruder.
 //! - `garbage`: garbage bytes and an oversized length prefix; the master keeps rendering.
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
+//! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
+//!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
 
 mod util;
 
@@ -36,7 +41,7 @@ macro_rules! cluster_test {
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a
 /// test acts on it.
-const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "4"];
+const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "2"];
 
 cluster_test!(identical, |t: Transport| {
     let c = Cluster::start(t, 3, &[]);
@@ -76,7 +81,7 @@ cluster_test!(hot_join, |t: Transport| {
 
 cluster_test!(wrong_token, |t: Transport| {
     let c = Cluster::start(t, 1, &[]);
-    let wrong = format!("isin://not-the-token@{}", c.addr);
+    let wrong = t.ticket("not-the-token", &c.addr);
     // A viewer…
     let (mut p, out) = {
         let scene = util::scene();
@@ -106,42 +111,26 @@ cluster_test!(wrong_token, |t: Transport| {
 });
 
 cluster_test!(garbage, |t: Transport| {
-    use std::io::{Read, Write};
     let c = Cluster::start(t, 2, &[]);
-    assert_eq!(t, Transport::Tcp, "raw-socket abuse is written for TCP");
-    let closes = |mut s: std::net::TcpStream| {
-        s.set_read_timeout(Some(util::TIMEOUT)).unwrap();
-        let mut buf = Vec::new();
-        // The master may send its challenge first; then it must close.
-        let _ = s.read_to_end(&mut buf);
-        assert!(buf.len() < 1024, "master sent {} bytes to an unauthenticated peer", buf.len());
-    };
     // Random bytes.
-    let mut s = std::net::TcpStream::connect(&c.addr).unwrap();
     let junk: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
-    let _ = s.write_all(&junk);
-    closes(s);
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&junk);
     // A length prefix of 4 GiB − 1.
-    let mut s = std::net::TcpStream::connect(&c.addr).unwrap();
-    s.write_all(&u32::MAX.to_be_bytes()).unwrap();
-    closes(s);
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&u32::MAX.to_be_bytes());
     // A well-framed message that is not a message.
-    let mut s = std::net::TcpStream::connect(&c.addr).unwrap();
-    s.write_all(&8u32.to_be_bytes()).unwrap();
-    s.write_all(&[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]).unwrap();
-    closes(s);
+    let bogus = [&8u32.to_be_bytes()[..], &[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]].concat();
+    util::RawPeer::connect(t, &c.addr).send_then_expect_close(&bogus);
     c.master.wait_for_n(Stream::Err, "bad frame", 3);
     // A peer that connects and says nothing does not block anyone either.
-    let _idle = std::net::TcpStream::connect(&c.addr).unwrap();
+    let _idle = util::RawPeer::connect(t, &c.addr);
     let (pixels, _) = c.render("after-garbage.png", SMALL);
     assert_same_pixels(&pixels, &render_local(SMALL), "frame after garbage");
 });
 
 cluster_test!(slave_waits_for_master, |t: Transport| {
-    // Reserve a port, free it, and start the slave before the master exists.
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let addr = format!("127.0.0.1:{port}");
-    let ticket = format!("isin://tok@{addr}");
+    // Start the slave before the master exists.
+    let addr = t.free_addr();
+    let ticket = t.ticket("tok", &addr);
     let slave = Proc::spawn("early slave", &["slave", "--connect", &ticket, "--threads", "1"], "info");
     slave.wait_for(Stream::Err, "retrying");
     let scene = util::scene();
@@ -154,3 +143,53 @@ cluster_test!(slave_waits_for_master, |t: Transport| {
     slave.wait_for(Stream::Err, "joined master");
     master.wait_for(Stream::Err, "joined with");
 });
+
+cluster_test!(silent_slave_times_out_and_rejoins_with_cached_scene, |t: Transport| {
+    // A slave frozen with SIGSTOP keeps its socket open but says nothing: only
+    // the heartbeat timeout can find it out.
+    let c = Cluster::start(t, 2, &["--heartbeat-timeout-ms", "1000"]);
+    let (mut render, out) = c.render_async("frame.png", SLOW);
+    c.master.wait_for(Stream::Err, "frame requested");
+    let pid = c.slaves[0].pid() as libc::pid_t;
+    // SAFETY: signalling a child process this test started.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0);
+    c.master.wait_for(Stream::Err, "dead (Timeout)");
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    assert_same_pixels(&util::pixels(&out), &render_local(SLOW), "frame with a frozen slave");
+    // Thawed, it finds its connection closed, reconnects, and is not sent the
+    // scene again.
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGCONT) }, 0);
+    c.slaves[0].wait_for_n(Stream::Err, "joined master", 2);
+    c.master.wait_for(Stream::Err, "(scene cached)");
+    c.wait_joined(3);
+    assert_eq!(c.slaves[0].matching(Stream::Err, |l| l.contains("loaded scene")).len(), 1);
+    c.render("after.png", SMALL);
+});
+
+cluster_test!(hot_join_mid_frame, |t: Transport| {
+    // A frame of ≈ 2 CPU seconds: the newcomer joins while it is being rendered
+    // and takes part in it.
+    const BIG: &[&str] = &["--width", "640", "--height", "480", "--spp", "2"];
+    let mut c = Cluster::start(t, 1, &[]);
+    let (mut render, out) = c.render_async("frame.png", BIG);
+    c.master.wait_for(Stream::Err, "frame requested");
+    c.add_slave("newcomer");
+    c.wait_joined(2);
+    assert!(render.wait_exit().success(), "{}\n{}", render.dump(), c.master.dump());
+    let line = render.wait_for(Stream::Out, "tiles ");
+    assert!(line.contains("newcomer#"), "the newcomer rendered no tile of the open frame: {line}");
+    assert_same_pixels(&util::pixels(&out), &render_local(BIG), "frame finished with a newcomer");
+});
+
+#[test]
+fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
+    // `isin` with no arguments: master + local slaves in one process.
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = Proc::spawn_in("isin (no arguments)", dir.path(), &[], "info");
+    assert!(p.wait_exit().success(), "{}", p.dump());
+    p.wait_for(Stream::Out, "frame 2:");
+    assert_eq!(p.matching(Stream::Out, |l| l.starts_with("slave ")).len(), 2, "{}", p.dump());
+    let cluster = util::pixels(&dir.path().join("paper.png"));
+    assert_same_pixels(&cluster, &render_local(&[]), "embedded cluster frame vs isin render");
+}

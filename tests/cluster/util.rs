@@ -27,6 +27,60 @@ impl Transport {
             Transport::Tcp => "tcp",
         }
     }
+
+    /// A join ticket for this transport.
+    pub fn ticket(self, token: &str, addr: &str) -> String {
+        match self {
+            Transport::Tcp => format!("isin://{token}@{addr}"),
+        }
+    }
+
+    /// A loopback address whose port was free a moment ago (for a master that
+    /// must start after its slaves).
+    pub fn free_addr(self) -> String {
+        let port = match self {
+            Transport::Tcp => {
+                std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+            }
+        };
+        format!("127.0.0.1:{port}")
+    }
+}
+
+/// A peer that writes raw bytes at the master, below the protocol: the
+/// transport's own framing is up to the test.
+pub enum RawPeer {
+    /// A plain TCP connection.
+    Tcp(std::net::TcpStream),
+}
+
+impl RawPeer {
+    /// Connects to the master at `addr`.
+    pub fn connect(t: Transport, addr: &str) -> RawPeer {
+        match t {
+            Transport::Tcp => RawPeer::Tcp(std::net::TcpStream::connect(addr).expect("connect")),
+        }
+    }
+
+    /// Sends `bytes` and asserts that the master then closes the connection
+    /// having sent at most its (small) challenge.
+    pub fn send_then_expect_close(self, bytes: &[u8]) {
+        use std::io::{Read, Write};
+        match self {
+            RawPeer::Tcp(mut s) => {
+                s.set_read_timeout(Some(TIMEOUT)).unwrap();
+                // The master may close before reading everything: a failed write is fine.
+                let _ = s.write_all(bytes);
+                let mut buf = Vec::new();
+                match s.read_to_end(&mut buf) {
+                    Ok(_) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => {}
+                    Err(e) => panic!("the master did not close the connection: {e}"),
+                }
+                assert!(buf.len() < 1024, "master sent {} bytes to an unauthenticated peer", buf.len());
+            }
+        }
+    }
 }
 
 /// Which output stream.
@@ -56,7 +110,13 @@ pub struct Proc {
 impl Proc {
     /// Starts `isin ARGS…` with logs at `log` level.
     pub fn spawn(name: &str, args: &[&str], log: &str) -> Proc {
+        Self::spawn_in(name, Path::new("."), args, log)
+    }
+
+    /// [`Proc::spawn`] in working directory `dir`.
+    pub fn spawn_in(name: &str, dir: &Path, args: &[&str], log: &str) -> Proc {
         let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
+            .current_dir(dir)
             .args(args)
             .env("RUST_LOG", log)
             .env("RUST_BACKTRACE", "0")
@@ -177,10 +237,10 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The scene the cluster tests render: the shipped paper scene.
+/// The scene the cluster tests render: the shipped paper scene (its textures
+/// and meshes travel to the slaves in the scene bundle).
 pub fn scene() -> PathBuf {
-    let paper = root().join("scenes/paper.toml");
-    if paper.exists() { paper } else { root().join("tests/data/cluster.toml") }
+    root().join("scenes/paper.toml")
 }
 
 /// A master and its slaves, all separate processes.

@@ -6,10 +6,22 @@
 //! dead — live in a plain state machine driven by explicit time, so tests run it
 //! without sockets or clocks; the actors are thin shells around it.
 //!
-//! Modules: [`protocol`] (messages and their versioned encoding), [`auth`]
-//! (challenge–response over the shared token, join tickets), [`scheduler`]
-//! (the pure scheduling core), [`transport`] (the interface a transport
-//! implements: connections as a pair of frame channels), and the actors.
+//! Modules:
+//! - [`protocol`]: every message, the versioned wire encoding, scene hashes.
+//! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never sent),
+//!   join tickets (`isin://TOKEN@HOST:PORT`).
+//! - [`scheduler`]: the pure scheduling core (`handle_*` / `poll_*`, time as an argument).
+//! - [`transport`]: the interface a transport implements — a connection is a pair
+//!   of frame channels with byte counters — plus the length-delimited stream codec
+//!   and an in-memory transport for tests. TCP lives in `isin-transport-tcp`.
+//! - [`master`], [`slave`], [`viewer`]: the actors; [`client`]: the peer side of
+//!   the handshake that slaves and viewers share.
+//!
+//! Data flow: a viewer sends `FrameRequest`; the master's scheduler cuts the
+//! frame into tiles and keeps every slave's window full with `TileAssignment`s;
+//! slaves render on their own thread pools and stream `TileResult`s back; the
+//! master forwards the first result for each tile to the viewer as a `FrameTile`
+//! and ends with `FrameDone`.
 
 pub mod auth;
 pub mod client;

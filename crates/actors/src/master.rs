@@ -3,7 +3,7 @@
 //!
 //! Everything time-dependent is the scheduler's; the actor only owns the clock
 //! (a periodic tick feeds `now` into it) and the connections. Inputs arrive as
-//! actix messages from per-connection reader tasks ([`Inbound`], [`Closed`]),
+//! actix messages from per-connection reader tasks (`Inbound`, `Closed`),
 //! so a connection that sends garbage is closed without disturbing the others.
 
 use crate::auth;
@@ -23,6 +23,10 @@ use std::time::{Duration, Instant};
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// Largest samples per pixel a viewer may request.
 pub const MAX_SPP: u32 = 65536;
+/// Largest shadow-ray count per area light a viewer may request.
+pub const MAX_LIGHT_SAMPLES: u32 = 4096;
+/// Largest recursion depth a viewer may request.
+pub const MAX_DEPTH: u32 = 64;
 
 /// How the master runs.
 #[derive(Clone, Debug)]
@@ -83,6 +87,7 @@ struct Peer {
 
 struct FrameSpec {
     id: FrameId,
+    bytes_in_at_start: u64,
     camera: Camera,
     settings: RenderSettings,
     viewer: u64,
@@ -94,6 +99,8 @@ struct FrameSpec {
 pub struct MasterStatus {
     /// The live slaves.
     pub slaves: Vec<SlaveInfo>,
+    /// Frame requests accepted from viewers.
+    pub frames_requested: u64,
     /// Frames completed.
     pub frames_done: u64,
     /// Bytes on all connections (closed ones included).
@@ -167,6 +174,19 @@ impl Master {
         addr
     }
 
+    /// Counters of every connection, open or closed.
+    fn wire(&self) -> ConnStats {
+        let mut wire = self.closed_wire;
+        for p in self.peers.values() {
+            let s = p.sender.stats();
+            wire.bytes_sent += s.bytes_sent;
+            wire.bytes_received += s.bytes_received;
+            wire.frames_sent += s.frames_sent;
+            wire.frames_received += s.frames_received;
+        }
+        wire
+    }
+
     fn now(&self) -> Duration {
         self.epoch.elapsed()
     }
@@ -183,12 +203,7 @@ impl Master {
 
     fn drop_peer(&mut self, id: u64, why: &str) {
         if let Some(p) = self.peers.remove(&id) {
-            let s = p.sender.stats();
-            self.closed_wire.bytes_sent += s.bytes_sent;
-            self.closed_wire.bytes_received += s.bytes_received;
-            self.closed_wire.frames_sent += s.frames_sent;
-            self.closed_wire.frames_received += s.frames_received;
-            p.sender.close();
+            self.retire(&p);
             tracing::debug!(peer = %p.name, addr = %p.addr, "connection closed: {why}");
             match p.state {
                 PeerState::Slave => {
@@ -205,6 +220,16 @@ impl Master {
             }
         }
         self.drain();
+    }
+
+    /// Closes a removed peer's connection, keeping its byte counts.
+    fn retire(&mut self, p: &Peer) {
+        let s = p.sender.stats();
+        self.closed_wire.bytes_sent += s.bytes_sent;
+        self.closed_wire.bytes_received += s.bytes_received;
+        self.closed_wire.frames_sent += s.frames_sent;
+        self.closed_wire.frames_received += s.frames_received;
+        p.sender.close();
     }
 
     fn refuse(&mut self, id: u64, reason: String) {
@@ -245,10 +270,13 @@ impl Master {
                     if cause == DeathCause::Timeout
                         && let Some(p) = self.peers.remove(&slave)
                     {
-                        p.sender.close();
+                        self.retire(&p);
                     }
                 }
-                Output::FrameDone { frame, stats } => {
+                Output::FrameDone { frame, mut stats } => {
+                    if let Some(spec) = self.frame.as_ref().filter(|f| f.id == frame) {
+                        stats.bytes_in = self.wire().bytes_received.saturating_sub(spec.bytes_in_at_start);
+                    }
                     self.status.frames_done += 1;
                     self.status.last_frame = Some(stats.clone());
                     if let Some(spec) = self.frame.take_if(|f| f.id == frame) {
@@ -335,6 +363,10 @@ impl Master {
                     self.sched.handle_heartbeat(now, id);
                     return;
                 };
+                if r.tile != rect {
+                    let got = r.tile;
+                    return self.refuse(id, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
+                }
                 if r.pixels.len() != rect.pixel_count() * 3 {
                     let n = r.pixels.len();
                     return self.refuse(
@@ -369,7 +401,14 @@ impl Master {
                 if let Err(e) = self.sched.submit_frame(now, frame, settings.width, settings.height) {
                     return self.send(id, &Message::Error { message: e.to_string() });
                 }
-                self.frame = Some(FrameSpec { id: frame, camera, settings, viewer: id, request });
+                if let Some(old) = self.frame.as_ref().filter(|f| f.viewer != id) {
+                    let message = format!("request {} superseded by another viewer's request", old.request);
+                    self.send(old.viewer, &Message::Error { message });
+                }
+                self.status.frames_requested += 1;
+                let bytes_in_at_start = self.wire().bytes_received;
+                self.frame =
+                    Some(FrameSpec { id: frame, bytes_in_at_start, camera, settings, viewer: id, request });
                 tracing::debug!(frame, request, "frame requested {}x{}", settings.width, settings.height);
                 self.drain();
             }
@@ -419,6 +458,12 @@ fn validate_request(camera: &Camera, s: &RenderSettings) -> Result<(), String> {
     }
     if s.spp == 0 || s.spp > MAX_SPP {
         return Err(format!("samples per pixel {} out of range 1..={MAX_SPP}", s.spp));
+    }
+    if s.light_samples > MAX_LIGHT_SAMPLES || s.max_depth > MAX_DEPTH {
+        return Err(format!(
+            "light samples {} / depth {} above the limits {MAX_LIGHT_SAMPLES} / {MAX_DEPTH}",
+            s.light_samples, s.max_depth
+        ));
     }
     Ok(())
 }
@@ -527,15 +572,7 @@ impl Handler<GetStatus> for Master {
     fn handle(&mut self, _: GetStatus, _: &mut Self::Context) -> Self::Result {
         let mut status = self.status.clone();
         status.slaves = self.sched.slaves();
-        let mut wire = self.closed_wire;
-        for p in self.peers.values() {
-            let s = p.sender.stats();
-            wire.bytes_sent += s.bytes_sent;
-            wire.bytes_received += s.bytes_received;
-            wire.frames_sent += s.frames_sent;
-            wire.frames_received += s.frames_received;
-        }
-        status.wire = wire;
+        status.wire = self.wire();
         MessageResult(status)
     }
 }

@@ -147,6 +147,8 @@ pub struct TileResult {
     pub frame: FrameId,
     /// The tile's id.
     pub id: TileId,
+    /// The tile's rectangle (checked by the master against the one it assigned).
+    pub tile: Tile,
     /// Wall time spent rendering it, in microseconds.
     pub render_micros: u64,
     /// `w * h * 3` bytes of sRGB RGB8, row-major.
@@ -177,6 +179,9 @@ pub struct FrameStats {
     pub requeued: u32,
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
+    /// Bytes the master received from all peers while the frame was open
+    /// (tiles, framing and heartbeats): the frame's cost on the slaves' links.
+    pub bytes_in: u64,
 }
 
 /// Every message of the protocol.
@@ -400,6 +405,7 @@ mod tests {
             Message::TileResult(TileResult {
                 frame: 2,
                 id: 1,
+                tile: Tile { x: 0, y: 32, w: 4, h: 4 },
                 render_micros: 55,
                 pixels: ByteBuf::from(vec![200u8; 48]),
             }),
@@ -427,6 +433,7 @@ mod tests {
         let msg = Message::TileResult(TileResult {
             frame: 1,
             id: 1,
+            tile: Tile { x: 0, y: 0, w: 32, h: 32 },
             render_micros: 1,
             pixels: ByteBuf::from(vec![255u8; 3072]),
         });

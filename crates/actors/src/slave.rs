@@ -284,7 +284,10 @@ impl<R: Renderer> SlaveActor<R> {
             );
             let (frame, camera, settings) = (a.frame, a.camera, a.settings);
             self.pool.spawn_fifo(move || {
-                let skip = latest.load(Ordering::Acquire) > frame
+                // Skip tiles of superseded frames, cancelled tiles, and the
+                // leftovers of a session whose connection is gone.
+                let skip = sender.is_closed()
+                    || latest.load(Ordering::Acquire) > frame
                     || cancelled.lock().map(|c| c.contains(&(frame, job.id))).unwrap_or(false);
                 if skip {
                     counters.skipped.fetch_add(1, Ordering::Relaxed);
@@ -302,9 +305,18 @@ impl<R: Renderer> SlaveActor<R> {
                     );
                     return;
                 };
+                if pixels.len() != t.pixel_count() * 3 {
+                    tracing::error!(
+                        ?t,
+                        len = pixels.len(),
+                        "renderer returned the wrong number of bytes; dropped"
+                    );
+                    return;
+                }
                 let msg = Message::TileResult(TileResult {
                     frame,
                     id: job.id,
+                    tile: t,
                     render_micros: t0.elapsed().as_micros() as u64,
                     pixels: ByteBuf::from(pixels),
                 });

@@ -1,6 +1,6 @@
 //! The viewer: a client that asks the master for frames and receives their
 //! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
-//! [`render_frame`] collects one whole frame (used by `isin render --cluster`).
+//! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
 
 use crate::auth::Ticket;
 use crate::client::{self, JoinError};
@@ -44,6 +44,10 @@ pub struct ViewerActor {
 }
 
 /// Asks for a frame; answers with the request number its tiles will carry.
+/// Requests are numbered 1, 2, 3… in the order the actor receives them, so a
+/// caller that cannot await the answer (a GUI thread using `do_send`) can count
+/// them itself. A newer request supersedes an older one: the older one's
+/// remaining tiles never come.
 #[derive(Message)]
 #[rtype(result = "u64")]
 pub struct RequestFrame {

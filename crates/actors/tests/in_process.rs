@@ -152,3 +152,143 @@ async fn slave_joining_mid_session_gets_tiles() {
     viewer::collect_frame(&v, &mut events, Camera::default(), settings(320, 240)).await.unwrap();
     assert!(late.tiles.load(Ordering::Relaxed) > 0, "the late slave rendered tiles");
 }
+
+#[actix::test]
+async fn a_viewer_whose_frame_is_superseded_by_another_viewer_is_told() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    // No slaves yet: the first request stays open.
+    let (v1, _, mut e1) = viewer::connect(&t, &ticket, "one").await.unwrap();
+    let (v2, _, mut e2) = viewer::connect(&t, &ticket, "two").await.unwrap();
+    let first = v1.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
+    first.await.unwrap();
+    // Make sure the master has seen the first request before the second.
+    let mut seen = false;
+    for _ in 0..5000 {
+        if master.send(GetStatus).await.unwrap().frames_requested == 1 {
+            seen = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    assert!(seen, "the master never saw the first request");
+    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
+    let (frame, _) = viewer::collect_frame(&v2, &mut e2, Camera::default(), settings(32, 32)).await.unwrap();
+    assert_eq!(frame.width, 32);
+    loop {
+        match e1.recv().await.expect("viewer one hears back") {
+            viewer::ViewerEvent::Error(m) => {
+                assert!(m.contains("superseded"), "{m}");
+                break;
+            }
+            viewer::ViewerEvent::Tile { .. } => {}
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+}
+
+#[actix::test]
+async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by_others() {
+    use isin_actors::client;
+    use isin_actors::protocol::{self, Message, Role, TileResult};
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    // A hand-driven slave that lies about a tile's size.
+    let (mut conn, welcome) = client::handshake(&t, &ticket, Role::Slave, "liar", 1, None).await.unwrap();
+    let max = protocol::DEFAULT_MAX_FRAME;
+    loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
+            Message::SceneSync { .. } => break,
+            Message::Heartbeat => {}
+            other => panic!("unexpected {}", other.kind()),
+        }
+    }
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash }).unwrap();
+    wait_slaves(&master, 1).await;
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    let req = v.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
+    req.await.unwrap();
+    let assignment = loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
+            Message::TileAssignment(a) => break a,
+            Message::Heartbeat => {}
+            other => panic!("unexpected {}", other.kind()),
+        }
+    };
+    let job = assignment.tiles[0];
+    let lie = TileResult {
+        frame: assignment.frame,
+        id: job.id,
+        tile: job.tile,
+        render_micros: 1,
+        pixels: vec![0u8; 5].into(),
+    };
+    client::send_message(&conn, &Message::TileResult(lie)).unwrap();
+    let reason = loop {
+        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await {
+            Ok(Message::Reject { reason }) => break reason,
+            Ok(_) => {}
+            Err(e) => panic!("connection ended without a reason: {e}"),
+        }
+    };
+    assert!(reason.contains("bytes"), "{reason}");
+    assert!(matches!(
+        client::recv_message(&mut conn, max, Duration::from_secs(10)).await,
+        Err(JoinError::Closed | JoinError::Transport(_))
+    ));
+    // An honest slave finishes the frame, the liar's tiles included.
+    spawn_slave(&t, &ticket, "honest", Arc::new(Fake::default()));
+    let mut covered = 0;
+    while let Some(ev) = events.recv().await {
+        match ev {
+            viewer::ViewerEvent::Tile { tile, pixels, .. } => {
+                assert_eq!(pixels.len(), tile.pixel_count() * 3);
+                covered += tile.pixel_count();
+            }
+            viewer::ViewerEvent::FrameDone { .. } => break,
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    assert_eq!(covered, 64 * 64);
+    assert_eq!(master.send(GetStatus).await.unwrap().deaths, 1);
+}
+
+#[actix::test]
+async fn absurd_frame_requests_get_an_error_and_the_viewer_stays_connected() {
+    let t = MemTransport::new();
+    let (_master, ticket) = start_master(&t, "tok").await;
+    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+    for bad in [
+        settings(0, 10),
+        settings(100_000, 10),
+        RenderSettings { spp: 0, ..settings(8, 8) },
+        RenderSettings { max_depth: 1_000_000, ..settings(8, 8) },
+    ] {
+        let err = viewer::collect_frame(&v, &mut events, Camera::default(), bad).await;
+        assert!(matches!(err, Err(viewer::ViewerError::Master(_))), "{bad:?} accepted");
+    }
+    let mut cam = Camera::default();
+    cam.eye = cam.corners[0];
+    assert!(viewer::collect_frame(&v, &mut events, cam, settings(8, 8)).await.is_err(), "degenerate camera");
+    viewer::collect_frame(&v, &mut events, Camera::default(), settings(8, 8)).await.unwrap();
+}
+
+#[actix::test]
+async fn a_peer_speaking_another_protocol_version_is_told_so() {
+    use isin_actors::client;
+    use isin_actors::protocol::{self, Message};
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    let mut conn = t.connect(&ticket.addr).await.unwrap();
+    let challenge = client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap();
+    assert!(matches!(challenge, Message::Challenge { .. }));
+    let mut frame = protocol::encode(&Message::Heartbeat).unwrap();
+    frame[..2].copy_from_slice(&(protocol::PROTOCOL_VERSION + 1).to_be_bytes());
+    conn.sender.send(frame).unwrap();
+    match client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap() {
+        Message::Reject { reason } => assert!(reason.contains("protocol version"), "{reason}"),
+        other => panic!("expected a refusal, got {}", other.kind()),
+    }
+    assert_eq!(master.send(GetStatus).await.unwrap().refused, 1);
+}

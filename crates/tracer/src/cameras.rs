@@ -89,7 +89,7 @@ impl Camera {
         }
         let n = self.plane_x().cross(self.plane_y());
         let scale = self.plane_x().length() * self.plane_y().length();
-        if !(n.length() > 1e-6 * scale) || scale == 0.0 {
+        if n.length() <= 1e-6 * scale || scale == 0.0 || scale.is_nan() {
             return Err(CameraError::ZeroArea);
         }
         if (self.center() - self.eye).dot(n.normalize()).abs() <= 1e-6 * scale.sqrt() {

@@ -30,14 +30,21 @@
 //! **Texture footprints (ray cones).** A primary ray carries a cone whose
 //! spread is the angle of a pixel (`Camera::pixel_spread`); its width grows
 //! linearly with the distance travelled, through mirror bounces and refraction
-//! alike (surface curvature is ignored). At a hit the UV footprint is
-//! `width / |cos θ| × √(uv area / world area)` of the triangle.
+//! alike; mirror reflection off a curved surface (curvature estimated from the
+//! vertex normals) widens it further. At a hit the cone cuts an ellipse out of
+//! the surface, `width` across and `width / |cos θ|` along the view direction;
+//! the bounding box of that ellipse in UV space (through the gradients of `u`
+//! and `v` over the triangle) is the footprint the texture is filtered over —
+//! exactly, per axis, for the checker; by its larger side for mip-mapped
+//! images. (For an isotropic UV mapping the larger side is
+//! `width / |cos θ| × √(uv area / world area)`.) So a receding checker floor
+//! stays sharp across the view while blurring to its mean colour with depth.
 
 use crate::geometry::Ray;
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
-use crate::sampling::{Sampler, stratified_square};
+use crate::sampling::{Sampler, ceil_sqrt, stratified_square_grid};
 use crate::scene::Scene;
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
@@ -45,6 +52,10 @@ use std::f32::consts::PI;
 
 /// Branches whose contribution to the pixel falls below this are not traced.
 pub const MIN_THROUGHPUT: f32 = 1e-3;
+
+/// Recursion depth is capped here whatever the settings say, so a scene file
+/// cannot overflow the stack.
+pub const MAX_DEPTH_LIMIT: u32 = 64;
 
 /// Shadow rays stop this fraction short of the light sample.
 const SHADOW_SHORTEN: f32 = 1.0 - 1e-3;
@@ -77,6 +88,17 @@ impl RayCone {
     #[inline]
     pub fn width_at(&self, t: f32) -> f32 {
         (self.width + self.spread * t).abs()
+    }
+
+    /// The cone of a mirror-reflected ray leaving a hit at distance `t` on a
+    /// surface of curvature `k`: across a footprint of width `w` the normal
+    /// turns by about `k·w`, so reflected directions fan out by `2·k·w` more.
+    /// (Concave and convex surfaces are treated alike, erring on the side of
+    /// blur rather than aliasing.)
+    #[inline]
+    pub fn reflected(&self, t: f32, k: f32) -> Self {
+        let w = self.width_at(t);
+        Self { width: w, spread: self.spread + 2.0 * k * w }
     }
 
     /// The cone of a secondary ray leaving a hit at distance `t`.
@@ -184,6 +206,38 @@ impl SurfacePoint {
         cone_width / self.cos_view.max(1e-4) * self.uv_per_world
     }
 
+    /// The UV footprint of a ray cone of width `cone_width` arriving along
+    /// unit direction `dir`, as the `(u, v)` extents of the bounding box of
+    /// the ellipse the cone cuts out of the triangle's plane: its minor axis
+    /// (perpendicular to the ray) is `cone_width` long, its major axis (along
+    /// the ray's projection) `cone_width / |cos θ|`. Both are mapped to UV
+    /// through the gradients of `u` and `v` over the triangle `v` with
+    /// texture coordinates `uvs`. For isotropic UV mappings the larger extent
+    /// equals [`SurfacePoint::uv_width`].
+    pub fn uv_footprint(&self, v: &[Vec3; 3], uvs: &[Vec2; 3], dir: Vec3, cone_width: f32) -> Vec2 {
+        let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
+        let n = e1.cross(e2);
+        let n2 = n.length_squared();
+        if n2 <= 0.0 || !n2.is_finite() {
+            return Vec2::ZERO;
+        }
+        let (d1, d2) = (uvs[1] - uvs[0], uvs[2] - uvs[0]);
+        // Gradient of a linear function with increments f1, f2 along e1, e2.
+        let (a, b) = (e2.cross(n), n.cross(e1));
+        let grad_u = (a * d1.x + b * d2.x) / n2;
+        let grad_v = (a * d1.y + b * d2.y) / n2;
+        // In-plane ellipse axes: minor ⟂ ray, major along its projection.
+        let minor = dir.cross(self.ng);
+        let minor = if minor.length_squared() > 1e-12 { minor.normalize() } else { e1.normalize() };
+        let major = self.ng.cross(minor);
+        let stretch = 1.0 / self.cos_view.max(1e-4);
+        let extent = |g: Vec3| {
+            let (ga, gb) = (g.dot(major) * stretch, g.dot(minor));
+            cone_width * (ga * ga + gb * gb).sqrt()
+        };
+        Vec2::new(extent(grad_u), extent(grad_v))
+    }
+
     /// Origin for a ray leaving on the side the incoming ray came from.
     #[inline]
     fn above(&self) -> Vec3 {
@@ -204,27 +258,60 @@ impl SurfacePoint {
     }
 }
 
+/// Which camera sample of which pixel a ray serves: the key of its random
+/// numbers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SampleId {
+    /// The pixel's sampler ([`Sampler::pixel`]).
+    pub pixel: Sampler,
+    /// Camera sample index within the pixel, `0..spp`.
+    pub index: u32,
+}
+
 /// A Whitted ray tracer over one scene.
+///
+/// Area-light samples are stratified over the whole pixel: camera sample `s`
+/// takes samples `s·N .. s·N + N` of one stratified set of `spp·N` points per
+/// (pixel, depth, light), so supersampling refines the penumbra as a single,
+/// larger stratified pattern rather than `spp` independent ones.
 #[derive(Clone, Copy, Debug)]
 pub struct Integrator<'a> {
     scene: &'a Scene,
     max_depth: u32,
     light_samples: u32,
+    /// Side of the stratum grid of one pixel's area-light samples.
+    light_grid: u32,
 }
 
 impl<'a> Integrator<'a> {
-    /// An integrator with the recursion depth and light sample count of
-    /// `settings`.
+    /// An integrator with the recursion depth (at most [`MAX_DEPTH_LIMIT`])
+    /// and light sample count of `settings`.
     pub fn new(scene: &'a Scene, settings: &RenderSettings) -> Self {
-        Self { scene, max_depth: settings.max_depth, light_samples: settings.light_samples.max(1) }
+        let light_samples = settings.light_samples.max(1);
+        let per_pixel = light_samples.saturating_mul(settings.spp.max(1)).min(1 << 24);
+        let max_depth = settings.max_depth.min(MAX_DEPTH_LIMIT);
+        Self { scene, max_depth, light_samples, light_grid: ceil_sqrt(per_pixel) }
+    }
+
+    /// Curvature estimate of triangle `prim` (see [`triangle_curvature`]).
+    #[inline]
+    fn curvature(&self, prim: u32) -> f32 {
+        let i = prim as usize;
+        triangle_curvature(&self.scene.triangles[i].v, &self.scene.shading[i].normals)
+    }
+
+    /// Point `j` of the pixel's stratified set of area-light samples.
+    #[inline]
+    fn light_sample(&self, j: u32, sampler: &Sampler) -> Vec2 {
+        stratified_square_grid(j % (self.light_grid * self.light_grid), self.light_grid, sampler)
     }
 
     /// Radiance (linear RGB) arriving along the camera ray `ray`, whose cone
     /// and random numbers are given.
     #[inline]
-    pub fn trace(&self, ray: &Ray, cone: RayCone, sampler: &Sampler, counts: &mut RayCounts) -> Vec3 {
+    pub fn trace(&self, ray: &Ray, cone: RayCone, sample: &SampleId, counts: &mut RayCounts) -> Vec3 {
         counts.primary += 1;
-        self.radiance(ray, cone, 0, Vec3::ONE, sampler, counts)
+        self.radiance(ray, cone, 0, Vec3::ONE, sample, counts)
     }
 
     /// Radiance along `ray` at recursion depth `depth`; `weight` is the
@@ -235,7 +322,7 @@ impl<'a> Integrator<'a> {
         cone: RayCone,
         depth: u32,
         weight: Vec3,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
@@ -250,22 +337,31 @@ impl<'a> Integrator<'a> {
                 let albedo = match *albedo {
                     Albedo::Constant(c) => c,
                     Albedo::Texture { texture, tint } => match scene.textures.get(texture as usize) {
-                        Some(t) => tint * t.eval(sp.uv, sp.uv_width(cone_width)),
+                        Some(t) => {
+                            let i = hit.prim as usize;
+                            let fp = sp.uv_footprint(
+                                &scene.triangles[i].v,
+                                &scene.shading[i].uvs,
+                                ray.dir,
+                                cone_width,
+                            );
+                            tint * t.eval_rect(sp.uv, fp)
+                        }
                         None => tint,
                     },
                 };
                 let mut c = scene.ambient * albedo;
-                c += self.direct(&sp, ray.dir, albedo, *specular, *shininess, depth, sampler, counts);
+                c += self.direct(&sp, ray.dir, albedo, *specular, *shininess, depth, sample, counts);
                 let r = reflectivity.clamp(0.0, 1.0);
                 if r > 0.0 {
                     let dir = sp.reflect(ray.dir);
                     c += self.secondary(
                         Ray::new(sp.above(), dir),
-                        cone.after(hit.t),
+                        cone.reflected(hit.t, self.curvature(hit.prim)),
                         depth,
                         weight,
                         r,
-                        sampler,
+                        sample,
                         counts,
                     ) * r;
                 }
@@ -275,11 +371,11 @@ impl<'a> Integrator<'a> {
                 let dir = sp.reflect(ray.dir);
                 self.secondary_tinted(
                     Ray::new(sp.above(), dir),
-                    cone.after(hit.t),
+                    cone.reflected(hit.t, self.curvature(hit.prim)),
                     depth,
                     weight,
                     *tint,
-                    sampler,
+                    sample,
                     counts,
                 )
             }
@@ -287,21 +383,22 @@ impl<'a> Integrator<'a> {
                 let ior = if *ior > 0.0 && ior.is_finite() { *ior } else { 1.0 };
                 let (n1, n2) = if sp.front { (1.0, ior) } else { (ior, 1.0) };
                 let next = cone.after(hit.t);
+                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
                 let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
                 match refract(ray.dir, sp.ns, n1 / n2) {
-                    None => self.secondary(refl, next, depth, weight, 1.0, sampler, counts),
+                    None => self.secondary(refl, mirrored, depth, weight, 1.0, sample, counts),
                     Some(t) => {
                         let cos = if n1 <= n2 { -ray.dir.dot(sp.ns) } else { -t.dot(sp.ns) };
                         let f = schlick(cos, n1, n2);
                         let tint = if sp.front { *tint } else { Vec3::ONE };
-                        let reflected = self.secondary(refl, next, depth, weight, f, sampler, counts) * f;
+                        let reflected = self.secondary(refl, mirrored, depth, weight, f, sample, counts) * f;
                         let transmitted = self.secondary_tinted(
                             Ray::new(sp.below(), t),
                             next,
                             depth,
                             weight,
                             tint * (1.0 - f),
-                            sampler,
+                            sample,
                             counts,
                         );
                         reflected + transmitted
@@ -322,7 +419,7 @@ impl<'a> Integrator<'a> {
         depth: u32,
         weight: Vec3,
         factor: f32,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let w = weight * factor;
@@ -330,7 +427,7 @@ impl<'a> Integrator<'a> {
             return Vec3::ZERO;
         }
         counts.secondary += 1;
-        self.radiance(&ray, cone, depth + 1, w, sampler, counts)
+        self.radiance(&ray, cone, depth + 1, w, sample, counts)
     }
 
     /// Traces a secondary ray and multiplies the result by `tint`.
@@ -343,7 +440,7 @@ impl<'a> Integrator<'a> {
         depth: u32,
         weight: Vec3,
         tint: Vec3,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let w = weight * tint;
@@ -351,7 +448,7 @@ impl<'a> Integrator<'a> {
             return Vec3::ZERO;
         }
         counts.secondary += 1;
-        tint * self.radiance(&ray, cone, depth + 1, w, sampler, counts)
+        tint * self.radiance(&ray, cone, depth + 1, w, sample, counts)
     }
 
     /// Direct light from every light source at a Phong surface.
@@ -364,7 +461,7 @@ impl<'a> Integrator<'a> {
         specular: Vec3,
         shininess: f32,
         depth: u32,
-        sampler: &Sampler,
+        sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
@@ -374,18 +471,27 @@ impl<'a> Integrator<'a> {
         let spec = specular * ((shininess + 2.0) / (2.0 * PI));
         let mirrored_view = reflect(view_dir, sp.ns);
         let origin = sp.above();
-        let depth_sampler = sampler.child(depth);
+        let depth_sampler = sample.pixel.child(depth);
+        let first = sample.index.wrapping_mul(self.light_samples);
         let mut total = Vec3::ZERO;
         for (index, light) in scene.lights.iter().enumerate() {
-            let (n, light_sampler) = if light.is_area() {
-                (self.light_samples, depth_sampler.child(index as u32))
+            let area = light.is_area();
+            // Area lights: skip them when the point is behind the emitter, and
+            // give each its own stratified, jittered set of samples.
+            let (n, light_sampler, normal) = if area {
+                let Some(normal) = light.area_normal_towards(sp.p) else { continue };
+                (self.light_samples, depth_sampler.child(index as u32), normal)
             } else {
-                (1, depth_sampler)
+                (1, depth_sampler, Vec3::ZERO)
             };
             let mut sum = Vec3::ZERO;
             for j in 0..n {
-                let u = if n > 1 { stratified_square(j, n, &light_sampler) } else { Vec2::splat(0.5) };
-                let Some(ls) = light.sample(sp.p, u) else { continue };
+                let ls = if area {
+                    light.sample_area(sp.p, self.light_sample(first.wrapping_add(j), &light_sampler), normal)
+                } else {
+                    light.sample(sp.p, Vec2::splat(0.5))
+                };
+                let Some(ls) = ls else { continue };
                 let cos = sp.ns.dot(ls.dir);
                 if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
                     continue;
@@ -394,7 +500,7 @@ impl<'a> Integrator<'a> {
                 if has_spec {
                     let rv = mirrored_view.dot(ls.dir);
                     if rv > 0.0 {
-                        f += spec * math::powf(rv, shininess);
+                        f += spec * phong_lobe(rv, shininess);
                     }
                 }
                 counts.shadow += 1;
@@ -406,6 +512,42 @@ impl<'a> Integrator<'a> {
             total += sum / n as f32;
         }
         total
+    }
+}
+
+/// Curvature of a smooth-shaded triangle estimated from its vertex normals:
+/// the largest change of normal per unit length along an edge (0 for flat
+/// shading, `1/r` on a sphere of radius `r`).
+#[inline]
+pub fn triangle_curvature(v: &[Vec3; 3], normals: &[Vec3; 3]) -> f32 {
+    let mut k = 0.0f32;
+    for (a, b) in [(0, 1), (1, 2), (2, 0)] {
+        let len = (v[a] - v[b]).length();
+        if len > 0.0 {
+            k = k.max((normals[a] - normals[b]).length() / len);
+        }
+    }
+    if k.is_finite() { k } else { 0.0 }
+}
+
+/// `x^s` for the Phong lobe: exponentiation by squaring for integer exponents
+/// up to 4096 (the common case, a handful of multiplications), `powf`
+/// otherwise. Both are deterministic.
+#[inline]
+pub fn phong_lobe(x: f32, s: f32) -> f32 {
+    if (0.0..=4096.0).contains(&s) && s == s.floor() {
+        let mut n = s as u32;
+        let (mut base, mut acc) = (x, 1.0f32);
+        while n > 0 {
+            if n & 1 == 1 {
+                acc *= base;
+            }
+            base *= base;
+            n >>= 1;
+        }
+        acc
+    } else {
+        math::powf(x, s)
     }
 }
 
@@ -468,6 +610,85 @@ mod tests {
         assert_eq!(sp.ng, Vec3::NEG_Z);
         assert_eq!(sp.ns, Vec3::NEG_Z);
         assert!(sp.above().z < sp.p.z && sp.below().z > sp.p.z);
+    }
+
+    #[test]
+    fn light_samples_are_stratified_over_the_whole_pixel() {
+        let scene = one_triangle([Vec3::Z; 3]);
+        let settings = RenderSettings { spp: 4, light_samples: 4, ..Default::default() };
+        let integrator = Integrator::new(&scene, &settings);
+        let sampler = Sampler::pixel(5, 6, 7).child(0).child(0);
+        // The 4 camera samples × 4 shadow rays fill the 4 × 4 strata once each.
+        let mut seen = [false; 16];
+        for camera_sample in 0..4 {
+            for j in 0..4 {
+                let u = integrator.light_sample(camera_sample * 4 + j, &sampler);
+                let cell = (u.y * 4.0) as usize * 4 + (u.x * 4.0) as usize;
+                assert!(!seen[cell], "stratum {cell} twice");
+                seen[cell] = true;
+            }
+        }
+    }
+
+    #[test]
+    fn phong_lobe_matches_powf() {
+        for s in [0.0f32, 1.0, 2.0, 7.0, 32.0, 100.0, 12.5, 4097.0] {
+            for x in [0.0f32, 0.3, 0.9, 0.999, 1.0] {
+                let (a, b) = (phong_lobe(x, s), math::powf(x, s));
+                assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn uv_footprints_stretch_along_the_view_direction() {
+        // A triangle in the z = 0 plane whose UVs are its x and y coordinates.
+        let v = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let uvs = [Vec2::ZERO, Vec2::X, Vec2::Y];
+        let scene = Scene::new(SceneParts {
+            triangles: vec![Triangle { v }],
+            shading: vec![TriangleShading { normals: [Vec3::Z; 3], uvs, material: 0 }],
+            ..Default::default()
+        });
+        // Seen at a grazing angle while looking along +y: stretched in v only.
+        let dir = Vec3::new(0.0, 1.0, -0.25).normalize();
+        let ray = Ray::new(Vec3::new(0.2, 0.2, 0.0) - dir * 3.0, dir);
+        let hit = scene.intersect(&ray, 0.0, f32::INFINITY).unwrap();
+        let sp = SurfacePoint::new(&scene, &ray, &hit);
+        let cos = 0.25 / (1.0f32 + 0.0625).sqrt();
+        assert!((sp.cos_view - cos).abs() < 1e-5);
+        let fp = sp.uv_footprint(&v, &uvs, dir, 0.01);
+        assert!((fp.x - 0.01).abs() < 1e-6, "{fp:?}");
+        assert!((fp.y - 0.01 / cos).abs() < 1e-4, "{fp:?}");
+        assert!((fp.y - sp.uv_width(0.01)).abs() < 1e-4, "the major extent is the isotropic width");
+        // Looking straight down: a circle.
+        let ray = Ray::new(Vec3::new(0.2, 0.2, 1.0), Vec3::NEG_Z);
+        let hit = scene.intersect(&ray, 0.0, f32::INFINITY).unwrap();
+        let sp = SurfacePoint::new(&scene, &ray, &hit);
+        let fp = sp.uv_footprint(&v, &uvs, ray.dir, 0.01);
+        assert!((fp - Vec2::splat(0.01)).abs().max_element() < 1e-6, "{fp:?}");
+        // UVs twice as dense in u: twice the u extent.
+        let fp = sp.uv_footprint(&v, &[Vec2::ZERO, Vec2::new(2.0, 0.0), Vec2::Y], ray.dir, 0.01);
+        assert!((fp - Vec2::new(0.02, 0.01)).abs().max_element() < 1e-6, "{fp:?}");
+    }
+
+    #[test]
+    fn curved_mirrors_widen_the_reflected_cone() {
+        // A small triangle on a sphere of radius 2.
+        let n = [
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(0.1, 0.0, 1.0).normalize(),
+            Vec3::new(0.0, 0.1, 1.0).normalize(),
+        ];
+        let v = n.map(|d| d * 2.0);
+        let k = triangle_curvature(&v, &n);
+        assert!((k - 0.5).abs() < 0.01, "curvature {k}");
+        assert_eq!(triangle_curvature(&v, &[Vec3::Z; 3]), 0.0, "flat shading");
+        let c = RayCone::primary(0.01);
+        let flat = c.reflected(10.0, 0.0);
+        assert_eq!(flat, c.after(10.0));
+        let curved = c.reflected(10.0, k);
+        assert!((curved.spread - (0.01 + 2.0 * 0.5 * 0.1)).abs() < 1e-3);
     }
 
     #[test]

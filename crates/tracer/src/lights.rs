@@ -125,23 +125,39 @@ impl Light {
                 let dist = d2.sqrt();
                 Some(LightSample { dir: d / dist, dist, irradiance: *intensity / d2 })
             }
-            Light::Area { radiance, .. } => {
-                let n = self.normal()?;
-                let (q, density) = self.point_on(u)?;
-                let d = q - p;
-                let d2 = d.length_squared();
-                if d2.is_nan() || d2 <= 0.0 {
-                    return None;
-                }
-                let dist = d2.sqrt();
-                let dir = d / dist;
-                let cos_light = -dir.dot(n);
-                if cos_light <= 0.0 {
-                    return None;
-                }
-                Some(LightSample { dir, dist, irradiance: *radiance * (cos_light * density / d2) })
-            }
+            Light::Area { .. } => self.sample_area(p, u, self.normal()?),
         }
+    }
+
+    /// The emitting normal of an area light if `p` lies strictly on its
+    /// emitting side; `None` otherwise (and for point lights). Lets a caller
+    /// skip every sample of a light that cannot reach a point, and compute the
+    /// normal once for all of them.
+    #[inline]
+    pub fn area_normal_towards(&self, p: Vec3) -> Option<Vec3> {
+        let Light::Area { vertices, .. } = self else { return None };
+        let n = self.normal()?;
+        ((p - vertices[0]).dot(n) > 0.0).then_some(n)
+    }
+
+    /// [`Light::sample`] for an area light whose unit emitting normal `n` the
+    /// caller already has (see [`Light::area_normal_towards`]).
+    #[inline]
+    pub fn sample_area(&self, p: Vec3, u: Vec2, n: Vec3) -> Option<LightSample> {
+        let Light::Area { radiance, .. } = self else { return None };
+        let (q, density) = self.point_on(u)?;
+        let d = q - p;
+        let d2 = d.length_squared();
+        if d2.is_nan() || d2 <= 0.0 {
+            return None;
+        }
+        let dist = d2.sqrt();
+        let dir = d / dist;
+        let cos_light = -dir.dot(n);
+        if cos_light <= 0.0 {
+            return None;
+        }
+        Some(LightSample { dir, dist, irradiance: *radiance * (cos_light * density / d2) })
     }
 }
 
@@ -182,6 +198,8 @@ mod tests {
         assert!((l.area() - 1.0).abs() < 1e-6);
         assert!(l.sample(Vec3::ZERO, Vec2::splat(0.5)).is_some());
         assert!(l.sample(Vec3::new(0.0, 3.0, 0.0), Vec2::splat(0.5)).is_none());
+        assert_eq!(l.area_normal_towards(Vec3::ZERO), Some(Vec3::NEG_Y));
+        assert_eq!(l.area_normal_towards(Vec3::new(0.0, 3.0, 0.0)), None);
         let tri = Light::Area { vertices: vec![Vec3::ZERO, Vec3::X, Vec3::Y], radiance: Vec3::ONE };
         assert_eq!(tri.normal().unwrap(), Vec3::Z);
         assert!(tri.sample(Vec3::new(0.2, 0.2, 1.0), Vec2::splat(0.3)).is_some());

@@ -1,10 +1,21 @@
 //! Tiles and frames: [`render_tile`] is the unit of work the cluster hands out;
 //! [`render_frame`] renders a whole image on a rayon thread pool.
 //!
-//! OWNER: shading helper.
+//! Pixel `(x, y)` of a `W × H` image averages `spp` camera rays through
+//! `camera.ray((x + jx)/W, (y + jy)/H)`: with one sample `(jx, jy)` is the pixel
+//! centre (the paper's mapping); with more they are stratified, jittered points
+//! of the pixel ([`crate::sampling`]). Each ray carries a texture-filtering cone
+//! whose spread is one pixel's angle divided by `⌈√spp⌉`, the side of a
+//! sample's stratum. The average (linear RGB) is clamped to `[0, 1]` and
+//! encoded with the exact sRGB transfer function to RGB8.
+//!
+//! The random numbers of a pixel are keyed by the pixel, the sample index and
+//! [`RenderSettings::seed`] only, so any tiling on any number of threads or
+//! machines produces the same bytes. The `_stats` variants also count the rays
+//! traced, for Mrays/s figures.
 
 use crate::cameras::Camera;
-use crate::integrator::{Integrator, RayCone, RayCounts};
+use crate::integrator::{Integrator, RayCone, RayCounts, SampleId};
 use crate::math;
 use crate::sampling::{Sampler, ceil_sqrt, stratified_square};
 use crate::scene::Scene;
@@ -80,13 +91,58 @@ pub struct Frame {
     pub rgb: Vec<u8>,
 }
 
+/// Why a tile's pixels cannot be copied into a frame.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BlitError {
+    /// The tile reaches outside the frame.
+    #[error("tile {tile:?} does not fit in a {width}×{height} frame")]
+    OutOfBounds {
+        /// The offending tile.
+        tile: Tile,
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+    },
+    /// The pixel data does not hold `w × h × 3` bytes.
+    #[error("tile {tile:?} needs {expected} bytes, got {got}")]
+    WrongLength {
+        /// The tile.
+        tile: Tile,
+        /// `w × h × 3`.
+        expected: usize,
+        /// Bytes supplied.
+        got: usize,
+    },
+}
+
 impl Frame {
+    /// Like [`Frame::blit`], but checks the tile and the data first (for tiles
+    /// received over the network) and copies nothing when they do not fit.
+    pub fn try_blit(&mut self, tile: Tile, rgb: &[u8]) -> Result<(), BlitError> {
+        let fits_x = tile.x.checked_add(tile.w).is_some_and(|e| e <= self.width);
+        let fits_y = tile.y.checked_add(tile.h).is_some_and(|e| e <= self.height);
+        if !fits_x || !fits_y {
+            return Err(BlitError::OutOfBounds { tile, width: self.width, height: self.height });
+        }
+        let expected = tile.pixel_count() * 3;
+        if rgb.len() != expected {
+            return Err(BlitError::WrongLength { tile, expected, got: rgb.len() });
+        }
+        self.blit(tile, rgb);
+        Ok(())
+    }
+
     /// A black frame.
     pub fn new(width: u32, height: u32) -> Self {
         Self { width, height, rgb: vec![0; width as usize * height as usize * 3] }
     }
 
     /// Copies a tile's pixels (as returned by [`render_tile`]) into place.
+    ///
+    /// # Panics
+    /// If the tile does not lie inside the frame or `rgb` has the wrong length;
+    /// use [`Frame::try_blit`] for tiles that arrive from elsewhere.
     pub fn blit(&mut self, tile: Tile, rgb: &[u8]) {
         let row = tile.w as usize * 3;
         for j in 0..tile.h as usize {
@@ -103,12 +159,50 @@ pub fn linear_to_srgb(c: f32) -> f32 {
     if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * math::powf(c, 1.0 / 2.4) - 0.055 }
 }
 
-/// Encodes a linear value as an sRGB byte: clamped to `[0, 1]` (NaN → 0) and
-/// rounded to nearest.
+/// Encodes a linear value as an sRGB byte: clamped to `[0, 1]` (NaN → 0),
+/// passed through [`linear_to_srgb`] and rounded to nearest. This is the
+/// reference definition; the renderer uses the equivalent, faster
+/// [`encode_srgb8_fast`].
 #[inline]
 pub fn encode_srgb8(c: f32) -> u8 {
     let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
     (linear_to_srgb(c) * 255.0 + 0.5).min(255.0) as u8
+}
+
+/// `THRESHOLDS[k - 1]` is the smallest linear value that [`encode_srgb8`] maps
+/// to `k` or more, found by bisection over the bit patterns of non-negative
+/// floats (whose order is the order of their values).
+fn srgb8_thresholds() -> &'static [f32; 255] {
+    static TABLE: std::sync::OnceLock<[f32; 255]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = [0.0f32; 255];
+        for (k, slot) in t.iter_mut().enumerate() {
+            let target = (k + 1) as u8;
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+            // Invariant: encode(lo) < target <= encode(hi).
+            while hi - lo > 1 {
+                let mid = lo + (hi - lo) / 2;
+                if encode_srgb8(f32::from_bits(mid)) >= target {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            *slot = f32::from_bits(hi);
+        }
+        t
+    })
+}
+
+/// [`encode_srgb8`] by binary search in a table of its 255 thresholds: the
+/// same bytes (the reference is monotonic), without a `powf` per channel.
+#[inline]
+pub fn encode_srgb8_fast(c: f32) -> u8 {
+    if c.is_nan() {
+        return 0;
+    }
+    // Number of thresholds <= c.
+    srgb8_thresholds().partition_point(|&t| t <= c) as u8
 }
 
 /// The sub-pixel offset of camera sample `sample` of `spp` for pixel `(x, y)`:
@@ -123,7 +217,8 @@ pub fn pixel_offset(x: u32, y: u32, sample: u32, spp: u32, seed: u64) -> Vec2 {
     }
 }
 
-/// Sub-stream tag of the camera jitter (integrator streams use the sample index).
+/// Sub-stream tag of the camera jitter (the integrator's streams are tagged
+/// with the recursion depth, far below this).
 const CAMERA_STREAM: u32 = u32::MAX;
 
 /// Renders the pixels of `tile` (which must lie inside the `settings` image):
@@ -152,15 +247,15 @@ pub fn render_tile_stats(
     let inv_spp = 1.0 / spp as f32;
     for y in tile.y..tile.y + tile.h {
         for x in tile.x..tile.x + tile.w {
+            let pixel = Sampler::pixel(x, y, settings.seed);
             let mut sum = Vec3::ZERO;
             for s in 0..spp {
                 let o = pixel_offset(x, y, s, spp, settings.seed);
                 let ray = camera.ray((x as f32 + o.x) / w, (y as f32 + o.y) / h);
-                let sampler = Sampler::new(x, y, s, settings.seed);
-                sum += integrator.trace(&ray, cone, &sampler, &mut counts);
+                sum += integrator.trace(&ray, cone, &SampleId { pixel, index: s }, &mut counts);
             }
             let c = sum * inv_spp;
-            out.extend_from_slice(&[encode_srgb8(c.x), encode_srgb8(c.y), encode_srgb8(c.z)]);
+            out.extend_from_slice(&[encode_srgb8_fast(c.x), encode_srgb8_fast(c.y), encode_srgb8_fast(c.z)]);
         }
     }
     (out, counts)
@@ -232,6 +327,38 @@ mod tests {
         for b in 0..=255u8 {
             assert_eq!(encode_srgb8(crate::textures::srgb_to_linear(b as f32 / 255.0)), b);
         }
+    }
+
+    #[test]
+    fn fast_srgb_encoding_equals_the_reference() {
+        let t = srgb8_thresholds();
+        for &c in t.iter() {
+            for x in [c, f32::from_bits(c.to_bits() - 1), f32::from_bits(c.to_bits() + 1)] {
+                assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
+            }
+        }
+        for i in 0..=200_000 {
+            let x = i as f32 / 200_000.0 * 1.1 - 0.05;
+            assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
+        }
+        for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 1e-30, 1e30] {
+            assert_eq!(encode_srgb8_fast(x), encode_srgb8(x), "at {x}");
+        }
+    }
+
+    #[test]
+    fn try_blit_rejects_tiles_that_do_not_fit() {
+        let mut f = Frame::new(4, 3);
+        let t = Tile { x: 2, y: 1, w: 2, h: 2 };
+        assert_eq!(f.try_blit(t, &[7; 12]), Ok(()));
+        assert_eq!(f.rgb[(4 + 2) * 3], 7);
+        assert_eq!(f.rgb[0], 0);
+        assert!(matches!(f.try_blit(Tile { x: 3, ..t }, &[0; 12]), Err(BlitError::OutOfBounds { .. })));
+        assert!(matches!(
+            f.try_blit(Tile { x: u32::MAX, ..t }, &[0; 12]),
+            Err(BlitError::OutOfBounds { .. })
+        ));
+        assert!(matches!(f.try_blit(t, &[0; 11]), Err(BlitError::WrongLength { .. })));
     }
 
     #[test]

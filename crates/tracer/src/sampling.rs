@@ -130,7 +130,13 @@ pub fn ceil_sqrt(n: u32) -> u32 {
 /// `1 + 2i` and `2 + 2i` jitter sample `i`.
 #[inline]
 pub fn stratified_square(i: u32, n: u32, sampler: &Sampler) -> Vec2 {
-    let m = ceil_sqrt(n.max(1));
+    stratified_square_grid(i, ceil_sqrt(n.max(1)), sampler)
+}
+
+/// [`stratified_square`] with the grid side `m = ⌈√n⌉` computed by the caller.
+#[inline]
+pub fn stratified_square_grid(i: u32, m: u32, sampler: &Sampler) -> Vec2 {
+    let m = m.max(1);
     let s = permute(i, m * m, sampler.bits(0));
     let (sx, sy) = (s % m, s / m);
     let inv = 1.0 / m as f32;

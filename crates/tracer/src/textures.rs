@@ -241,23 +241,32 @@ fn filtered_square_wave(x: f64, w: f64) -> f64 {
     (g(x + 0.5 * w) - g(x - 0.5 * w)) / w
 }
 
-/// The checker's colour at `uv` box-filtered over a `width`-wide square.
-fn checker(even: Vec3, odd: Vec3, scale: f32, uv: Vec2, width: f32) -> Vec3 {
+/// Mean of the ±1 square wave over a box of width `w` centred on `x`, falling
+/// back to a point sample for tiny widths (where the difference quotient loses
+/// precision) and to 0 for infinite ones.
+#[inline]
+fn square_wave_axis(x: f64, w: f64) -> f64 {
+    if !w.is_finite() {
+        0.0
+    } else if w > 1e-6 {
+        filtered_square_wave(x, w)
+    } else if x.floor().rem_euclid(2.0) == 0.0 {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+/// The checker's colour at `uv` box-filtered over a `footprint.x × footprint.y`
+/// rectangle (UV units). Exact: the checker is the product of a square wave in
+/// `u` and one in `v`, and a box filter is separable.
+fn checker(even: Vec3, odd: Vec3, scale: f32, uv: Vec2, footprint: Vec2) -> Vec3 {
     let (u, v) = (uv.x as f64 * scale as f64, uv.y as f64 * scale as f64);
     if !u.is_finite() || !v.is_finite() {
         return (even + odd) * 0.5;
     }
-    let w = (width as f64 * scale as f64).abs();
-    // Tiny footprints: the difference quotient loses precision; point-sample.
-    let p = if w.is_finite() && w > 1e-6 {
-        filtered_square_wave(u, w) * filtered_square_wave(v, w)
-    } else if !w.is_finite() {
-        0.0
-    } else if (u.floor() + v.floor()).rem_euclid(2.0) == 0.0 {
-        1.0
-    } else {
-        -1.0
-    };
+    let (wu, wv) = ((footprint.x as f64 * scale as f64).abs(), (footprint.y as f64 * scale as f64).abs());
+    let p = square_wave_axis(u, wu) * square_wave_axis(v, wv);
     // p is the mean of (+1 even, −1 odd): the fraction of `even` is (1 + p)/2.
     let fe = (0.5 + 0.5 * p).clamp(0.0, 1.0) as f32;
     even * fe + odd * (1.0 - fe)
@@ -267,10 +276,19 @@ impl Texture {
     /// The texture's colour at `uv`, filtered over a square footprint `width`
     /// UV units wide (0 for a point sample).
     pub fn eval(&self, uv: Vec2, width: f32) -> Vec3 {
-        let width = if width.is_nan() { 0.0 } else { width.max(0.0) };
+        self.eval_rect(uv, Vec2::splat(width))
+    }
+
+    /// The texture's colour at `uv`, filtered over an axis-aligned footprint
+    /// `footprint.x` wide in `u` and `footprint.y` in `v` (the bounding box of
+    /// an elliptical pixel footprint). The checker filters each axis exactly;
+    /// images are isotropic and use the larger side.
+    pub fn eval_rect(&self, uv: Vec2, footprint: Vec2) -> Vec3 {
+        let clean = |w: f32| if w.is_nan() { 0.0 } else { w.max(0.0) };
+        let footprint = Vec2::new(clean(footprint.x), clean(footprint.y));
         match self {
-            Texture::Checker { even, odd, scale } => checker(*even, *odd, *scale, uv, width),
-            Texture::Image(m) => m.eval(uv, width),
+            Texture::Checker { even, odd, scale } => checker(*even, *odd, *scale, uv, footprint),
+            Texture::Image(m) => m.eval(uv, footprint.x.max(footprint.y)),
         }
     }
 }
@@ -319,6 +337,26 @@ mod tests {
         // Half a square-width footprint centred on an edge: half and half in u.
         let edge = c.eval(Vec2::new(0.1, 0.05), 0.05);
         assert!(close(edge, avg, 1e-4), "{edge:?}");
+    }
+
+    #[test]
+    fn checker_filters_each_axis_separately() {
+        let c = Texture::Checker { even: Vec3::ONE, odd: Vec3::ZERO, scale: 1.0 };
+        // Wide in v only: along v the squares alternate, so the mean is grey
+        // even though the footprint is a point in u…
+        let grey = c.eval_rect(Vec2::new(0.5, 0.5), Vec2::new(0.0, 40.0));
+        assert!((grey.x - 0.5).abs() < 1e-3, "{grey:?}");
+        // …but a footprint narrow in both stays crisp, and one thin in u but
+        // spanning exactly one square in v gives the exact half/half mix.
+        assert_eq!(c.eval_rect(Vec2::new(0.5, 0.5), Vec2::new(0.1, 0.1)), Vec3::ONE);
+        let half = c.eval_rect(Vec2::new(0.5, 1.0), Vec2::new(0.1, 1.0));
+        assert!((half.x - 0.5).abs() < 1e-6);
+        // Shape matters: a footprint 0.5 × 0.1 centred at (1.0, 0.5) straddles
+        // the u edge evenly (grey) while 0.1 × 0.5 at the same point does not.
+        let a = c.eval_rect(Vec2::new(1.0, 0.5), Vec2::new(0.5, 0.1));
+        let b = c.eval_rect(Vec2::new(1.1, 0.5), Vec2::new(0.1, 0.5));
+        assert!((a.x - 0.5).abs() < 1e-6 && b.x == 0.0, "{a:?} {b:?}");
+        assert_eq!(c.eval(Vec2::new(0.3, 0.7), 0.2), c.eval_rect(Vec2::new(0.3, 0.7), Vec2::splat(0.2)));
     }
 
     fn two_colour(w: u32, h: u32) -> (MipMap, Vec3, Vec3) {

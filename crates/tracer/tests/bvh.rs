@@ -184,8 +184,8 @@ fn bunny_matches_brute_force() {
     let bvh = Bvh::build(&tris);
     bvh.validate().expect("valid bvh");
     let b = bounds_of(&tris);
-    let inc = incoherent_rays(&b, 1500, 1);
-    let cam = camera_rays(&b, 1500, 2);
+    let inc = incoherent_rays(&b, 1000, 1);
+    let cam = camera_rays(&b, 1000, 2);
     let axis = axis_rays(&b, 300, 3);
     let hits = check_against_brute(&tris, &bvh, &inc);
     assert!(hits > 300, "incoherent rays should often hit the bunny ({hits})");
@@ -308,4 +308,26 @@ fn leaves_and_depth_stay_bounded_on_pathological_input() {
     bvh.validate().expect("valid");
     let b = bounds_of(&tris);
     check_against_brute(&tris, &bvh, &incoherent_rays(&b, 500, 10));
+}
+
+#[test]
+fn non_finite_vertices_are_tolerated() {
+    let mut rng = Rng(11);
+    let unit = Aabb { min: Vec3::splat(-1.0), max: Vec3::splat(1.0) };
+    let mut tris = Vec::new();
+    for i in 0..400 {
+        let c = rng.in_box(&unit);
+        let mut v = [c, c + rng.unit_vector() * 0.2, c + rng.unit_vector() * 0.2];
+        match i % 40 {
+            0 => v[1].x = f32::NAN,
+            1 => v = [Vec3::splat(f32::NAN); 3],
+            2 => v[2].y = f32::INFINITY,
+            _ => {}
+        }
+        tris.push(Triangle { v });
+    }
+    let bvh = Bvh::build(&tris);
+    bvh.validate().expect("valid");
+    let hits = check_against_brute(&tris, &bvh, &incoherent_rays(&unit, 800, 12));
+    assert!(hits > 100, "{hits}");
 }

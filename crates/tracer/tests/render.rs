@@ -483,3 +483,125 @@ fn showcase_picture() {
     let sky = px(w / 2, 0);
     assert!(sky[2] > sky[0], "sky is blue: {sky:?}");
 }
+
+#[test]
+fn distant_checker_floor_converges_to_the_average_colour() {
+    // Lit only by a unit ambient term, a pixel shows the filtered texture itself.
+    let mut b = Builder::default();
+    let tex = b.texture(Texture::Checker { even: Vec3::ONE, odd: Vec3::ZERO, scale: 4.0 });
+    let floor = b.material(Material::Phong {
+        albedo: Albedo::Texture { texture: tex, tint: Vec3::ONE },
+        specular: Vec3::ZERO,
+        shininess: 1.0,
+        reflectivity: 0.0,
+    });
+    let f = 1000.0;
+    b.quad(
+        [Vec3::new(-f, 0.0, f), Vec3::new(f, 0.0, f), Vec3::new(f, 0.0, -f), Vec3::new(-f, 0.0, -f)],
+        2.0 * f,
+        floor,
+    );
+    b.parts.ambient = Vec3::ONE;
+    let settings = RenderSettings { width: 96, height: 64, ..Default::default() };
+    let camera = Camera::look_at(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 0.0, -10.0), Vec3::Y, 60.0, 1.5);
+    let scene = b.build(camera, settings);
+    let frame = render_frame(&scene, &scene.camera, &settings, 16, &|_| {});
+    let row = |q: Vec3| (project(&scene.camera, q).1 * settings.height as f32) as usize;
+    let mean = isin_tracer::render::encode_srgb8(0.5) as i32;
+    // Far away (hundreds of squares per pixel): every pixel of the row is the
+    // average grey, not a moiré of black and white.
+    let far = row(Vec3::new(0.0, 0.0, -150.0));
+    for x in 0..settings.width as usize {
+        let v = frame.rgb[(far * settings.width as usize + x) * 3] as i32;
+        assert!((v - mean).abs() <= 6, "far pixel {x}: {v} vs {mean}");
+    }
+    // Close by (several pixels per square) the squares are still crisp.
+    let near = row(Vec3::new(0.0, 0.0, -2.13));
+    let line = &frame.rgb[near * settings.width as usize * 3..(near + 1) * settings.width as usize * 3];
+    assert!(line.iter().any(|&v| v > 240) && line.iter().any(|&v| v < 15), "near row keeps its contrast");
+}
+
+/// Throughput of the shading code itself on a scene so small that
+/// intersection costs little (run with `--ignored --nocapture`).
+#[test]
+#[ignore = "timing, not a check"]
+fn shading_throughput() {
+    let mut b = Builder::default();
+    let tex = b.texture(Texture::Checker { even: Vec3::ONE, odd: Vec3::splat(0.2), scale: 1.0 });
+    let floor = b.material(Material::Phong {
+        albedo: Albedo::Texture { texture: tex, tint: Vec3::ONE },
+        specular: Vec3::splat(0.2),
+        shininess: 20.0,
+        reflectivity: 0.2,
+    });
+    let boxm = b.material(grey(0.6));
+    let f = 50.0;
+    b.quad(
+        [Vec3::new(-f, 0.0, f), Vec3::new(f, 0.0, f), Vec3::new(f, 0.0, -f), Vec3::new(-f, 0.0, -f)],
+        2.0 * f,
+        floor,
+    );
+    b.cuboid(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0), boxm);
+    b.parts.lights.push(Light::Point { position: Vec3::new(3.0, 6.0, 3.0), intensity: Vec3::splat(50.0) });
+    b.parts.lights.push(Light::Area {
+        vertices: vec![
+            Vec3::new(-3.0, 5.0, -0.5),
+            Vec3::new(-2.0, 5.0, -0.5),
+            Vec3::new(-2.0, 5.0, 0.5),
+            Vec3::new(-3.0, 5.0, 0.5),
+        ],
+        radiance: Vec3::splat(10.0),
+    });
+    let settings = RenderSettings { width: 320, height: 240, spp: 1, light_samples: 4, ..Default::default() };
+    let camera =
+        Camera::look_at(Vec3::new(0.0, 3.0, 8.0), Vec3::new(0.0, 0.5, 0.0), Vec3::Y, 50.0, 4.0 / 3.0);
+    let scene = b.build(camera, settings);
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let t = std::time::Instant::now();
+        let runs = 5;
+        let mut counts = isin_tracer::integrator::RayCounts::default();
+        for _ in 0..runs {
+            counts = pool.install(|| render_frame_stats(&scene, &scene.camera, &settings, 16, &|_| {})).1;
+        }
+        let secs = t.elapsed().as_secs_f64() / runs as f64;
+        println!(
+            "{threads} thread(s): {:.2} ms/frame, {} rays/frame, {:.1} Mrays/s",
+            secs * 1e3,
+            counts.total(),
+            counts.total() as f64 / secs / 1e6
+        );
+    }
+}
+
+#[test]
+fn facing_mirrors_with_unbounded_depth_terminate() {
+    let mut b = Builder::default();
+    let m = b.material(Material::Mirror { tint: Vec3::ONE });
+    for z in [-5.0, 15.0] {
+        b.quad(
+            [
+                Vec3::new(-5e3, -5e3, z),
+                Vec3::new(5e3, -5e3, z),
+                Vec3::new(5e3, 5e3, z),
+                Vec3::new(-5e3, 5e3, z),
+            ],
+            1.0,
+            m,
+        );
+    }
+    b.parts.background = Vec3::ONE;
+    let settings = RenderSettings { width: 8, height: 6, max_depth: u32::MAX, ..Default::default() };
+    let scene = b.build(Camera::default(), settings);
+    let (rgb, counts) = isin_tracer::render::render_tile_stats(
+        &scene,
+        &scene.camera,
+        &settings,
+        Tile { x: 1, y: 1, w: 2, h: 2 },
+    );
+    // The ray bounces between the mirrors until the depth cap, then sees black.
+    // (The pixels are chosen off the quads' diagonal, the edge shared by their
+    // two triangles.)
+    assert_eq!(rgb, vec![0; 12]);
+    assert_eq!(counts.secondary, 4 * isin_tracer::integrator::MAX_DEPTH_LIMIT as u64);
+}

@@ -15,7 +15,7 @@
 use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_TRIANGLES, Node, PreTriangle};
 use crate::geometry::Aabb;
 use crate::shapes::Triangle;
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
 /// Centroid bins per axis.
@@ -32,8 +32,47 @@ const _: () = assert!(MAX_TRIANGLES <= 1 << 30 && MEDIAN_DEPTH + 32 <= MAX_DEPTH
 /// What the builder knows about one input triangle.
 #[derive(Clone, Copy, Debug)]
 struct PrimInfo {
-    bounds: Aabb,
-    centroid: Vec3,
+    bounds: Box3,
+    centroid: Vec3A,
+}
+
+/// The builder's box: SIMD-friendly and, unlike [`Aabb`], only ever fed
+/// NaN-free values (see [`prim_info`]), where every platform's vector min/max
+/// gives the exact result — so the tree stays the same on every machine.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Box3 {
+    min: Vec3A,
+    max: Vec3A,
+}
+
+impl Box3 {
+    const EMPTY: Box3 = Box3 { min: Vec3A::INFINITY, max: Vec3A::NEG_INFINITY };
+
+    #[inline(always)]
+    fn union(&self, o: &Box3) -> Box3 {
+        Box3 { min: self.min.min(o.min), max: self.max.max(o.max) }
+    }
+
+    #[inline(always)]
+    fn grow(&mut self, p: Vec3A) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+
+    /// Surface area; 0 for the empty box.
+    #[inline(always)]
+    fn area(&self) -> f32 {
+        let e = (self.max - self.min).max(Vec3A::ZERO);
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    }
+
+    fn extent(&self) -> Vec3A {
+        (self.max - self.min).max(Vec3A::ZERO)
+    }
+
+    fn to_aabb(self) -> Aabb {
+        Aabb { min: self.min.into(), max: self.max.into() }
+    }
 }
 
 /// Builds the BVH (see [`Bvh::build`]).
@@ -53,25 +92,41 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
 
 /// Bounds over both the input vertices and the ones the intersection test
 /// reconstructs (`v0 + e1`, `v0 + e2`), so leaf boxes contain either exactly.
+///
+/// The result is free of NaNs — NaN coordinates are ignored (such a triangle can
+/// never be hit) and an axis with no number at all collapses to 0 — because the
+/// box unions that follow are only order-independent (hence deterministic and
+/// properly nested) on NaN-free boxes.
 fn prim_info(pre: &PreTriangle, tri: &Triangle) -> PrimInfo {
-    let mut bounds = tri.bounds();
-    for p in pre.vertices() {
-        bounds.grow(p);
+    let mut min = Vec3::INFINITY;
+    let mut max = Vec3::NEG_INFINITY;
+    for p in tri.v.into_iter().chain(pre.vertices()) {
+        // f32::min/max return the other operand when one is NaN.
+        min = Vec3::new(min.x.min(p.x), min.y.min(p.y), min.z.min(p.z));
+        max = Vec3::new(max.x.max(p.x), max.y.max(p.y), max.z.max(p.z));
     }
-    PrimInfo { bounds, centroid: bounds.center() }
+    for axis in 0..3 {
+        if min[axis] > max[axis] {
+            (min[axis], max[axis]) = (0.0, 0.0);
+        }
+    }
+    // (+inf) + (-inf) is NaN: such a centroid goes to 0 on that axis.
+    let centroid = (min + max) * 0.5;
+    let centroid = Vec3::select(centroid.is_nan_mask(), Vec3::ZERO, centroid);
+    PrimInfo { bounds: Box3 { min: min.into(), max: max.into() }, centroid: centroid.into() }
 }
 
 /// Appends the subtree over `refs` (whose first element is triangle `first` in
 /// leaf order) to `out`, depth-first. Indices stored in the new nodes are
 /// relative to the start of `out`.
 fn build_node(prims: &[PrimInfo], refs: &mut [u32], first: u32, depth: usize, out: &mut Vec<Node>) {
-    let bounds = refs.iter().fold(Aabb::EMPTY, |b, &r| b.union(&prims[r as usize].bounds));
+    let (bounds, centroids) = bounds_and_centroids(prims, refs);
     let at = out.len();
-    let Some(mid) = choose_split(prims, refs, &bounds, depth) else {
-        out.push(Node::leaf(&bounds, first, refs.len() as u32));
+    let Some(mid) = choose_split(prims, refs, &bounds, &centroids, depth) else {
+        out.push(Node::leaf(&bounds.to_aabb(), first, refs.len() as u32));
         return;
     };
-    out.push(Node::interior(&bounds, 0));
+    out.push(Node::interior(&bounds.to_aabb(), 0));
     let (left, right) = refs.split_at_mut(mid);
     let right_first = first + mid as u32;
     if left.len() + right.len() >= PARALLEL_THRESHOLD {
@@ -87,6 +142,18 @@ fn build_node(prims: &[PrimInfo], refs: &mut [u32], first: u32, depth: usize, ou
         out[at].offset = out.len() as u32;
         build_node(prims, right, right_first, depth + 1, out);
     }
+}
+
+/// The union of the primitives' boxes and the box around their centroids, in one pass.
+fn bounds_and_centroids(prims: &[PrimInfo], refs: &[u32]) -> (Box3, Box3) {
+    let mut bounds = Box3::EMPTY;
+    let mut centroids = Box3::EMPTY;
+    for &r in refs {
+        let p = &prims[r as usize];
+        bounds = bounds.union(&p.bounds);
+        centroids.grow(p.centroid);
+    }
+    (bounds, centroids)
 }
 
 /// A subtree in its own vector (node indices relative to its start).
@@ -111,25 +178,29 @@ fn append_relocated(out: &mut Vec<Node>, sub: &[Node]) {
 /// Decides how to split `refs`; on a split, partitions `refs` in place and
 /// returns the size of the first part (always in `1..refs.len()`). `None` means
 /// make a leaf.
-fn choose_split(prims: &[PrimInfo], refs: &mut [u32], bounds: &Aabb, depth: usize) -> Option<usize> {
+fn choose_split(
+    prims: &[PrimInfo],
+    refs: &mut [u32],
+    bounds: &Box3,
+    centroids: &Box3,
+    depth: usize,
+) -> Option<usize> {
     let n = refs.len();
     if n <= 1 {
         return None;
     }
     if depth >= MEDIAN_DEPTH {
-        return (n > MAX_LEAF_SIZE).then(|| median_split(prims, refs));
+        return (n > MAX_LEAF_SIZE).then(|| median_split(prims, refs, centroids));
     }
-    let centroids =
-        refs.iter().fold(Aabb::EMPTY, |b, &r| b.union(&Aabb::from_point(prims[r as usize].centroid)));
-    let best = best_binned_split(prims, refs, &centroids);
+    let best = best_binned_split(prims, refs, centroids);
     // Costs are SAH costs multiplied by the node's area, so that zero-area
     // nodes (all triangles degenerate and in one spot) compare without NaNs.
     let leaf_cost = n as f32 * bounds.area();
     match best {
         Some(split) if n > MAX_LEAF_SIZE || split.cost < leaf_cost => {
-            Some(partition(prims, refs, &split, &centroids))
+            Some(partition(prims, refs, &split, centroids))
         }
-        _ if n > MAX_LEAF_SIZE => Some(median_split(prims, refs)),
+        _ if n > MAX_LEAF_SIZE => Some(median_split(prims, refs, centroids)),
         _ => None,
     }
 }
@@ -144,7 +215,7 @@ struct Split {
 
 #[derive(Clone, Copy, Debug)]
 struct Bin {
-    bounds: Aabb,
+    bounds: Box3,
     count: u32,
 }
 
@@ -157,7 +228,7 @@ fn bin_index(c: f32, min: f32, scale: f32) -> usize {
 }
 
 /// Bin scale for `axis`, or `None` when the centroids cannot be binned along it.
-fn bin_scale(centroids: &Aabb, axis: usize) -> Option<f32> {
+fn bin_scale(centroids: &Box3, axis: usize) -> Option<f32> {
     let extent = centroids.max[axis] - centroids.min[axis];
     let scale = BINS as f32 / extent;
     (extent > 0.0 && scale.is_finite()).then_some(scale)
@@ -165,38 +236,63 @@ fn bin_scale(centroids: &Aabb, axis: usize) -> Option<f32> {
 
 /// The cheapest bin-boundary split over all three axes (ties go to the lower
 /// axis, then the lower bin), or `None` when no axis can separate the centroids.
-fn best_binned_split(prims: &[PrimInfo], refs: &[u32], centroids: &Aabb) -> Option<Split> {
+/// One pass over the primitives fills the bins of all three axes.
+fn best_binned_split(prims: &[PrimInfo], refs: &[u32], centroids: &Box3) -> Option<Split> {
+    let scales = [0, 1, 2].map(|axis| bin_scale(centroids, axis));
+    if scales.iter().all(Option::is_none) {
+        return None;
+    }
+    let mut bins = [[Bin { bounds: Box3::EMPTY, count: 0 }; BINS]; 3];
+    for &r in refs {
+        let p = &prims[r as usize];
+        for (axis, scale) in scales.iter().enumerate() {
+            if let Some(scale) = *scale {
+                let b = &mut bins[axis][bin_index(p.centroid[axis], centroids.min[axis], scale)];
+                b.bounds = b.bounds.union(&p.bounds);
+                b.count += 1;
+            }
+        }
+    }
     let mut best: Option<Split> = None;
-    for axis in 0..3 {
-        let Some(scale) = bin_scale(centroids, axis) else { continue };
-        let mut bins = [Bin { bounds: Aabb::EMPTY, count: 0 }; BINS];
-        for &r in refs {
-            let p = &prims[r as usize];
-            let b = &mut bins[bin_index(p.centroid[axis], centroids.min[axis], scale)];
-            b.bounds = b.bounds.union(&p.bounds);
-            b.count += 1;
+    for (axis, axis_bins) in bins.iter().enumerate() {
+        if scales[axis].is_none() {
+            continue;
         }
-        // right_cost[i]: area * count of bins i+1.. (the right side of boundary i).
-        let mut right_cost = [0.0f32; BINS];
-        let (mut acc, mut cnt) = (Aabb::EMPTY, 0u32);
-        for i in (1..BINS).rev() {
-            acc = acc.union(&bins[i].bounds);
-            cnt += bins[i].count;
-            right_cost[i - 1] = if cnt == 0 { f32::NAN } else { acc.area() * cnt as f32 };
-        }
-        let (mut acc, mut cnt) = (Aabb::EMPTY, 0u32);
-        let node_area = bins.iter().fold(Aabb::EMPTY, |a, b| a.union(&b.bounds)).area();
-        for (i, bin) in bins.iter().enumerate().take(BINS - 1) {
-            acc = acc.union(&bin.bounds);
-            cnt += bin.count;
-            let right = right_cost[i];
-            if cnt == 0 || right.is_nan() {
-                continue;
-            }
-            let cost = TRAVERSAL_COST * node_area + acc.area() * cnt as f32 + right;
+        if let Some((bin, cost)) = sweep(axis_bins) {
             if best.is_none_or(|b| cost < b.cost) {
-                best = Some(Split { axis, bin: i, cost });
+                best = Some(Split { axis, bin, cost });
             }
+        }
+    }
+    best
+}
+
+/// The cheapest boundary of one axis's bins: `(last bin of the left side, cost)`,
+/// ties going to the lower bin; only boundaries with primitives on both sides.
+fn sweep(bins: &[Bin; BINS]) -> Option<(usize, f32)> {
+    // right_cost[i]: area * count of bins i+1.. (the right side of boundary i).
+    let mut right_cost = [f32::NAN; BINS];
+    let (mut acc, mut cnt) = (Box3::EMPTY, 0u32);
+    for i in (1..BINS).rev() {
+        acc = acc.union(&bins[i].bounds);
+        cnt += bins[i].count;
+        if cnt > 0 {
+            right_cost[i - 1] = acc.area() * cnt as f32;
+        }
+    }
+    let node_area = acc.union(&bins[0].bounds).area();
+    let (mut acc, mut cnt) = (Box3::EMPTY, 0u32);
+    let mut best: Option<(usize, f32)> = None;
+    for (i, bin) in bins.iter().enumerate().take(BINS - 1) {
+        acc = acc.union(&bin.bounds);
+        cnt += bin.count;
+        let right = right_cost[i];
+        if cnt == 0 || right.is_nan() {
+            continue;
+        }
+        let cost = TRAVERSAL_COST * node_area + acc.area() * cnt as f32 + right;
+        if best.is_none_or(|(_, c)| cost < c) {
+            best = Some((i, cost));
         }
     }
     best
@@ -204,7 +300,7 @@ fn best_binned_split(prims: &[PrimInfo], refs: &[u32], centroids: &Aabb) -> Opti
 
 /// Partitions `refs` so that the split's left side comes first (order within
 /// each side follows a fixed, deterministic swap pattern) and returns its size.
-fn partition(prims: &[PrimInfo], refs: &mut [u32], split: &Split, centroids: &Aabb) -> usize {
+fn partition(prims: &[PrimInfo], refs: &mut [u32], split: &Split, centroids: &Box3) -> usize {
     let (axis, min) = (split.axis, centroids.min[split.axis]);
     let scale = bin_scale(centroids, axis).unwrap_or(0.0);
     let goes_left = |r: u32| bin_index(prims[r as usize].centroid[axis], min, scale) <= split.bin;
@@ -223,9 +319,7 @@ fn partition(prims: &[PrimInfo], refs: &mut [u32], split: &Split, centroids: &Aa
 /// Splits at the median along the centroids' widest axis, ordering by
 /// (centroid, input index): a total order, so the result is deterministic even
 /// when centroids coincide or are NaN.
-fn median_split(prims: &[PrimInfo], refs: &mut [u32]) -> usize {
-    let centroids =
-        refs.iter().fold(Aabb::EMPTY, |b, &r| b.union(&Aabb::from_point(prims[r as usize].centroid)));
+fn median_split(prims: &[PrimInfo], refs: &mut [u32], centroids: &Box3) -> usize {
     let extent = centroids.extent();
     let axis = if extent.x >= extent.y && extent.x >= extent.z {
         0
@@ -256,10 +350,11 @@ mod tests {
 
     #[test]
     fn median_split_halves_identical_centroids() {
-        let p = PrimInfo { bounds: Aabb::from_point(Vec3::ONE), centroid: Vec3::ONE };
+        let p = PrimInfo { bounds: Box3 { min: Vec3A::ONE, max: Vec3A::ONE }, centroid: Vec3A::ONE };
         let prims = vec![p; 9];
         let mut refs: Vec<u32> = (0..9).rev().collect();
-        let mid = median_split(&prims, &mut refs);
+        let centroids = Box3 { min: Vec3A::ONE, max: Vec3A::ONE };
+        let mid = median_split(&prims, &mut refs, &centroids);
         assert_eq!(mid, 4);
         let mut left = refs[..mid].to_vec();
         left.sort();

@@ -1,10 +1,10 @@
 //! Bounding volume hierarchy over all triangles of a scene, built with the binned
 //! surface-area heuristic.
 //!
-//! * [`build`] — top-down binned SAH builder (parallel with rayon, yet the tree
+//! * `build` — top-down binned SAH builder (parallel with rayon, yet the tree
 //!   is a pure function of the input triangles: any thread count, any machine,
 //!   the same bytes).
-//! * [`traverse`] — nearest-hit and any-hit traversal: ordered by box entry
+//! * `traverse` — nearest-hit and any-hit traversal: ordered by box entry
 //!   distance, early-out against the current best hit, fixed-size stack.
 //!
 //! # Memory layout
@@ -175,7 +175,8 @@ impl Bvh {
     /// * an interior node's first child is the next node and its second child comes
     ///   after the first child's subtree; both children's boxes lie inside the parent's;
     /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles, their ranges cover the triangle
-    ///   array exactly once, and each leaf's box contains its triangles' vertices;
+    ///   array exactly once, and each leaf's box contains its triangles' vertices
+    ///   (NaN coordinates, which can never be hit, are not checked);
     /// * the triangle-to-input map is a permutation (every primitive exactly once).
     pub fn validate(&self) -> Result<(), InvalidBvh> {
         let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
@@ -244,12 +245,13 @@ impl Bvh {
         if count > MAX_LEAF_SIZE || first + count > self.tris.len() {
             return fail(format!("leaf range {first}+{count} invalid"));
         }
-        for t in first..first + count {
-            if std::mem::replace(&mut covered[t], true) {
+        let slots = covered[first..first + count].iter_mut();
+        for (t, (slot, tri)) in slots.zip(&self.tris[first..first + count]).enumerate() {
+            let t = first + t;
+            if std::mem::replace(slot, true) {
                 return fail(format!("triangle {t} is in two leaves"));
             }
-            let inside = self.tris[t].vertices().iter().all(|&p| contains_point(bounds, p));
-            if !inside {
+            if !tri.vertices().iter().all(|&p| contains_point(bounds, p)) {
                 return fail(format!("triangle {t} sticks out of its leaf's box"));
             }
         }
@@ -257,10 +259,64 @@ impl Bvh {
     }
 }
 
+/// Containment that only fails on a definite "outside": a NaN coordinate (a
+/// triangle that can never be hit) does not count as sticking out.
 fn contains_point(b: &Aabb, p: Vec3) -> bool {
-    b.min.cmple(p).all() && p.cmple(b.max).all()
+    !(p.cmplt(b.min).any() || p.cmpgt(b.max).any())
 }
 
 fn contains_box(outer: &Aabb, inner: &Aabb) -> bool {
     outer.min.cmple(inner.min).all() && inner.max.cmple(outer.max).all()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(n: usize) -> Vec<Triangle> {
+        let p = |i: usize, j: usize| Vec3::new(i as f32, (i * j % 7) as f32 * 0.1, j as f32);
+        let mut tris = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                tris.push(Triangle { v: [p(i, j), p(i + 1, j), p(i, j + 1)] });
+            }
+        }
+        tris
+    }
+
+    #[test]
+    fn validate_accepts_built_trees_and_catches_corruption() {
+        let bvh = Bvh::build(&grid(20));
+        bvh.validate().expect("freshly built tree is valid");
+        assert!(bvh.nodes.len() > 1 && bvh.nodes.iter().all(|n| n.count as usize <= MAX_LEAF_SIZE));
+
+        let mut shrunk = bvh.clone();
+        let leaf = shrunk.nodes.iter().position(Node::is_leaf).expect("a leaf");
+        shrunk.nodes[leaf].max[0] -= 0.5;
+        assert!(shrunk.validate().is_err(), "a leaf box that no longer holds its triangle");
+
+        let mut dup = bvh.clone();
+        dup.prim_ids[1] = dup.prim_ids[0];
+        assert!(dup.validate().is_err(), "a primitive listed twice");
+
+        let mut child = bvh.clone();
+        child.nodes[1].min[1] = child.nodes[0].min[1] - 1.0;
+        assert!(child.validate().is_err(), "a child box sticking out of its parent");
+
+        let mut cut = bvh;
+        cut.nodes.pop();
+        assert!(cut.validate().is_err(), "a dangling child index");
+    }
+
+    #[test]
+    fn leaves_are_small_and_cover_every_triangle_once() {
+        let tris = grid(30);
+        let bvh = Bvh::build(&tris);
+        let mut ids = bvh.prim_ids.clone();
+        ids.sort_unstable();
+        assert_eq!(ids, (0..tris.len() as u32).collect::<Vec<_>>());
+        for (k, pre) in bvh.tris.iter().enumerate() {
+            assert_eq!(*pre, PreTriangle::new(&tris[bvh.prim_ids[k] as usize]));
+        }
+    }
 }

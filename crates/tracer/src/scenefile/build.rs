@@ -169,9 +169,8 @@ impl<'a> Builder<'a> {
             self.settings(settings)?;
         }
         for (name, def) in &file.textures {
-            let texture = self.texture(name, def)?;
-            self.texture_names.insert(name.clone(), self.parts.textures.len() as u32);
-            self.parts.textures.push(texture);
+            let index = self.texture(name, def)?;
+            self.texture_names.insert(name.clone(), index);
         }
         for (name, def) in &file.materials {
             let material = self.material(name, def)?;
@@ -194,6 +193,14 @@ impl<'a> Builder<'a> {
         if self.parts.triangles.is_empty() {
             return Err(SceneError::Empty { file: self.map.file.to_owned() });
         }
+        tracing::debug!(
+            file = self.map.file,
+            triangles = self.parts.triangles.len(),
+            materials = self.parts.materials.len(),
+            textures = self.parts.textures.len(),
+            lights = self.parts.lights.len(),
+            "scene parsed"
+        );
         Ok(self.parts)
     }
 
@@ -216,11 +223,9 @@ impl<'a> Builder<'a> {
     ) -> Result<Vec3, SceneError> {
         let c = value.map_or(default, Triple::vec3);
         if c.min_element() < 0.0 {
-            let what = what.strip_suffix(&format!(".{key}")).unwrap_or(what);
-            let what = if what == key { String::new() } else { format!("{what}.") };
             return Err(SceneError::Invalid {
                 at: self.map.field(span, key),
-                what: format!("{what}{key}"),
+                what: if what == key { key.to_owned() } else { format!("{what}.{key}") },
                 message: format!("colour components must not be negative, got {c}"),
             });
         }
@@ -296,7 +301,9 @@ impl<'a> Builder<'a> {
         Ok(())
     }
 
-    fn texture(&mut self, name: &str, def: &Spanned<TextureDef>) -> Result<Texture, SceneError> {
+    /// Adds a named texture, returning its index (image files already loaded
+    /// are shared).
+    fn texture(&mut self, name: &str, def: &Spanned<TextureDef>) -> Result<u32, SceneError> {
         let span = def.span();
         let what = format!("textures.{name}");
         let d = def.get_ref();
@@ -318,11 +325,13 @@ impl<'a> Builder<'a> {
                         format!("must be positive, got {scale}"),
                     ));
                 }
-                Ok(Texture::Checker {
+                let checker = Texture::Checker {
                     even: self.colour(d.even, Vec3::ONE, &span, &what, "even")?,
                     odd: self.colour(d.odd, Vec3::ZERO, &span, &what, "odd")?,
                     scale,
-                })
+                };
+                self.parts.textures.push(checker);
+                Ok((self.parts.textures.len() - 1) as u32)
             }
             TextureKind::Image => {
                 check_fields(&self.map, &span, &what, "image", &set, &["path"])?;
@@ -330,10 +339,7 @@ impl<'a> Builder<'a> {
                     return Err(self.origin(&span, what).invalid("an image texture needs `path`"));
                 };
                 let origin = Origin { at: self.map.field(&span, "path"), what };
-                let path = join("", path);
-                let bytes = self.read_asset(&path, &origin)?;
-                let mip = decode_image(&bytes).map_err(|e| origin.bad_asset(&path, e))?;
-                Ok(Texture::Image(mip))
+                self.image_texture(&join("", path), &origin)
             }
         }
     }

@@ -3,7 +3,7 @@
 //!
 //! OWNER: scene helper.
 //!
-//! The format is described in [`format`]; `scenes/paper.toml` opens with a
+//! The format is described in [`format`](mod@format); `scenes/paper.toml` opens with a
 //! commented example of every section.
 //!
 //! Loading never touches the file system: files a scene refers to (meshes,
@@ -25,8 +25,14 @@ use crate::scene::{Scene, SceneParts};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-/// Supplies the bytes of files a scene refers to, by the path written in the
-/// scene (relative to the scene file).
+/// Supplies the bytes of files a scene refers to, by path relative to the
+/// scene file's directory.
+///
+/// Paths written in the scene are passed as written (with `./` segments
+/// dropped); paths written inside other files — an OBJ's `mtllib`, an MTL's
+/// `map_Kd`, a glTF buffer or image URI — are first resolved against the
+/// referring file's directory, so `meshes/knot.obj` naming `knot.mtl` asks for
+/// `meshes/knot.mtl`. `..` segments are collapsed where possible.
 pub trait AssetSource {
     /// The bytes of `path`, or a message saying why they cannot be had.
     fn read(&mut self, path: &str) -> Result<Vec<u8>, String>;

@@ -2,7 +2,9 @@
 //!
 //! `mtllib` paths are relative to the OBJ file and texture paths (`map_Kd`)
 //! relative to the MTL file; everything is read through the scene's
-//! [`super::AssetSource`]. OBJ counts texture `v` upwards from the bottom of the
+//! [`super::AssetSource`]. A missing MTL library is only a warning (many OBJ
+//! files name one that was never shipped): its materials become the default
+//! grey. A missing texture or a malformed library is an error. OBJ counts texture `v` upwards from the bottom of the
 //! image, the tracer downwards from the top, so `v` is flipped.
 //!
 //! MTL materials map to the nearest Whitted material: `Ke` → emissive;
@@ -33,6 +35,7 @@ pub(crate) fn load(
     let assets = RefCell::new(&mut *b.assets);
     let libraries: RefCell<Vec<(String, usize)>> = RefCell::new(Vec::new());
     let failure: RefCell<Option<SceneError>> = RefCell::new(None);
+    let missing: RefCell<Vec<String>> = RefCell::new(Vec::new());
     let loader = |mtl: &Path| {
         let rel = join(path, &mtl.to_string_lossy());
         let result = match assets.borrow_mut().read(&rel) {
@@ -40,12 +43,10 @@ pub(crate) fn load(
                 failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
             }),
             Err(reason) => {
-                failure.borrow_mut().get_or_insert(SceneError::MissingAsset {
-                    at: origin.at.clone(),
-                    what: format!("{} (mtllib in {path})", origin.what),
-                    path: rel.clone(),
-                    reason,
-                });
+                // Real-world OBJ files often name a library that was never
+                // shipped (the shared dragon does): warn and use defaults.
+                tracing::warn!(obj = path, mtl = %rel, %reason, "MTL library not found; using default materials");
+                missing.borrow_mut().push(rel.clone());
                 Err(tobj::LoadError::OpenFileFailed)
             }
         };
@@ -61,7 +62,11 @@ pub(crate) fn load(
         return Err(e);
     }
     let (models, materials) = loaded.map_err(|e| origin.bad_asset(path, format!("OBJ: {e}")))?;
-    let materials = materials.map_err(|e| origin.bad_asset(path, format!("MTL: {e}")))?;
+    let materials = match materials {
+        Ok(m) => m,
+        Err(_) if !missing.borrow().is_empty() => Vec::new(),
+        Err(e) => return Err(origin.bad_asset(path, format!("MTL: {e}"))),
+    };
     // Which library each material index came from, to resolve its textures.
     let mut library_of = Vec::with_capacity(materials.len());
     for (lib, count) in libraries.into_inner() {
