@@ -40,6 +40,7 @@ fn tile(id: u32) -> Vec<u8> {
     protocol::encode(&Message::TileResult(TileResult {
         frame: 1,
         id,
+        tile: isin_tracer::Tile { x: 0, y: 0, w: 64, h: 64 },
         render_micros: 0,
         pixels: pixels.into(),
     }))

@@ -79,7 +79,13 @@ fn tile_prefixes() -> &'static [Vec<u8>] {
     static PREFIXES: OnceLock<Vec<Vec<u8>>> = OnceLock::new();
     PREFIXES.get_or_init(|| {
         let result = |frame| {
-            Message::TileResult(TileResult { frame, id: 0, render_micros: 0, pixels: Default::default() })
+            Message::TileResult(TileResult {
+                frame,
+                id: 0,
+                tile: Tile { x: 0, y: 0, w: 1, h: 1 },
+                render_micros: 0,
+                pixels: Default::default(),
+            })
         };
         let tile = |request| {
             Message::FrameTile(FrameTile {
@@ -147,6 +153,7 @@ mod tests {
             Message::TileResult(TileResult {
                 frame: 77,
                 id: 123_456,
+                tile: Tile { x: 64, y: 0, w: 64, h: 64 },
                 render_micros: 9,
                 pixels: ByteBuf::from(vec![1u8; 12_288]),
             }),
