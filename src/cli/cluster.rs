@@ -31,7 +31,12 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Re
         Ok(t)
     } else {
         let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
-        Ok(Ticket { transport: transport.to_string(), token: token.to_string(), addr: connect.to_string() })
+        Ok(Ticket {
+            transport: transport.to_string(),
+            token: token.to_string(),
+            addr: connect.to_string(),
+            fingerprint: None,
+        })
     }
 }
 
@@ -71,7 +76,8 @@ pub fn run_default() -> anyhow::Result<()> {
     actix::System::new().block_on(async move {
         let tcp = transport("tcp")?;
         let listener = tcp.listen("127.0.0.1:0").await?;
-        let ticket = Ticket { transport: "tcp".into(), token, addr: listener.local_addr() };
+        let ticket =
+            Ticket { transport: "tcp".into(), token, addr: listener.local_addr(), fingerprint: None };
         println!(
             "embedded cluster: master on {} with {slaves} local slaves × {threads} threads",
             ticket.addr

@@ -51,7 +51,8 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     actix::System::new().block_on(async move {
         let listener = transport.listen(&args.listen).await?;
         let addr = listener.local_addr();
-        let ticket = Ticket { transport: transport.name().to_string(), token, addr: addr.clone() };
+        let ticket =
+            Ticket { transport: transport.name().to_string(), token, addr: addr.clone(), fingerprint: None };
         let mut out = std::io::stdout().lock();
         writeln!(out, "listening {addr}")?;
         writeln!(out, "ticket {ticket}")?;
