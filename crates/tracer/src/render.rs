@@ -410,6 +410,22 @@ mod tests {
     }
 
     #[test]
+    fn simd_and_scalar_box_tests_render_the_same_bytes() {
+        let scene = shadow_test_scene();
+        let mut scalar = scene.clone();
+        scalar.bvh.set_simd(false);
+        assert!(!scalar.bvh.simd_active());
+        assert_eq!(scene.bvh.simd_active(), cfg!(target_arch = "x86_64"));
+        let s = scene.settings;
+        let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+        let (a, ca) = render_tile_stats(&scene, &scene.camera, &s, tile);
+        let (b, cb) = render_tile_stats(&scalar, &scalar.camera, &s, tile);
+        assert_eq!(ca, cb);
+        assert!(a == b, "SIMD and scalar traversal differ");
+        assert!(a.iter().any(|&c| c != a[0]));
+    }
+
+    #[test]
     fn spread_tests_pick_the_corners() {
         use crate::integrator::spread_tests;
         let us: Vec<Vec2> =

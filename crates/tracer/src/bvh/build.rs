@@ -87,7 +87,8 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     let mut nodes = Vec::with_capacity(2 * triangles.len() / MAX_LEAF_SIZE.max(2) + 1);
     build_node(&prims, &mut refs, 0, 0, &mut nodes);
     let tris = refs.iter().map(|&r| pre[r as usize]).collect();
-    Bvh { nodes, tris, prim_ids: refs }
+    let wide = super::wide::collapse(&nodes);
+    Bvh { nodes, tris, prim_ids: refs, wide, scalar_only: false }
 }
 
 /// Bounds over both the input vertices and the ones the intersection test
