@@ -208,8 +208,9 @@ fn min_keep(x: f32, acc: f32) -> f32 {
 /// plane of an axis the ray is parallel to; `max_keep`/`min_keep` then keep the
 /// running value, treating that slab as no constraint, which is conservative.
 #[inline(always)]
-fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> [f32; 4] {
+fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
     let mut out = [f32::INFINITY; 4];
+    let mut mask = 0;
     for (k, e) in out.iter_mut().enumerate() {
         let mut near = t_min;
         let mut far = t_max;
@@ -221,16 +222,17 @@ fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> [f32; 4]
         }
         if near <= far * ROBUST_EXIT {
             *e = near;
+            mask |= 1 << k;
         }
     }
-    out
+    (out, mask)
 }
 
 /// [`entries_scalar`] for all four children at once with SSE (see the module
 /// docs for why the bits are the same).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> [f32; 4] {
+fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
     use std::arch::x86_64::*;
     // SAFETY: SSE and SSE2 are part of the x86_64 baseline, so these
     // instructions exist on every machine this code is compiled for; the loads
@@ -253,13 +255,14 @@ fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> [f32; 4] {
         let e = _mm_or_ps(_mm_and_ps(hit, near), _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)));
         let mut out = [0.0f32; 4];
         _mm_storeu_ps(out.as_mut_ptr(), e);
-        out
+        (out, _mm_movemask_ps(hit) as u32)
     }
 }
 
-/// Box entries with the SIMD path when `simd` is set and available.
+/// Box entries, and a mask with bit `k` set where child `k` is hit, with the
+/// SIMD path when `simd` is set and available.
 #[inline(always)]
-fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> [f32; 4] {
+fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f32; 4], u32) {
     #[cfg(target_arch = "x86_64")]
     if simd {
         return entries_sse(node, r, t_min, t_max);
@@ -275,26 +278,27 @@ pub(super) const SIMD_AVAILABLE: bool = cfg!(target_arch = "x86_64");
 /// its children and descends into the fourth, at most [`MAX_DEPTH`] levels deep.
 const STACK: usize = 3 * MAX_DEPTH + 4;
 
-/// Fixed-size, uninitialised traversal stack of (wide node, entry distance).
-struct Stack {
-    items: [MaybeUninit<(u32, f32)>; STACK],
+/// Fixed-size, uninitialised traversal stack (of wide node indices, with
+/// their entry distances for nearest-hit queries): no per-ray memset.
+struct Stack<T: Copy> {
+    items: [MaybeUninit<T>; STACK],
     len: usize,
 }
 
-impl Stack {
+impl<T: Copy> Stack<T> {
     #[inline(always)]
     fn new() -> Self {
         Stack { items: [const { MaybeUninit::uninit() }; STACK], len: 0 }
     }
 
     #[inline(always)]
-    fn push(&mut self, node: u32, t: f32) {
-        self.items[self.len] = MaybeUninit::new((node, t));
+    fn push(&mut self, item: T) {
+        self.items[self.len] = MaybeUninit::new(item);
         self.len += 1;
     }
 
     #[inline(always)]
-    fn pop(&mut self) -> Option<(u32, f32)> {
+    fn pop(&mut self) -> Option<T> {
         self.len = self.len.checked_sub(1)?;
         // SAFETY: every slot below the length was written by `push`.
         Some(unsafe { self.items[self.len].assume_init() })
@@ -316,12 +320,15 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
-        let e = entries(node, &r, t_min, best_t, simd);
+        let (e, mut mask) = entries(node, &r, t_min, best_t, simd);
         // The hit children, nearest first (stable on ties, so deterministic).
         let mut order = [(0.0f32, 0usize); 4];
         let mut n = 0;
-        for (k, &t) in e.iter().enumerate() {
-            if t != f32::INFINITY {
+        while mask != 0 {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let t = e[k];
+            {
                 let mut j = n;
                 while j > 0 && order[j - 1].0 > t {
                     order[j] = order[j - 1];
@@ -348,7 +355,7 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
         for &(t, k) in order[..n].iter().rev() {
             if node.meta[k] == 0 && t <= best_t * ROBUST_EXIT {
                 if let Some((c, tc)) = next {
-                    stack.push(c, tc);
+                    stack.push((c, tc));
                 }
                 next = Some((node.child[k], t));
             }
@@ -380,35 +387,33 @@ pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     let simd = !bvh.scalar_only;
     let r = WideRay::new(ray);
     let tris = &bvh.tris[..];
-    let mut stack = Stack::new();
+    let mut stack = Stack::<u32>::new();
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
-        let e = entries(node, &r, t_min, t_max, simd);
+        let (_, mut mask) = entries(node, &r, t_min, t_max, simd);
         let mut next = None;
-        for (k, &t) in e.iter().enumerate() {
-            if t == f32::INFINITY {
-                continue;
-            }
-            let meta = node.meta[k];
+        while mask != 0 {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let (meta, child) = (node.meta[k], node.child[k]);
             if meta != 0 {
-                let first = node.child[k] as usize;
+                let first = child as usize;
                 let leaf = &tris[first..first + (meta & !LEAF) as usize];
-                if leaf.iter().any(|tri| moller_trumbore_any(tri.v0, tri.e1, tri.e2, ray, t_min, t_max)) {
-                    return true;
+                for tri in leaf {
+                    if moller_trumbore_any(tri.v0, tri.e1, tri.e2, ray, t_min, t_max) {
+                        return true;
+                    }
                 }
             } else if next.is_none() {
-                next = Some(node.child[k]);
+                next = Some(child);
             } else {
-                stack.push(node.child[k], t);
+                stack.push(child);
             }
         }
-        current = match next {
+        current = match next.or_else(|| stack.pop()) {
             Some(c) => c,
-            None => match stack.pop() {
-                Some((c, _)) => c,
-                None => return false,
-            },
+            None => return false,
         };
     }
 }
@@ -446,9 +451,13 @@ mod tests {
             }
             let r = WideRay::new(&Ray::new(origin, dir));
             let (t_min, t_max) = (0.0, if i % 3 == 0 { f32::INFINITY } else { next().abs() * 2.0 });
-            let a = entries(&node, &r, t_min, t_max, true);
-            let b = entries_scalar(&node, &r, t_min, t_max);
+            let (a, ma) = entries(&node, &r, t_min, t_max, true);
+            let (b, mb) = entries_scalar(&node, &r, t_min, t_max);
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "case {i}");
+            assert_eq!(ma, mb, "case {i}");
+            for k in 0..4 {
+                assert_eq!(ma & (1 << k) != 0, a[k] != f32::INFINITY, "case {i}: mask matches entries");
+            }
         }
     }
 
