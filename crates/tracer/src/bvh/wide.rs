@@ -455,8 +455,8 @@ mod tests {
             let (b, mb) = entries_scalar(&node, &r, t_min, t_max);
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "case {i}");
             assert_eq!(ma, mb, "case {i}");
-            for k in 0..4 {
-                assert_eq!(ma & (1 << k) != 0, a[k] != f32::INFINITY, "case {i}: mask matches entries");
+            for (k, t) in a.iter().enumerate() {
+                assert_eq!(ma & (1 << k) != 0, *t != f32::INFINITY, "case {i}: mask matches entries");
             }
         }
     }
