@@ -308,11 +308,23 @@ pub fn render_frame_stats(
     tile_size: u32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> (Frame, RayCounts) {
+    render_frame_with(scene, camera, settings, tile_size, &TraceOptions::default(), progress)
+}
+
+/// [`render_frame_stats`] with explicit [`TraceOptions`].
+pub fn render_frame_with(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile_size: u32,
+    options: &TraceOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Frame, RayCounts) {
     let tiles = Tile::grid(settings.width, settings.height, tile_size);
     let rendered: Vec<(Tile, Vec<u8>, RayCounts)> = tiles
         .par_iter()
         .map(|&tile| {
-            let (rgb, counts) = render_tile_stats(scene, camera, settings, tile);
+            let (rgb, counts) = render_tile_with(scene, camera, settings, tile, options);
             progress(tile.pixel_count() as u64);
             (tile, rgb, counts)
         })
