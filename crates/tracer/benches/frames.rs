@@ -56,6 +56,9 @@ fn time_frames(
     (med, p95, counts)
 }
 
+/// (variant, scene, options, resolution, threads).
+type Case<'a> = (&'a str, &'a Scene, &'a TraceOptions, (u32, u32), usize);
+
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let scene_path = root.join("scenes/paper.toml");
@@ -78,7 +81,7 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let mut json = Vec::new();
-    let mut cases: Vec<(&str, &Scene, &TraceOptions, (u32, u32), usize)> = Vec::new();
+    let mut cases: Vec<Case> = Vec::new();
     for (w, h) in [(320, 240), (640, 480)] {
         for threads in [1, 2] {
             cases.push(("default", &scene, &adaptive, (w, h), threads));
