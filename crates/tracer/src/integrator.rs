@@ -41,11 +41,11 @@
 //! stays sharp across the view while blurring to its mean colour with depth.
 
 use crate::geometry::Ray;
-use crate::lights::{Light, LightSample};
+use crate::lights::{AreaSampler, LightSample};
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
-use crate::sampling::{Sampler, ceil_sqrt, stratified_square_grid};
+use crate::sampling::{Sampler, ceil_sqrt, stratified_square_keyed};
 use crate::scene::Scene;
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
@@ -312,8 +312,16 @@ impl<'a> Integrator<'a> {
 
     /// Point `j` of the pixel's stratified set of area-light samples.
     #[inline]
+    #[cfg(test)]
     fn light_sample(&self, j: u32, sampler: &Sampler) -> Vec2 {
-        stratified_square_grid(j % (self.light_grid * self.light_grid), self.light_grid, sampler)
+        self.light_sample_keyed(j, sampler.bits(0), sampler)
+    }
+
+    /// [`Integrator::light_sample`] with the set's permutation key
+    /// (`sampler.bits(0)`) hoisted out of the caller's loop.
+    #[inline]
+    fn light_sample_keyed(&self, j: u32, key: u32, sampler: &Sampler) -> Vec2 {
+        stratified_square_keyed(j % (self.light_grid * self.light_grid), self.light_grid, key, sampler)
     }
 
     /// Radiance (linear RGB) arriving along the camera ray `ray`, whose cone
@@ -499,18 +507,18 @@ impl<'a> Integrator<'a> {
             }
             // Area lights: skip them when the point is behind the emitter, and
             // give each its own stratified, jittered set of samples.
-            let Some(normal) = light.area_normal_towards(sp.p) else { continue };
+            let Some(prepared) = light.area_sampler(sp.p) else { continue };
             let light_sampler = depth_sampler.child(index as u32);
             let n = self.light_samples;
-            let area = AreaSamples { light, normal, sampler: light_sampler, first, n };
+            let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
             let sum = if self.adaptive_shadows && (ADAPTIVE_TESTS as u32) < n && n <= ADAPTIVE_MAX as u32 {
                 self.area_adaptive(sp, &lobe, &area, counts)
             } else {
                 let mut sum = Vec3::ZERO;
+                let key = light_sampler.bits(0);
                 for j in 0..n {
-                    let u = self.light_sample(first.wrapping_add(j), &light_sampler);
-                    let Some((c, ls)) = light.sample_area(sp.p, u, normal).and_then(|ls| lobe.eval(sp, &ls))
-                    else {
+                    let u = self.light_sample_keyed(first.wrapping_add(j), key, &light_sampler);
+                    let Some((c, ls)) = prepared.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
                         continue;
                     };
                     counts.shadow += 1;
@@ -546,8 +554,9 @@ impl<'a> Integrator<'a> {
         let scene = self.scene;
         let n = area.n as usize;
         let mut us = [Vec2::ZERO; ADAPTIVE_MAX];
+        let key = area.sampler.bits(0);
         for (j, u) in us[..n].iter_mut().enumerate() {
-            *u = self.light_sample(area.first.wrapping_add(j as u32), &area.sampler);
+            *u = self.light_sample_keyed(area.first.wrapping_add(j as u32), key, &area.sampler);
         }
         let tests = spread_tests(&us[..n]);
         let mut tested = [Vec3::ZERO; ADAPTIVE_TESTS];
@@ -556,9 +565,7 @@ impl<'a> Integrator<'a> {
             if tests[..k].contains(&j) {
                 continue;
             }
-            let Some((c, ls)) =
-                area.light.sample_area(sp.p, us[j], area.normal).and_then(|ls| lobe.eval(sp, &ls))
-            else {
+            let Some((c, ls)) = area.light.sample(sp.p, us[j]).and_then(|ls| lobe.eval(sp, &ls)) else {
                 untraced += 1;
                 continue;
             };
@@ -582,9 +589,7 @@ impl<'a> Integrator<'a> {
                 sum += tested[k];
                 continue;
             }
-            let Some((c, ls)) =
-                area.light.sample_area(sp.p, u, area.normal).and_then(|ls| lobe.eval(sp, &ls))
-            else {
+            let Some((c, ls)) = area.light.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
                 continue;
             };
             if uniform {
@@ -660,8 +665,7 @@ impl Lobe {
 
 /// One area light's samples at one shading point.
 struct AreaSamples<'l> {
-    light: &'l Light,
-    normal: Vec3,
+    light: AreaSampler<'l>,
     sampler: Sampler,
     first: u32,
     n: u32,
