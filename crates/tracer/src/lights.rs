@@ -326,9 +326,13 @@ mod tests {
         let p = Vec3::new(0.3, 0.0, 0.2);
         let s = Sampler::new(1, 2, 3, 4);
         for light in [quad(2.0, 3.0), tri, trapezoid] {
-            let n = light.area_normal_towards(p).or_else(|| light.area_normal_towards(-p * 50.0));
-            let Some(normal) = n else { panic!("{light:?} faces neither point") };
-            let from = if light.area_normal_towards(p).is_some() { p } else { -p * 50.0 };
+            // The point below, or for a lamp shining upwards one above it.
+            let Some((from, normal)) = [p, p + Vec3::new(0.0, 10.0, 0.0)]
+                .into_iter()
+                .find_map(|q| light.area_normal_towards(q).map(|n| (q, n)))
+            else {
+                panic!("{light:?} faces neither point")
+            };
             let prepared = light.area_sampler(from).expect("faces the point");
             assert_eq!(prepared.normal, normal);
             for i in 0..64 {
