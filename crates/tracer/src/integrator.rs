@@ -19,6 +19,12 @@
 //!   one shadow ray for a point light and `light_samples` stratified shadow
 //!   rays for an area light, whose length is shortened by a factor `1 − 10⁻³`
 //!   so that a lamp's own visible polygon does not shadow its samples.
+//!   Area-light samples are traced adaptively (with more than
+//!   [`ADAPTIVE_TESTS`] of them): the samples nearest the light's four corners
+//!   first, and the rest only when those disagree (a penumbra); where they
+//!   agree the remaining samples count as lit or shadowed like them
+//!   (`Integrator::area_adaptive`). [`Integrator::with_adaptive_shadows`]
+//!   switches this off for reference images.
 //! * Mirror: `tint ×` the radiance along `R = I − 2 (I·N) N`.
 //! * Dielectric: Snell refraction and Schlick-weighted reflection, total
 //!   internal reflection, `tint` applied to light transmitted into the medium.
@@ -606,7 +612,7 @@ impl<'a> Integrator<'a> {
 }
 
 /// Area lights with more samples per shading point than this are traced
-/// adaptively (see [`Integrator::area_adaptive`]): this many test samples first.
+/// adaptively (see the module docs): this many test samples first.
 pub const ADAPTIVE_TESTS: usize = 4;
 
 /// Area lights with more samples per shading point than this are always
