@@ -306,6 +306,11 @@ impl<T: Copy> Stack<T> {
 }
 
 /// Nearest hit (see [`Bvh::intersect`]).
+///
+/// At each node the hit leaves are tested at once (in lane order: the order
+/// only decides between hits at bit-identical `t`, and it is the same on every
+/// machine); of the hit interior children still in front of the best hit, the
+/// nearest is visited next and the others are pushed, farthest first.
 pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
     let wide = &bvh.wide[..];
     if wide.is_empty() {
@@ -316,32 +321,19 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
     let tris = &bvh.tris[..];
     let mut best_t = t_max;
     let mut best: Option<(usize, f32, f32)> = None;
-    let mut stack = Stack::new();
+    let mut stack = Stack::<(u32, f32)>::new();
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
         let (e, mut mask) = entries(node, &r, t_min, best_t, simd);
-        // The hit children, nearest first (stable on ties, so deterministic).
-        let mut order = [(0.0f32, 0usize); 4];
-        let mut n = 0;
+        let mut inner = 0u32;
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let t = e[k];
-            {
-                let mut j = n;
-                while j > 0 && order[j - 1].0 > t {
-                    order[j] = order[j - 1];
-                    j -= 1;
-                }
-                order[j] = (t, k);
-                n += 1;
-            }
-        }
-        // Leaves first, nearest first: they shrink the interval for the rest.
-        for &(t, k) in &order[..n] {
             let meta = node.meta[k];
-            if meta != 0 && t <= best_t * ROBUST_EXIT {
+            if meta == 0 {
+                inner |= 1 << k;
+            } else if e[k] <= best_t * ROBUST_EXIT {
                 let first = node.child[k] as usize;
                 for (i, tri) in tris[first..first + (meta & !LEAF) as usize].iter().enumerate() {
                     if let Some((t, u, v)) = test(tri, ray, t_min, best_t) {
@@ -351,24 +343,39 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
                 }
             }
         }
-        let mut next = None;
-        for &(t, k) in order[..n].iter().rev() {
-            if node.meta[k] == 0 && t <= best_t * ROBUST_EXIT {
-                if let Some((c, tc)) = next {
-                    stack.push((c, tc));
-                }
-                next = Some((node.child[k], t));
+        // Interior children still in front of the best hit, nearest first
+        // (stable on ties, so deterministic).
+        let limit = best_t * ROBUST_EXIT;
+        let mut order = [(0.0f32, 0u32); 4];
+        let mut n = 0;
+        while inner != 0 {
+            let k = inner.trailing_zeros() as usize;
+            inner &= inner - 1;
+            let t = e[k];
+            if t > limit {
+                continue;
             }
+            let mut j = n;
+            while j > 0 && order[j - 1].0 > t {
+                order[j] = order[j - 1];
+                j -= 1;
+            }
+            order[j] = (t, node.child[k]);
+            n += 1;
         }
-        current = match next {
-            Some((c, _)) => c,
-            None => loop {
-                match stack.pop() {
-                    None => return best.map(|(k, u, v)| Hit { t: best_t, u, v, prim: bvh.prim_ids[k] }),
-                    Some((c, t)) if t <= best_t * ROBUST_EXIT => break c,
-                    Some(_) => {}
-                }
-            },
+        if n > 0 {
+            for &(t, c) in order[1..n].iter().rev() {
+                stack.push((c, t));
+            }
+            current = order[0].1;
+            continue;
+        }
+        current = loop {
+            match stack.pop() {
+                None => return best.map(|(k, u, v)| Hit { t: best_t, u, v, prim: bvh.prim_ids[k] }),
+                Some((c, t)) if t <= best_t * ROBUST_EXIT => break c,
+                Some(_) => {}
+            }
         };
     }
 }
