@@ -311,7 +311,7 @@ async fn bench_size(
             .map(|g| g.child.id().to_string())
             .chain(["self".to_string()])
             .collect();
-        let transport = cluster::transport(&ticket.transport)?;
+        let transport = cluster::client_transport(&ticket)?;
         let (v, info, events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
         benches.push(Bench {
             slaves: n,
@@ -402,7 +402,7 @@ async fn bench_size(
 fn kill_latency(scene: &str, threads: usize, w: u32, h: u32) -> anyhow::Result<KillResult> {
     let per = (threads / 2).max(1);
     let (master, mut slaves, ticket) = start_cluster(scene, 2, per)?;
-    let transport = cluster::transport(&ticket.transport)?;
+    let transport = cluster::client_transport(&ticket)?;
     let viewer_thread = std::thread::spawn(move || {
         actix::System::new().block_on(async move {
             let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;

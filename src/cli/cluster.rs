@@ -11,16 +11,77 @@ use isin_actors::slave::{self, SlaveOptions, Tracer};
 use isin_actors::transport::Transport;
 use isin_actors::viewer;
 use isin_tracer::{Camera, RenderSettings};
+use isin_transport_quic::QuicTransport;
+use isin_transport_quic::tls::Identity;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// The transport called `name` on the command line.
-pub fn transport(name: &str) -> anyhow::Result<Arc<dyn Transport>> {
+/// The transport a master listens with (`name` from the command line), and the
+/// certificate fingerprint its ticket must carry (QUIC). A QUIC master keeps its
+/// TLS identity in `identity_dir` when given (created on first use), so tickets
+/// stay valid across restarts; otherwise it generates a fresh one.
+pub fn server_transport(
+    name: &str,
+    identity_dir: Option<&Path>,
+) -> anyhow::Result<(Arc<dyn Transport>, Option<String>)> {
     match name {
-        "tcp" => Ok(Arc::new(isin_transport_tcp::TcpTransport::new())),
-        other => anyhow::bail!("unknown transport `{other}` (available: tcp)"),
+        "tcp" => Ok((Arc::new(isin_transport_tcp::TcpTransport::new()), None)),
+        "quic" => {
+            let identity = match identity_dir {
+                Some(dir) => load_or_create_identity(dir)?,
+                None => Identity::generate()?,
+            };
+            let fingerprint = identity.fingerprint().to_string();
+            Ok((Arc::new(QuicTransport::server(&identity)?), Some(fingerprint)))
+        }
+        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic)"),
     }
+}
+
+/// The transport a slave or viewer reaches the master of `ticket` with.
+pub fn client_transport(ticket: &Ticket) -> anyhow::Result<Arc<dyn Transport>> {
+    match ticket.transport.as_str() {
+        "tcp" => Ok(Arc::new(isin_transport_tcp::TcpTransport::new())),
+        "quic" => {
+            let fp = ticket.fingerprint.as_deref().context(
+                "a QUIC ticket must carry the master's certificate fingerprint (`?fp=…`): \
+                 pass the whole ticket the master printed",
+            )?;
+            Ok(Arc::new(QuicTransport::client(fp.parse()?)?))
+        }
+        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic)"),
+    }
+}
+
+/// Reads `cert.der` and `key.der` from `dir`, or generates them there.
+fn load_or_create_identity(dir: &Path) -> anyhow::Result<Identity> {
+    let (cert, key) = (dir.join("cert.der"), dir.join("key.der"));
+    if cert.exists() && key.exists() {
+        let c = std::fs::read(&cert).with_context(|| format!("cannot read {}", cert.display()))?;
+        let k = std::fs::read(&key).with_context(|| format!("cannot read {}", key.display()))?;
+        return Ok(Identity::from_der(c.into(), k.into()));
+    }
+    let identity = Identity::generate()?;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    std::fs::write(&cert, identity.cert_der().as_ref())
+        .with_context(|| format!("cannot write {}", cert.display()))?;
+    write_private(&key, identity.key_der().secret_pkcs8_der())?;
+    Ok(identity)
+}
+
+/// Writes a secret file readable by its owner only.
+fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .mode(0o600)
+        .open(path)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    f.write_all(bytes).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// A ticket from `--connect` (a full `isin://…` ticket, or `HOST:PORT` with `--token`).
@@ -33,7 +94,16 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Re
         Ok(t)
     } else {
         let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
-        Ok(Ticket { transport: transport.to_string(), token: token.to_string(), addr: connect.to_string() })
+        anyhow::ensure!(
+            transport != "quic",
+            "QUIC needs the whole ticket the master printed (it carries the certificate fingerprint)"
+        );
+        Ok(Ticket {
+            transport: transport.to_string(),
+            token: token.to_string(),
+            addr: connect.to_string(),
+            fingerprint: None,
+        })
     }
 }
 
@@ -45,7 +115,7 @@ pub fn render_frame(
     height: Option<u32>,
     spp: Option<u32>,
 ) -> anyhow::Result<(isin_tracer::Frame, isin_actors::protocol::FrameStats, String, u64)> {
-    let transport = transport(&ticket.transport)?;
+    let transport = client_transport(ticket)?;
     actix::System::new().block_on(async move {
         let (v, scene, mut events) = viewer::connect(transport.as_ref(), ticket, "render").await?;
         let mut settings = scene.settings;
@@ -71,9 +141,14 @@ fn default_scene() -> std::path::PathBuf {
 async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Addr<Master>, Ticket)> {
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let threads = (cores / slaves).max(1);
-    let tcp = transport("tcp")?;
+    let (tcp, _) = server_transport("tcp", None)?;
     let listener = tcp.listen("127.0.0.1:0").await?;
-    let ticket = Ticket { transport: "tcp".into(), token: cfg.token.clone(), addr: listener.local_addr() };
+    let ticket = Ticket {
+        transport: "tcp".into(),
+        token: cfg.token.clone(),
+        addr: listener.local_addr(),
+        fingerprint: None,
+    };
     println!("embedded cluster: master on {} with {slaves} local slaves × {threads} threads", ticket.addr);
     println!("join more slaves with: isin slave --connect {ticket}");
     let master = Master::new(cfg)?.serve(listener);
@@ -143,7 +218,7 @@ fn run_default_headless() -> anyhow::Result<()> {
     drop(scene);
     actix::System::new().block_on(async move {
         let (master, ticket) = start_embedded(cfg, DEFAULT_SLAVES).await?;
-        let tcp = transport("tcp")?;
+        let tcp = client_transport(&ticket)?;
         let (v, _, mut events) = viewer::connect(tcp.as_ref(), &ticket, "embedded-viewer").await?;
         // A few camera moves, as a user at the viewer would make.
         let mut cam = camera;

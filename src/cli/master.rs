@@ -17,9 +17,13 @@ pub struct MasterArgs {
     /// Address to listen on (port 0 picks a free port; the ticket shows the real one).
     #[arg(long, default_value = "0.0.0.0:7878")]
     pub listen: String,
-    /// Transport.
+    /// Transport: `tcp` or `quic` (TLS 1.3; the ticket carries the certificate fingerprint).
     #[arg(long, default_value = "tcp")]
     pub transport: String,
+    /// QUIC: directory holding the master's TLS certificate and key (`cert.der`,
+    /// `key.der`; created on first use), so tickets survive restarts.
+    #[arg(long)]
+    pub identity: Option<PathBuf>,
     /// Shared secret slaves and viewers must prove (generated if absent).
     #[arg(long)]
     pub token: Option<String>,
@@ -47,11 +51,12 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.scheduler.tile_size = args.tile.max(1);
     cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
     cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
-    let transport = cluster::transport(&args.transport)?;
+    let (transport, fingerprint) = cluster::server_transport(&args.transport, args.identity.as_deref())?;
     actix::System::new().block_on(async move {
         let listener = transport.listen(&args.listen).await?;
         let addr = listener.local_addr();
-        let ticket = Ticket { transport: transport.name().to_string(), token, addr: addr.clone() };
+        let ticket =
+            Ticket { transport: transport.name().to_string(), token, addr: addr.clone(), fingerprint };
         let mut out = std::io::stdout().lock();
         writeln!(out, "listening {addr}")?;
         writeln!(out, "ticket {ticket}")?;

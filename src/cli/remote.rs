@@ -53,7 +53,7 @@ impl Remote {
             .name("isin-viewer-link".into())
             .spawn(move || {
                 actix::System::new().block_on(async move {
-                    let transport = match cluster::transport(&ticket.transport) {
+                    let transport = match cluster::client_transport(&ticket) {
                         Ok(t) => t,
                         Err(e) => {
                             let _ = ready_tx.send(Err(e));

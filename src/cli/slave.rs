@@ -8,7 +8,8 @@ use std::sync::Arc;
 /// Arguments of `isin slave`.
 #[derive(Args, Debug)]
 pub struct SlaveArgs {
-    /// The master's join ticket (`isin://TOKEN@HOST:PORT`), or `HOST:PORT` with `--token`.
+    /// The master's join ticket (`isin://TOKEN@HOST:PORT`, or `isin+quic://…?fp=…`), or
+    /// `HOST:PORT` with `--token` (TCP only).
     #[arg(long)]
     pub connect: String,
     /// The shared secret, when `--connect` is a bare address.
@@ -28,7 +29,7 @@ pub struct SlaveArgs {
 /// Runs `isin slave` until refused or killed.
 pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
     let ticket = cluster::ticket(&args.connect, args.token.as_deref(), &args.transport)?;
-    let transport = cluster::transport(&ticket.transport)?;
+    let transport = cluster::client_transport(&ticket)?;
     let mut opts = SlaveOptions::default();
     if let Some(n) = args.threads {
         anyhow::ensure!(n > 0, "--threads must be at least 1");

@@ -13,11 +13,13 @@ use std::time::{Duration, Instant};
 /// How long any single wait may take before the test fails.
 pub const TIMEOUT: Duration = Duration::from_secs(60);
 
-/// The transports a cluster test runs over (QUIC joins in a later issue).
+/// The transports a cluster test runs over.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Transport {
     /// `--transport tcp`.
     Tcp,
+    /// `--transport quic`.
+    Quic,
 }
 
 impl Transport {
@@ -25,13 +27,23 @@ impl Transport {
     pub fn name(self) -> &'static str {
         match self {
             Transport::Tcp => "tcp",
+            Transport::Quic => "quic",
         }
     }
 
-    /// A join ticket for this transport.
-    pub fn ticket(self, token: &str, addr: &str) -> String {
+    /// For a master that must start after its slaves: the extra master
+    /// arguments that fix its identity in `dir`, and the join ticket for
+    /// `token` at `addr` that the master will print.
+    pub fn prepared_ticket(self, dir: &Path, token: &str, addr: &str) -> (Vec<String>, String) {
         match self {
-            Transport::Tcp => format!("isin://{token}@{addr}"),
+            Transport::Tcp => (Vec::new(), format!("isin://{token}@{addr}")),
+            Transport::Quic => {
+                let id = isin_transport_quic::tls::Identity::generate().expect("identity");
+                std::fs::write(dir.join("cert.der"), id.cert_der().as_ref()).expect("cert");
+                std::fs::write(dir.join("key.der"), id.key_der().secret_pkcs8_der()).expect("key");
+                let args = vec!["--identity".to_string(), dir.display().to_string()];
+                (args, format!("isin+quic://{token}@{addr}?fp={}", id.fingerprint()))
+            }
         }
     }
 
@@ -42,28 +54,46 @@ impl Transport {
             Transport::Tcp => {
                 std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
             }
+            Transport::Quic => std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port(),
         };
         format!("127.0.0.1:{port}")
     }
 }
 
 /// A peer that writes raw bytes at the master, below the protocol: the
-/// transport's own framing is up to the test.
+/// transport's own framing is up to the test (TCP), or whole transport frames
+/// whose content is up to the test (QUIC, whose framing sits under TLS).
 pub enum RawPeer {
     /// A plain TCP connection.
     Tcp(std::net::TcpStream),
+    /// A QUIC connection that passed TLS (it knows the ticket's fingerprint)
+    /// but not the token handshake.
+    Quic(tokio::runtime::Runtime, isin_actors::transport::Connection),
 }
 
 impl RawPeer {
-    /// Connects to the master at `addr`.
-    pub fn connect(t: Transport, addr: &str) -> RawPeer {
-        match t {
-            Transport::Tcp => RawPeer::Tcp(std::net::TcpStream::connect(addr).expect("connect")),
+    /// Connects to the master of `c`.
+    pub fn connect(c: &Cluster) -> RawPeer {
+        match c.transport {
+            Transport::Tcp => RawPeer::Tcp(std::net::TcpStream::connect(&c.addr).expect("connect")),
+            Transport::Quic => {
+                use isin_actors::transport::Transport as _;
+                let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
+                let fp = ticket.fingerprint.expect("QUIC ticket carries a fingerprint");
+                let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
+                let conn = rt.block_on(async {
+                    let t = isin_transport_quic::QuicTransport::client(fp.parse().expect("fingerprint"))
+                        .expect("client");
+                    t.connect(&c.addr).await.expect("connect")
+                });
+                RawPeer::Quic(rt, conn)
+            }
         }
     }
 
-    /// Sends `bytes` and asserts that the master then closes the connection
-    /// having sent at most its (small) challenge.
+    /// Sends `bytes` (TCP: raw on the stream; QUIC: as one frame) and asserts
+    /// that the master then closes the connection having sent at most its
+    /// (small) challenge.
     pub fn send_then_expect_close(self, bytes: &[u8]) {
         use std::io::{Read, Write};
         match self {
@@ -79,6 +109,39 @@ impl RawPeer {
                 }
                 assert!(buf.len() < 1024, "master sent {} bytes to an unauthenticated peer", buf.len());
             }
+            RawPeer::Quic(rt, mut conn) => rt.block_on(async move {
+                let _ = conn.sender.send(bytes.to_vec());
+                let mut received = 0;
+                loop {
+                    match tokio::time::timeout(TIMEOUT, conn.receiver.recv()).await {
+                        Ok(Some(Ok(frame))) => received += frame.len(),
+                        Ok(Some(Err(_)) | None) => break,
+                        Err(_) => panic!("the master did not close the connection"),
+                    }
+                }
+                assert!(received < 1024, "master sent {received} bytes to an unauthenticated peer");
+            }),
+        }
+    }
+
+    /// Announces a frame far longer than the master accepts before a peer has
+    /// authenticated (TCP: a 4 GiB − 1 length prefix; QUIC: a 1 MiB frame) and
+    /// asserts the master closes the connection.
+    pub fn send_oversized_then_expect_close(self) {
+        match self {
+            RawPeer::Tcp(_) => self.send_then_expect_close(&u32::MAX.to_be_bytes()),
+            RawPeer::Quic(..) => self.send_then_expect_close(&vec![0x5a; 1 << 20]),
+        }
+    }
+
+    /// Sends `payload` as one well-framed frame and expects the close.
+    pub fn send_frame_then_expect_close(self, payload: &[u8]) {
+        match self {
+            RawPeer::Tcp(_) => {
+                let framed = [&(payload.len() as u32).to_be_bytes()[..], payload].concat();
+                self.send_then_expect_close(&framed)
+            }
+            RawPeer::Quic(..) => self.send_then_expect_close(payload),
         }
     }
 }
@@ -323,6 +386,13 @@ impl Cluster {
         let args: Vec<String> = args.into_iter().map(String::from).collect();
         let refs: Vec<&str> = args.iter().map(String::as_str).collect();
         (Proc::spawn("render --cluster", &refs, "info"), out)
+    }
+
+    /// The master's ticket with its token replaced by `token`.
+    pub fn ticket_with_token(&self, token: &str) -> String {
+        let mut t: isin_actors::auth::Ticket = self.ticket.parse().expect("ticket");
+        t.token = token.to_string();
+        t.to_string()
     }
 
     /// One frame through the cluster: its pixels and what `isin render` printed.

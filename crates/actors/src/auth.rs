@@ -9,7 +9,9 @@
 //! chosen by the other side.
 //!
 //! A join ticket packs the transport, token and address in one string:
-//! `isin://TOKEN@HOST:PORT` for TCP, `isin+quic://TOKEN@HOST:PORT` for QUIC.
+//! `isin://TOKEN@HOST:PORT` for TCP, `isin+quic://TOKEN@HOST:PORT` for QUIC,
+//! followed by `?fp=HEX` — the SHA-256 of the master's TLS certificate, which
+//! peers pin — when the transport is encrypted.
 
 use crate::protocol::{PROTOCOL_VERSION, Role};
 use hmac::{Hmac, Mac};
@@ -22,7 +24,7 @@ type HmacSha256 = Hmac<Sha256>;
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum AuthError {
     /// The ticket does not have the `isin://TOKEN@ADDR` shape.
-    #[error("malformed join ticket `{0}`: expected isin://TOKEN@HOST:PORT")]
+    #[error("malformed join ticket `{0}`: expected isin://TOKEN@HOST:PORT[?fp=SHA256-HEX]")]
     BadTicket(String),
     /// The operating system's random source failed.
     #[error("no randomness available: {0}")]
@@ -79,22 +81,33 @@ pub struct Ticket {
     pub token: String,
     /// The master's address, `HOST:PORT`.
     pub addr: String,
+    /// SHA-256 of the master's TLS certificate, 64 lower-case hex digits:
+    /// peers accept that certificate and no other. `None` for plaintext.
+    pub fingerprint: Option<String>,
 }
 
 impl fmt::Debug for Ticket {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // Never log the token.
-        write!(f, "Ticket({} {} token=…)", self.transport, self.addr)
+        write!(f, "Ticket({} {} token=…", self.transport, self.addr)?;
+        if let Some(fp) = &self.fingerprint {
+            write!(f, " fp={}…", fp.get(..16).unwrap_or(fp))?;
+        }
+        write!(f, ")")
     }
 }
 
 impl fmt::Display for Ticket {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         if self.transport == "tcp" {
-            write!(f, "isin://{}@{}", self.token, self.addr)
+            write!(f, "isin://{}@{}", self.token, self.addr)?;
         } else {
-            write!(f, "isin+{}://{}@{}", self.transport, self.token, self.addr)
+            write!(f, "isin+{}://{}@{}", self.transport, self.token, self.addr)?;
         }
+        if let Some(fp) = &self.fingerprint {
+            write!(f, "?fp={fp}")?;
+        }
+        Ok(())
     }
 }
 
@@ -108,11 +121,22 @@ impl std::str::FromStr for Ticket {
             "isin" => "tcp".to_string(),
             other => other.strip_prefix("isin+").filter(|t| !t.is_empty()).ok_or_else(bad)?.to_string(),
         };
+        let (rest, query) = rest.split_once('?').unwrap_or((rest, ""));
         let (token, addr) = rest.rsplit_once('@').ok_or_else(bad)?;
         if token.is_empty() || addr.is_empty() || !addr.contains(':') {
             return Err(bad());
         }
-        Ok(Ticket { transport, token: token.to_string(), addr: addr.to_string() })
+        let mut fingerprint = None;
+        // Unknown parameters are left to newer builds; a fingerprint must be well-formed.
+        for (key, value) in query.split('&').filter(|p| !p.is_empty()).filter_map(|p| p.split_once('=')) {
+            if key == "fp" {
+                if value.len() != 64 || !value.bytes().all(|b| b.is_ascii_hexdigit()) {
+                    return Err(bad());
+                }
+                fingerprint = Some(value.to_ascii_lowercase());
+            }
+        }
+        Ok(Ticket { transport, token: token.to_string(), addr: addr.to_string(), fingerprint })
     }
 }
 
@@ -152,6 +176,25 @@ mod tests {
             ("tcp", "abc", "127.0.0.1:7878")
         );
         assert!(!format!("{t:?}").contains("abc"));
+        assert_eq!(t.fingerprint, None);
+    }
+
+    #[test]
+    fn tickets_carry_the_certificate_fingerprint() {
+        let fp = "0123456789abcdef".repeat(4);
+        let text = format!("isin+quic://tok@10.0.0.1:7878?fp={fp}");
+        let t: Ticket = text.parse().unwrap();
+        assert_eq!((t.addr.as_str(), t.fingerprint.as_deref()), ("10.0.0.1:7878", Some(fp.as_str())));
+        assert_eq!(t.to_string(), text);
+        let upper: Ticket = format!("isin://tok@h:1?fp={}", fp.to_uppercase()).parse().unwrap();
+        assert_eq!(upper.fingerprint.as_deref(), Some(fp.as_str()));
+        assert!(!format!("{t:?}").contains("tok@"));
+        for bad in [
+            format!("isin+quic://tok@h:1?fp={}", &fp[..63]),
+            format!("isin+quic://tok@h:1?fp={}g", &fp[..63]),
+        ] {
+            assert!(bad.parse::<Ticket>().is_err(), "{bad}");
+        }
     }
 
     #[test]

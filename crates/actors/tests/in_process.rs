@@ -63,7 +63,7 @@ async fn start_master(t: &MemTransport, token: &str) -> (actix::Addr<Master>, Ti
     let cfg = MasterConfig::new(token.into(), bundle(), Camera::default(), settings(64, 48));
     let listener = t.listen("master").await.unwrap();
     let addr = Master::new(cfg).unwrap().serve(listener);
-    (addr, Ticket { transport: "mem".into(), token: token.into(), addr: "master".into() })
+    (addr, Ticket { transport: "mem".into(), token: token.into(), addr: "master".into(), fingerprint: None })
 }
 
 fn spawn_slave(t: &MemTransport, ticket: &Ticket, name: &str, fake: Arc<Fake>) {

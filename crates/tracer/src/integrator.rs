@@ -19,6 +19,12 @@
 //!   one shadow ray for a point light and `light_samples` stratified shadow
 //!   rays for an area light, whose length is shortened by a factor `1 − 10⁻³`
 //!   so that a lamp's own visible polygon does not shadow its samples.
+//!   Area-light samples are traced adaptively (with more than
+//!   [`ADAPTIVE_TESTS`] of them): the samples nearest the light's four corners
+//!   first, and the rest only when those disagree (a penumbra); where they
+//!   agree the remaining samples count as lit or shadowed like them
+//!   (`Integrator::area_adaptive`). [`Integrator::with_adaptive_shadows`]
+//!   switches this off for reference images.
 //! * Mirror: `tint ×` the radiance along `R = I − 2 (I·N) N`.
 //! * Dielectric: Snell refraction and Schlick-weighted reflection, total
 //!   internal reflection, `tint` applied to light transmitted into the medium.
@@ -41,10 +47,11 @@
 //! stays sharp across the view while blurring to its mean colour with depth.
 
 use crate::geometry::Ray;
+use crate::lights::{AreaSampler, LightSample};
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
-use crate::sampling::{Sampler, ceil_sqrt, stratified_square_grid};
+use crate::sampling::{Sampler, ceil_sqrt, stratified_square_keyed};
 use crate::scene::Scene;
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
@@ -281,6 +288,8 @@ pub struct Integrator<'a> {
     light_samples: u32,
     /// Side of the stratum grid of one pixel's area-light samples.
     light_grid: u32,
+    /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
+    adaptive_shadows: bool,
 }
 
 impl<'a> Integrator<'a> {
@@ -290,7 +299,14 @@ impl<'a> Integrator<'a> {
         let light_samples = settings.light_samples.max(1);
         let per_pixel = light_samples.saturating_mul(settings.spp.max(1)).min(1 << 24);
         let max_depth = settings.max_depth.min(MAX_DEPTH_LIMIT);
-        Self { scene, max_depth, light_samples, light_grid: ceil_sqrt(per_pixel) }
+        Self { scene, max_depth, light_samples, light_grid: ceil_sqrt(per_pixel), adaptive_shadows: true }
+    }
+
+    /// Switches adaptive area-light sampling on (the default) or off (every
+    /// sample traced; for reference images and tests).
+    pub fn with_adaptive_shadows(mut self, on: bool) -> Self {
+        self.adaptive_shadows = on;
+        self
     }
 
     /// Curvature estimate of triangle `prim` (see [`triangle_curvature`]).
@@ -302,8 +318,16 @@ impl<'a> Integrator<'a> {
 
     /// Point `j` of the pixel's stratified set of area-light samples.
     #[inline]
+    #[cfg(test)]
     fn light_sample(&self, j: u32, sampler: &Sampler) -> Vec2 {
-        stratified_square_grid(j % (self.light_grid * self.light_grid), self.light_grid, sampler)
+        self.light_sample_keyed(j, sampler.bits(0), sampler)
+    }
+
+    /// [`Integrator::light_sample`] with the set's permutation key
+    /// (`sampler.bits(0)`) hoisted out of the caller's loop.
+    #[inline]
+    fn light_sample_keyed(&self, j: u32, key: u32, sampler: &Sampler) -> Vec2 {
+        stratified_square_keyed(j % (self.light_grid * self.light_grid), self.light_grid, key, sampler)
     }
 
     /// Radiance (linear RGB) arriving along the camera ray `ray`, whose cone
@@ -465,54 +489,192 @@ impl<'a> Integrator<'a> {
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
-        let diffuse = albedo * (1.0 / PI);
         let shininess = if shininess.is_finite() { shininess.max(0.0) } else { 0.0 };
-        let has_spec = specular.max_element() > 0.0;
-        let spec = specular * ((shininess + 2.0) / (2.0 * PI));
-        let mirrored_view = reflect(view_dir, sp.ns);
-        let origin = sp.above();
+        let lobe = Lobe {
+            diffuse: albedo * (1.0 / PI),
+            spec: specular * ((shininess + 2.0) / (2.0 * PI)),
+            has_spec: specular.max_element() > 0.0,
+            shininess,
+            mirrored_view: reflect(view_dir, sp.ns),
+            origin: sp.above(),
+        };
         let depth_sampler = sample.pixel.child(depth);
         let first = sample.index.wrapping_mul(self.light_samples);
         let mut total = Vec3::ZERO;
         for (index, light) in scene.lights.iter().enumerate() {
-            let area = light.is_area();
-            // Area lights: skip them when the point is behind the emitter, and
-            // give each its own stratified, jittered set of samples.
-            let (n, light_sampler, normal) = if area {
-                let Some(normal) = light.area_normal_towards(sp.p) else { continue };
-                (self.light_samples, depth_sampler.child(index as u32), normal)
-            } else {
-                (1, depth_sampler, Vec3::ZERO)
-            };
-            let mut sum = Vec3::ZERO;
-            for j in 0..n {
-                let ls = if area {
-                    light.sample_area(sp.p, self.light_sample(first.wrapping_add(j), &light_sampler), normal)
-                } else {
-                    light.sample(sp.p, Vec2::splat(0.5))
-                };
-                let Some(ls) = ls else { continue };
-                let cos = sp.ns.dot(ls.dir);
-                if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
-                    continue;
-                }
-                let mut f = diffuse;
-                if has_spec {
-                    let rv = mirrored_view.dot(ls.dir);
-                    if rv > 0.0 {
-                        f += spec * phong_lobe(rv, shininess);
+            if !light.is_area() {
+                if let Some(c) = light.sample(sp.p, Vec2::splat(0.5)).and_then(|ls| lobe.eval(sp, &ls)) {
+                    counts.shadow += 1;
+                    if !scene.occluded(&Ray::new(lobe.origin, c.1.dir), 0.0, c.1.dist * SHADOW_SHORTEN) {
+                        total += c.0;
                     }
                 }
-                counts.shadow += 1;
-                if scene.occluded(&Ray::new(origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
-                    continue;
-                }
-                sum += f * ls.irradiance * cos;
+                continue;
             }
+            // Area lights: skip them when the point is behind the emitter, and
+            // give each its own stratified, jittered set of samples.
+            let Some(prepared) = light.area_sampler(sp.p) else { continue };
+            let light_sampler = depth_sampler.child(index as u32);
+            let n = self.light_samples;
+            let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
+            let sum = if self.adaptive_shadows && (ADAPTIVE_TESTS as u32) < n && n <= ADAPTIVE_MAX as u32 {
+                self.area_adaptive(sp, &lobe, &area, counts)
+            } else {
+                let mut sum = Vec3::ZERO;
+                let key = light_sampler.bits(0);
+                for j in 0..n {
+                    let u = self.light_sample_keyed(first.wrapping_add(j), key, &light_sampler);
+                    let Some((c, ls)) = prepared.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
+                        continue;
+                    };
+                    counts.shadow += 1;
+                    if !scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+                        sum += c;
+                    }
+                }
+                sum
+            };
             total += sum / n as f32;
         }
         total
     }
+
+    /// The sum of an area light's sample contributions, traced adaptively:
+    /// first the [`ADAPTIVE_TESTS`] samples nearest the corners of the light's
+    /// sample square ([`spread_tests`]); when all of them reach the light, or
+    /// all are blocked, the point is taken to be fully lit (every remaining
+    /// sample counts, without a shadow ray) or fully shadowed (none counts);
+    /// otherwise — a penumbra — every remaining sample is traced too.
+    ///
+    /// The result is bit-for-bit the exhaustive sum wherever the tests
+    /// disagree or the point really is fully lit or fully shadowed (the same
+    /// samples, summed in the same order); only where an occluder hides part
+    /// of the light yet none of its corners can the two differ.
+    fn area_adaptive(
+        &self,
+        sp: &SurfacePoint,
+        lobe: &Lobe,
+        area: &AreaSamples,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
+        let scene = self.scene;
+        let n = area.n as usize;
+        let mut us = [Vec2::ZERO; ADAPTIVE_MAX];
+        let key = area.sampler.bits(0);
+        for (j, u) in us[..n].iter_mut().enumerate() {
+            *u = self.light_sample_keyed(area.first.wrapping_add(j as u32), key, &area.sampler);
+        }
+        let tests = spread_tests(&us[..n]);
+        let mut tested = [Vec3::ZERO; ADAPTIVE_TESTS];
+        let (mut visible, mut blocked, mut untraced) = (0, 0, 0);
+        for (k, &j) in tests.iter().enumerate() {
+            if tests[..k].contains(&j) {
+                continue;
+            }
+            let Some((c, ls)) = area.light.sample(sp.p, us[j]).and_then(|ls| lobe.eval(sp, &ls)) else {
+                untraced += 1;
+                continue;
+            };
+            counts.shadow += 1;
+            if scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+                blocked += 1;
+            } else {
+                visible += 1;
+                tested[k] = c;
+            }
+        }
+        let uniform = untraced == 0 && visible + blocked >= 2 && (visible == 0 || blocked == 0);
+        if uniform && visible == 0 {
+            return Vec3::ZERO;
+        }
+        let mut sum = Vec3::ZERO;
+        for (j, &u) in us[..n].iter().enumerate() {
+            if let Some(k) = tests.iter().position(|&t| t == j) {
+                // Adding +0 for a blocked test sample leaves the (non-negative-
+                // zero) sum's bits unchanged, as skipping it would.
+                sum += tested[k];
+                continue;
+            }
+            let Some((c, ls)) = area.light.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
+                continue;
+            };
+            if uniform {
+                sum += c;
+            } else {
+                counts.shadow += 1;
+                if !scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+                    sum += c;
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// Area lights with more samples per shading point than this are traced
+/// adaptively (see the module docs): this many test samples first.
+pub const ADAPTIVE_TESTS: usize = 4;
+
+/// Area lights with more samples per shading point than this are always
+/// traced exhaustively (the adaptive path keeps its samples on the stack).
+pub const ADAPTIVE_MAX: usize = 64;
+
+/// The indices of the samples nearest the four corners of the unit square
+/// (smallest and largest `x + y` and `x − y`; the first on ties), which the
+/// light maps to its extremities. Indices may repeat for very few samples.
+pub fn spread_tests(us: &[Vec2]) -> [usize; ADAPTIVE_TESTS] {
+    let mut best = [0usize; 4];
+    let key = |u: Vec2| [u.x + u.y, -(u.x + u.y), u.x - u.y, u.y - u.x];
+    let mut lo = key(us[0]);
+    for (j, &u) in us.iter().enumerate().skip(1) {
+        let k = key(u);
+        for c in 0..4 {
+            if k[c] < lo[c] {
+                lo[c] = k[c];
+                best[c] = j;
+            }
+        }
+    }
+    best
+}
+
+/// The Phong lobe at one shading point, ready for light samples.
+struct Lobe {
+    diffuse: Vec3,
+    spec: Vec3,
+    has_spec: bool,
+    shininess: f32,
+    mirrored_view: Vec3,
+    /// Origin of the shadow rays.
+    origin: Vec3,
+}
+
+impl Lobe {
+    /// The contribution of light sample `ls` if it is not shadowed, or `None`
+    /// when it lies below the shading or geometric horizon.
+    #[inline(always)]
+    fn eval(&self, sp: &SurfacePoint, ls: &LightSample) -> Option<(Vec3, LightSample)> {
+        let cos = sp.ns.dot(ls.dir);
+        if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
+            return None;
+        }
+        let mut f = self.diffuse;
+        if self.has_spec {
+            let rv = self.mirrored_view.dot(ls.dir);
+            if rv > 0.0 {
+                f += self.spec * phong_lobe(rv, self.shininess);
+            }
+        }
+        Some((f * ls.irradiance * cos, *ls))
+    }
+}
+
+/// One area light's samples at one shading point.
+struct AreaSamples<'l> {
+    light: AreaSampler<'l>,
+    sampler: Sampler,
+    first: u32,
+    n: u32,
 }
 
 /// Curvature of a smooth-shaded triangle estimated from its vertex normals:

@@ -161,6 +161,77 @@ impl Light {
     }
 }
 
+/// An area light prepared for many samples from one shading point: its
+/// emitting normal, and for triangles and parallelograms (the common shapes)
+/// the corner and edge vectors with the constant area density, so that each
+/// sample costs a few multiply-adds instead of [`Light::point_on`]'s bilinear
+/// map and Jacobian. Other quads use `point_on`.
+#[derive(Clone, Copy, Debug)]
+pub struct AreaSampler<'l> {
+    light: &'l Light,
+    /// Unit emitting normal.
+    pub normal: Vec3,
+    radiance: Vec3,
+    shape: Shape,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Shape {
+    /// `v0 + e1·b1 + e2·b2` over the square-to-triangle map; density = area.
+    Triangle { v0: Vec3, e1: Vec3, e2: Vec3, density: f32 },
+    /// `v0 + es·s + et·t`; density = `|es × et|`.
+    Parallelogram { v0: Vec3, es: Vec3, et: Vec3, density: f32 },
+    /// Anything else: [`Light::point_on`].
+    General,
+}
+
+impl Light {
+    /// The light prepared for sampling from `p`, when it is an area light and
+    /// `p` lies strictly on its emitting side (see [`Light::area_normal_towards`]).
+    #[inline]
+    pub fn area_sampler(&self, p: Vec3) -> Option<AreaSampler<'_>> {
+        let normal = self.area_normal_towards(p)?;
+        let Light::Area { vertices: v, radiance } = self else { return None };
+        let shape = match v.len() {
+            3 => Shape::Triangle { v0: v[0], e1: v[1] - v[0], e2: v[2] - v[0], density: self.area() },
+            4 if v[1] - v[0] == v[2] - v[3] => {
+                let (es, et) = (v[1] - v[0], v[3] - v[0]);
+                Shape::Parallelogram { v0: v[0], es, et, density: es.cross(et).length() }
+            }
+            _ => Shape::General,
+        };
+        Some(AreaSampler { light: self, normal, radiance: *radiance, shape })
+    }
+}
+
+impl AreaSampler<'_> {
+    /// [`Light::sample_area`] from `p` for the unit-square sample `u` (the
+    /// same point of the light up to rounding).
+    #[inline]
+    pub fn sample(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
+        let (q, density) = match self.shape {
+            Shape::Triangle { v0, e1, e2, density } => {
+                let (b1, b2) = square_to_triangle(u);
+                (v0 + e1 * b1 + e2 * b2, density)
+            }
+            Shape::Parallelogram { v0, es, et, density } => (v0 + es * u.x + et * u.y, density),
+            Shape::General => self.light.point_on(u)?,
+        };
+        let d = q - p;
+        let d2 = d.length_squared();
+        if d2.is_nan() || d2 <= 0.0 {
+            return None;
+        }
+        let dist = d2.sqrt();
+        let dir = d * (1.0 / dist);
+        let cos_light = -dir.dot(self.normal);
+        if cos_light <= 0.0 {
+            return None;
+        }
+        Some(LightSample { dir, dist, irradiance: self.radiance * (cos_light * density / d2) })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,6 +306,50 @@ mod tests {
         let r = (a * a + h * h).sqrt();
         let exact = 4.0 * (a / r) * (a / r).atan();
         assert!((e - exact).abs() < 0.01 * exact, "{e} vs {exact}");
+    }
+
+    #[test]
+    fn prepared_samplers_match_sample_area() {
+        let tri = Light::Area {
+            vertices: vec![Vec3::new(-1.0, 4.0, 0.0), Vec3::new(1.0, 4.0, 0.5), Vec3::new(0.0, 4.5, 2.0)],
+            radiance: Vec3::splat(2.0),
+        };
+        let trapezoid = Light::Area {
+            vertices: vec![
+                Vec3::new(0.0, 3.0, 0.0),
+                Vec3::new(0.0, 3.0, 2.0),
+                Vec3::new(1.0, 3.0, 1.5),
+                Vec3::new(1.0, 3.0, 0.5),
+            ],
+            radiance: Vec3::ONE,
+        };
+        let p = Vec3::new(0.3, 0.0, 0.2);
+        let s = Sampler::new(1, 2, 3, 4);
+        for light in [quad(2.0, 3.0), tri, trapezoid] {
+            // The point below, or for a lamp shining upwards one above it.
+            let Some((from, normal)) = [p, p + Vec3::new(0.0, 10.0, 0.0)]
+                .into_iter()
+                .find_map(|q| light.area_normal_towards(q).map(|n| (q, n)))
+            else {
+                panic!("{light:?} faces neither point")
+            };
+            let prepared = light.area_sampler(from).expect("faces the point");
+            assert_eq!(prepared.normal, normal);
+            for i in 0..64 {
+                let u = stratified_square(i, 64, &s);
+                let (a, b) = (prepared.sample(from, u), light.sample_area(from, u, normal));
+                let (Some(a), Some(b)) = (a, b) else {
+                    assert_eq!(a.is_some(), b.is_some(), "{light:?} at {u:?}");
+                    continue;
+                };
+                assert!((a.dir - b.dir).length() < 1e-5, "{a:?} vs {b:?}");
+                assert!((a.dist - b.dist).abs() < 1e-4 * b.dist);
+                assert!(
+                    (a.irradiance - b.irradiance).abs().max_element() < 1e-4 * b.irradiance.max_element()
+                );
+            }
+        }
+        assert!(quad(1.0, 2.0).area_sampler(Vec3::new(0.0, 3.0, 0.0)).is_none(), "behind the lamp");
     }
 
     #[test]

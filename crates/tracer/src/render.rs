@@ -235,9 +235,36 @@ pub fn render_tile_stats(
     settings: &RenderSettings,
     tile: Tile,
 ) -> (Vec<u8>, RayCounts) {
+    render_tile_with(scene, camera, settings, tile, &TraceOptions::default())
+}
+
+/// Tracing choices that are not part of the scene description: the defaults
+/// are what [`render_tile`] uses; the others exist for reference images and
+/// tests.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TraceOptions {
+    /// Trace area-light shadow rays adaptively (see
+    /// [`Integrator::with_adaptive_shadows`]); on by default.
+    pub adaptive_shadows: bool,
+}
+
+impl Default for TraceOptions {
+    fn default() -> Self {
+        Self { adaptive_shadows: true }
+    }
+}
+
+/// [`render_tile_stats`] with explicit [`TraceOptions`].
+pub fn render_tile_with(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile: Tile,
+    options: &TraceOptions,
+) -> (Vec<u8>, RayCounts) {
     let mut out = Vec::with_capacity(tile.pixel_count() * 3);
     let mut counts = RayCounts::default();
-    let integrator = Integrator::new(scene, settings);
+    let integrator = Integrator::new(scene, settings).with_adaptive_shadows(options.adaptive_shadows);
     let spp = settings.spp.max(1);
     let (w, h) = (settings.width.max(1) as f32, settings.height.max(1) as f32);
     // With several samples each one stands for a stratum ⌈√spp⌉ times smaller
@@ -281,11 +308,23 @@ pub fn render_frame_stats(
     tile_size: u32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> (Frame, RayCounts) {
+    render_frame_with(scene, camera, settings, tile_size, &TraceOptions::default(), progress)
+}
+
+/// [`render_frame_stats`] with explicit [`TraceOptions`].
+pub fn render_frame_with(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile_size: u32,
+    options: &TraceOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Frame, RayCounts) {
     let tiles = Tile::grid(settings.width, settings.height, tile_size);
     let rendered: Vec<(Tile, Vec<u8>, RayCounts)> = tiles
         .par_iter()
         .map(|&tile| {
-            let (rgb, counts) = render_tile_stats(scene, camera, settings, tile);
+            let (rgb, counts) = render_tile_with(scene, camera, settings, tile, options);
             progress(tile.pixel_count() as u64);
             (tile, rgb, counts)
         })
@@ -302,6 +341,110 @@ pub fn render_frame_stats(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A floor, a box and a small stick floating above it, lit by a quad lamp:
+    /// umbra, penumbra and fully lit floor, seen from above at an angle.
+    pub(crate) fn shadow_test_scene() -> Scene {
+        use crate::lights::Light;
+        use crate::materials::Material;
+        use crate::scene::{SceneParts, TriangleShading};
+        use crate::shapes::Triangle;
+        let mut parts = SceneParts { materials: vec![Material::default()], ..Default::default() };
+        let mut quad = |c: [Vec3; 4]| {
+            for v in [[c[0], c[1], c[2]], [c[0], c[2], c[3]]] {
+                let n = (v[1] - v[0]).cross(v[2] - v[0]).normalize();
+                parts.triangles.push(Triangle { v });
+                parts.shading.push(TriangleShading { normals: [n; 3], uvs: [Vec2::ZERO; 3], material: 0 });
+            }
+        };
+        let cuboid = |quad: &mut dyn FnMut([Vec3; 4]), lo: Vec3, hi: Vec3| {
+            let p = |x: bool, y: bool, z: bool| {
+                Vec3::new(
+                    if x { hi.x } else { lo.x },
+                    if y { hi.y } else { lo.y },
+                    if z { hi.z } else { lo.z },
+                )
+            };
+            let (f, t) = (false, true);
+            quad([p(f, t, f), p(f, t, t), p(t, t, t), p(t, t, f)]);
+            quad([p(f, f, f), p(t, f, f), p(t, f, t), p(f, f, t)]);
+            quad([p(f, f, t), p(t, f, t), p(t, t, t), p(f, t, t)]);
+            quad([p(f, f, f), p(f, t, f), p(t, t, f), p(t, f, f)]);
+            quad([p(f, f, f), p(f, f, t), p(f, t, t), p(f, t, f)]);
+            quad([p(t, f, f), p(t, t, f), p(t, t, t), p(t, f, t)]);
+        };
+        quad([
+            Vec3::new(-8.0, 0.0, -8.0),
+            Vec3::new(-8.0, 0.0, 8.0),
+            Vec3::new(8.0, 0.0, 8.0),
+            Vec3::new(8.0, 0.0, -8.0),
+        ]);
+        cuboid(&mut quad, Vec3::new(-2.0, 0.0, -1.0), Vec3::new(-1.0, 2.0, 1.0));
+        cuboid(&mut quad, Vec3::new(1.0, 1.5, -0.1), Vec3::new(1.2, 1.7, 0.1));
+        parts.lights.push(Light::Area {
+            vertices: vec![
+                Vec3::new(-1.0, 5.0, -1.0),
+                Vec3::new(1.0, 5.0, -1.0),
+                Vec3::new(1.0, 5.0, 1.0),
+                Vec3::new(-1.0, 5.0, 1.0),
+            ],
+            radiance: Vec3::splat(8.0),
+        });
+        parts.camera = Camera::look_at(Vec3::new(0.0, 9.0, 9.0), Vec3::ZERO, Vec3::Y, 50.0, 4.0 / 3.0);
+        parts.settings =
+            RenderSettings { width: 96, height: 72, spp: 1, light_samples: 16, ..Default::default() };
+        Scene::new(parts)
+    }
+
+    #[test]
+    fn adaptive_shadows_trace_fewer_rays_and_agree_with_exhaustive_ones() {
+        let scene = shadow_test_scene();
+        let s = scene.settings;
+        let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+        let exhaustive = TraceOptions { adaptive_shadows: false };
+        let (a, ca) = render_tile_with(&scene, &scene.camera, &s, tile, &TraceOptions::default());
+        let (e, ce) = render_tile_with(&scene, &scene.camera, &s, tile, &exhaustive);
+        assert_eq!((ca.primary, ca.secondary), (ce.primary, ce.secondary));
+        assert!(ca.shadow * 2 < ce.shadow, "adaptive {} vs exhaustive {} shadow rays", ca.shadow, ce.shadow);
+        // The picture has umbra, penumbra and light.
+        let luma: Vec<u32> = e.chunks(3).map(|p| p.iter().map(|&c| c as u32).sum()).collect();
+        let max = *luma.iter().max().unwrap();
+        let between = luma.iter().filter(|&&l| l > 30 && l + 30 < max).count();
+        assert!(luma.contains(&0) && between > 200, "penumbra pixels: {between}");
+        // Identical except where an occluder hides the middle of the lamp but
+        // none of its corners (under the small stick, a worst case), and not
+        // far off there.
+        let differ: Vec<u8> = a.iter().zip(&e).map(|(x, y)| x.abs_diff(*y)).filter(|&d| d > 0).collect();
+        assert!(differ.len() * 25 < a.len(), "{} of {} bytes differ", differ.len(), a.len());
+        assert!(differ.iter().all(|&d| d <= 64), "{differ:?}");
+        let mean = differ.iter().map(|&d| d as f32).sum::<f32>() / differ.len().max(1) as f32;
+        assert!(mean < 16.0, "mean difference {mean}");
+    }
+
+    #[test]
+    fn simd_and_scalar_box_tests_render_the_same_bytes() {
+        let scene = shadow_test_scene();
+        let mut scalar = scene.clone();
+        scalar.bvh.set_simd(false);
+        assert!(!scalar.bvh.simd_active());
+        assert_eq!(scene.bvh.simd_active(), cfg!(target_arch = "x86_64"));
+        let s = scene.settings;
+        let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+        let (a, ca) = render_tile_stats(&scene, &scene.camera, &s, tile);
+        let (b, cb) = render_tile_stats(&scalar, &scalar.camera, &s, tile);
+        assert_eq!(ca, cb);
+        assert!(a == b, "SIMD and scalar traversal differ");
+        assert!(a.iter().any(|&c| c != a[0]));
+    }
+
+    #[test]
+    fn spread_tests_pick_the_corners() {
+        use crate::integrator::spread_tests;
+        let us: Vec<Vec2> =
+            (0..9).map(|i| Vec2::new((i % 3) as f32 * 0.4 + 0.1, (i / 3) as f32 * 0.4 + 0.1)).collect();
+        // Smallest and largest x + y, then smallest and largest x − y.
+        assert_eq!(spread_tests(&us), [0, 8, 6, 2]);
+    }
 
     #[test]
     fn srgb_encoding_endpoints_and_monotonic() {

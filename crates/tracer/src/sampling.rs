@@ -136,8 +136,15 @@ pub fn stratified_square(i: u32, n: u32, sampler: &Sampler) -> Vec2 {
 /// [`stratified_square`] with the grid side `m = ⌈√n⌉` computed by the caller.
 #[inline]
 pub fn stratified_square_grid(i: u32, m: u32, sampler: &Sampler) -> Vec2 {
+    stratified_square_keyed(i, m, sampler.bits(0), sampler)
+}
+
+/// [`stratified_square_grid`] with the permutation key `sampler.bits(0)`
+/// computed once by the caller for all samples of the set (same results).
+#[inline]
+pub fn stratified_square_keyed(i: u32, m: u32, key: u32, sampler: &Sampler) -> Vec2 {
     let m = m.max(1);
-    let s = permute(i, m * m, sampler.bits(0));
+    let s = permute(i, m * m, key);
     let (sx, sy) = (s % m, s / m);
     let inv = 1.0 / m as f32;
     let jx = sampler.get(1 + 2 * i);

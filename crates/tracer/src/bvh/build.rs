@@ -87,7 +87,8 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     let mut nodes = Vec::with_capacity(2 * triangles.len() / MAX_LEAF_SIZE.max(2) + 1);
     build_node(&prims, &mut refs, 0, 0, &mut nodes);
     let tris = refs.iter().map(|&r| pre[r as usize]).collect();
-    Bvh { nodes, tris, prim_ids: refs }
+    let wide = super::wide::collapse(&nodes);
+    Bvh { nodes, tris, prim_ids: refs, wide, scalar_only: false }
 }
 
 /// Bounds over both the input vertices and the ones the intersection test
@@ -144,8 +145,23 @@ fn build_node(prims: &[PrimInfo], refs: &mut [u32], first: u32, depth: usize, ou
     }
 }
 
-/// The union of the primitives' boxes and the box around their centroids, in one pass.
+/// The union of the primitives' boxes and the box around their centroids, in one
+/// pass — over chunks in parallel for large nodes. Unions of NaN-free boxes are
+/// exact, associative and commutative, so the result is the same for any split.
 fn bounds_and_centroids(prims: &[PrimInfo], refs: &[u32]) -> (Box3, Box3) {
+    if refs.len() >= PARALLEL_THRESHOLD {
+        return refs
+            .par_chunks(PARALLEL_CHUNK)
+            .map(|c| bounds_and_centroids_seq(prims, c))
+            .reduce(|| (Box3::EMPTY, Box3::EMPTY), |a, b| (a.0.union(&b.0), a.1.union(&b.1)));
+    }
+    bounds_and_centroids_seq(prims, refs)
+}
+
+/// Primitives per parallel task when binning a large node.
+const PARALLEL_CHUNK: usize = 2048;
+
+fn bounds_and_centroids_seq(prims: &[PrimInfo], refs: &[u32]) -> (Box3, Box3) {
     let mut bounds = Box3::EMPTY;
     let mut centroids = Box3::EMPTY;
     for &r in refs {
@@ -219,6 +235,31 @@ struct Bin {
     count: u32,
 }
 
+impl Bin {
+    const EMPTY: Bin = Bin { bounds: Box3::EMPTY, count: 0 };
+}
+
+/// The centroid bins of all three axes (axes without a scale stay empty).
+fn fill_bins(
+    prims: &[PrimInfo],
+    refs: &[u32],
+    centroids: &Box3,
+    scales: &[Option<f32>; 3],
+) -> [[Bin; BINS]; 3] {
+    let mut bins = [[Bin::EMPTY; BINS]; 3];
+    for &r in refs {
+        let p = &prims[r as usize];
+        for (axis, scale) in scales.iter().enumerate() {
+            if let Some(scale) = *scale {
+                let b = &mut bins[axis][bin_index(p.centroid[axis], centroids.min[axis], scale)];
+                b.bounds = b.bounds.union(&p.bounds);
+                b.count += 1;
+            }
+        }
+    }
+    bins
+}
+
 /// Maps centroid coordinate `c` to its bin. `scale = BINS / extent`; the clamp
 /// keeps the maximum (and rounding overshoots) in the last bin. The same function
 /// serves binning and partitioning, so they always agree.
@@ -242,17 +283,25 @@ fn best_binned_split(prims: &[PrimInfo], refs: &[u32], centroids: &Box3) -> Opti
     if scales.iter().all(Option::is_none) {
         return None;
     }
-    let mut bins = [[Bin { bounds: Box3::EMPTY, count: 0 }; BINS]; 3];
-    for &r in refs {
-        let p = &prims[r as usize];
-        for (axis, scale) in scales.iter().enumerate() {
-            if let Some(scale) = *scale {
-                let b = &mut bins[axis][bin_index(p.centroid[axis], centroids.min[axis], scale)];
-                b.bounds = b.bounds.union(&p.bounds);
-                b.count += 1;
-            }
-        }
-    }
+    // Large nodes fill per-chunk bins in parallel and merge them; bin boxes are
+    // unions of NaN-free boxes and counts are integers, so merging is exact and
+    // the bins are the same for any split into chunks.
+    let bins = if refs.len() >= PARALLEL_THRESHOLD {
+        refs.par_chunks(PARALLEL_CHUNK).map(|c| fill_bins(prims, c, centroids, &scales)).reduce(
+            || [[Bin::EMPTY; BINS]; 3],
+            |mut a, b| {
+                for (ra, rb) in a.iter_mut().zip(&b) {
+                    for (x, y) in ra.iter_mut().zip(rb) {
+                        x.bounds = x.bounds.union(&y.bounds);
+                        x.count += y.count;
+                    }
+                }
+                a
+            },
+        )
+    } else {
+        fill_bins(prims, refs, centroids, &scales)
+    };
     let mut best: Option<Split> = None;
     for (axis, axis_bins) in bins.iter().enumerate() {
         if scales[axis].is_none() {

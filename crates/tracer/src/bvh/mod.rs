@@ -4,8 +4,11 @@
 //! * `build` — top-down binned SAH builder (parallel with rayon, yet the tree
 //!   is a pure function of the input triangles: any thread count, any machine,
 //!   the same bytes).
-//! * `traverse` — nearest-hit and any-hit traversal: ordered by box entry
-//!   distance, early-out against the current best hit, fixed-size stack.
+//! * `wide` — the tree rays traverse: the binary tree collapsed into 4-wide
+//!   nodes whose four boxes one SSE instruction sequence tests at once (with a
+//!   bit-identical scalar fallback); nearest-hit traversal visits children
+//!   nearest first with early-out against the best hit so far, any-hit
+//!   traversal stops at the first hit.
 //!
 //! # Memory layout
 //!
@@ -14,10 +17,12 @@
 //! child's index is stored in the node. Triangles are stored once, in leaf order,
 //! in the precomputed Möller–Trumbore form `(v0, e1, e2)` ([`PreTriangle`]); a
 //! leaf owns a contiguous range of them, and `prim_ids` maps that order back to
-//! the index in the slice the BVH was built from ([`Hit::prim`]).
+//! the index in the slice the BVH was built from ([`Hit::prim`]). The binary
+//! nodes are kept for inspection and validation; traversal uses the 4-wide
+//! nodes (128 bytes each, see `wide`).
 
 mod build;
-mod traverse;
+mod wide;
 
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::{Hit, Triangle};
@@ -119,6 +124,10 @@ pub struct Bvh {
     tris: Vec<PreTriangle>,
     /// `prim_ids[i]` is the input index of `tris[i]`.
     prim_ids: Vec<u32>,
+    /// The 4-wide tree traversal uses, collapsed from `nodes`.
+    wide: Vec<wide::Node4>,
+    /// Use the scalar box test even where a SIMD one exists.
+    scalar_only: bool,
 }
 
 /// A violated BVH invariant, found by [`Bvh::validate`].
@@ -145,13 +154,34 @@ impl Bvh {
     /// [`Triangle::intersect`] over all triangles (up to the choice between
     /// hits at bit-identical `t`).
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
-        traverse::intersect(self, ray, t_min, t_max)
+        wide::intersect(self, ray, t_min, t_max)
     }
 
     /// True when anything lies on the ray with `t_min < t < t_max` (shadow rays).
     /// Stops at the first hit found.
     pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
-        traverse::occluded(self, ray, t_min, t_max)
+        wide::occluded(self, ray, t_min, t_max)
+    }
+
+    /// Chooses the SIMD box test (the default, where the machine has one) or
+    /// the scalar one. Both give the same bits; this exists so tests can prove it.
+    pub fn set_simd(&mut self, on: bool) {
+        self.scalar_only = !on;
+    }
+
+    /// True when queries use the SIMD box test.
+    pub fn simd_active(&self) -> bool {
+        wide::SIMD_AVAILABLE && !self.scalar_only
+    }
+
+    /// Bytes the tree and its triangle data occupy (binary and 4-wide nodes,
+    /// precomputed triangles, primitive ids).
+    pub fn memory_bytes(&self) -> usize {
+        use std::mem::size_of;
+        self.nodes.len() * size_of::<Node>()
+            + self.wide.len() * size_of::<wide::Node4>()
+            + self.tris.len() * size_of::<PreTriangle>()
+            + self.prim_ids.len() * size_of::<u32>()
     }
 
     /// Number of triangles.

@@ -1,0 +1,505 @@
+//! The 4-wide BVH that rays actually traverse, collapsed from the binary tree.
+//!
+//! Each [`Node4`] holds the boxes of up to four children in structure-of-arrays
+//! form (all four `min.x`, then all four `min.y`, …), so one SSE instruction
+//! slab-tests all four against a ray. A child is either another `Node4` or a
+//! leaf (a range of triangles in leaf order); unused slots are empty leaves with
+//! inverted (`+inf..-inf`) boxes.
+//!
+//! **Collapsing.** Starting from the binary root, a wide node takes the binary
+//! node's two children and keeps replacing the child with the largest box
+//! surface (ties: the first) by its own two children until it has four or only
+//! leaves remain. The result is a pure function of the binary tree.
+//!
+//! **Same bits with and without SIMD.** The SSE path ([`entries_sse`]) and the
+//! scalar path ([`entries_scalar`]) perform the same IEEE operations in the same
+//! order on every lane: `(plane − origin) · inv_dir`, then `maxps(t, acc)` /
+//! `minps(t, acc)`, which are exactly `if t > acc { t } else { acc }` and
+//! `if t < acc { t } else { acc }` — including for NaN and signed zeros — and no
+//! fused multiply-add. So the entry distances, hence the traversal order and
+//! every hit, are identical; tests compare both paths on random rays and
+//! rendered bytes. SSE2 is part of the x86_64 baseline, so no runtime detection
+//! is needed there; other architectures use the scalar path.
+
+use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle};
+use crate::geometry::Ray;
+use crate::shapes::{Hit, moller_trumbore, moller_trumbore_any};
+use std::mem::MaybeUninit;
+
+/// Slab-test exits are scaled by this factor (1 + 2γ₃ rounded up, after Ize,
+/// "Robust BVH Ray Traversal", JCGT 2013) so that rounding in the box test never
+/// culls a box the exact ray passes through. It only ever visits slightly more.
+pub(super) const ROBUST_EXIT: f32 = 1.0 + 4.0 * f32::EPSILON;
+
+/// Marks a leaf in [`Node4::meta`]; the low bits hold its triangle count.
+const LEAF: u32 = 1 << 31;
+
+/// A node of the 4-wide BVH (128 bytes, two cache lines).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(64))]
+pub(super) struct Node4 {
+    /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
+    /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
+    bounds: [[f32; 4]; 6],
+    /// Interior child: index of its `Node4`. Leaf: its first triangle.
+    child: [u32; 4],
+    /// 0 for an interior child, `LEAF | count` for a leaf (count 0: unused slot).
+    meta: [u32; 4],
+}
+
+const _: () = assert!(std::mem::size_of::<Node4>() == 128);
+
+impl Node4 {
+    const EMPTY: Node4 = Node4 {
+        bounds: [
+            [f32::INFINITY; 4],
+            [f32::INFINITY; 4],
+            [f32::INFINITY; 4],
+            [f32::NEG_INFINITY; 4],
+            [f32::NEG_INFINITY; 4],
+            [f32::NEG_INFINITY; 4],
+        ],
+        child: [0; 4],
+        meta: [LEAF; 4],
+    };
+
+    fn set(&mut self, k: usize, n: &Node) {
+        for a in 0..3 {
+            self.bounds[a][k] = n.min[a];
+            self.bounds[a + 3][k] = n.max[a];
+        }
+    }
+}
+
+/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 4-wide nodes.
+///
+/// A binary subtree with at most [`MAX_LEAF_SIZE`] triangles (contiguous in
+/// leaf order) becomes one leaf when the surface-area heuristic prefers it —
+/// `count · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
+/// wide node's box test is shared by four children.
+pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
+    // Triangle range (first, count), SAH cost and "make it a leaf" of every
+    // binary subtree; children follow their parent, so a reverse sweep sees them first.
+    let mut info = vec![Sub { first: 0, count: 0, cost: 0.0, leaf: true }; nodes.len()];
+    for i in (0..nodes.len()).rev() {
+        let n = &nodes[i];
+        let area = n.bounds().area();
+        info[i] = if n.is_leaf() {
+            Sub { first: n.offset, count: n.count, cost: n.count as f32 * area, leaf: true }
+        } else {
+            let (l, r) = (info[i + 1], info[n.offset as usize]);
+            let count = l.count + r.count;
+            let split = MERGE_TRAVERSAL_COST * area + l.cost + r.cost;
+            let merged = count as f32 * area;
+            let leaf = count as usize <= MAX_LEAF_SIZE && merged <= split;
+            Sub { first: l.first, count, cost: if leaf { merged } else { split }, leaf }
+        };
+    }
+    let mut out = Vec::with_capacity(nodes.len() / 3 + 1);
+    match nodes.first() {
+        None => {}
+        Some(root) if info[0].leaf => {
+            let mut n = Node4::EMPTY;
+            n.set(0, root);
+            n.child[0] = info[0].first;
+            n.meta[0] = LEAF | info[0].count;
+            out.push(n);
+        }
+        Some(_) => {
+            collapse_node(nodes, &info, 0, &mut out);
+        }
+    }
+    out
+}
+
+/// SAH cost of visiting a wide node's box, relative to one triangle test, when
+/// deciding whether to merge a small binary subtree into one leaf.
+const MERGE_TRAVERSAL_COST: f32 = 1.0;
+
+/// What [`collapse`] knows about one binary subtree.
+#[derive(Clone, Copy, Debug)]
+struct Sub {
+    first: u32,
+    count: u32,
+    cost: f32,
+    leaf: bool,
+}
+
+/// Appends the wide node for binary interior node `i` (and its subtree); returns its index.
+fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -> u32 {
+    let is_leaf = |k: usize| info[k].leaf;
+    let at = out.len();
+    out.push(Node4::EMPTY);
+    let mut kids = [i + 1, nodes[i].offset as usize, 0, 0];
+    let mut len = 2;
+    while len < 4 {
+        let mut pick: Option<(usize, f32)> = None;
+        for (slot, &k) in kids[..len].iter().enumerate() {
+            let area = nodes[k].bounds().area();
+            if !is_leaf(k) && pick.is_none_or(|(_, a)| area > a) {
+                pick = Some((slot, area));
+            }
+        }
+        let Some((slot, _)) = pick else { break };
+        let k = kids[slot];
+        kids.copy_within(slot + 1..len, slot + 2);
+        kids[slot] = k + 1;
+        kids[slot + 1] = nodes[k].offset as usize;
+        len += 1;
+    }
+    let mut node = Node4::EMPTY;
+    for (slot, &k) in kids[..len].iter().enumerate() {
+        let n = &nodes[k];
+        node.set(slot, n);
+        if is_leaf(k) {
+            node.child[slot] = info[k].first;
+            node.meta[slot] = LEAF | info[k].count;
+        } else {
+            node.child[slot] = collapse_node(nodes, info, k, out);
+            node.meta[slot] = 0;
+        }
+    }
+    out[at] = node;
+    at as u32
+}
+
+/// A ray prepared for wide box tests: per axis, which row of [`Node4::bounds`]
+/// holds the entry plane (the max plane when the direction is negative).
+#[derive(Clone, Copy, Debug)]
+struct WideRay {
+    origin: [f32; 3],
+    inv_dir: [f32; 3],
+    near: [usize; 3],
+    far: [usize; 3],
+}
+
+impl WideRay {
+    /// `1 / ±0` gives `±inf`, so axis-parallel rays need no special case.
+    #[inline(always)]
+    fn new(ray: &Ray) -> Self {
+        let inv = ray.dir.recip().to_array();
+        // Sign bit, not `< 0`: -0 gives -inf, whose near plane is the max.
+        let neg = |a: usize| inv[a].is_sign_negative() as usize;
+        WideRay {
+            origin: ray.origin.to_array(),
+            inv_dir: inv,
+            near: [3 * neg(0), 1 + 3 * neg(1), 2 + 3 * neg(2)],
+            far: [3 - 3 * neg(0), 4 - 3 * neg(1), 5 - 3 * neg(2)],
+        }
+    }
+}
+
+/// `max(x, acc)`; returns `acc` when `x` is NaN (`acc` is never NaN).
+#[inline(always)]
+fn max_keep(x: f32, acc: f32) -> f32 {
+    if x > acc { x } else { acc }
+}
+
+/// `min(x, acc)`; returns `acc` when `x` is NaN.
+#[inline(always)]
+fn min_keep(x: f32, acc: f32) -> f32 {
+    if x < acc { x } else { acc }
+}
+
+/// Entry distance of the ray into each child's box within `(t_min, t_max)`,
+/// `f32::INFINITY` where it misses. Scalar reference.
+///
+/// `(plane - origin) * inv_dir` is NaN only when the origin lies exactly on a
+/// plane of an axis the ray is parallel to; `max_keep`/`min_keep` then keep the
+/// running value, treating that slab as no constraint, which is conservative.
+#[inline(always)]
+fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
+    let mut out = [f32::INFINITY; 4];
+    let mut mask = 0;
+    for (k, e) in out.iter_mut().enumerate() {
+        let mut near = t_min;
+        let mut far = t_max;
+        for a in 0..3 {
+            let t0 = (node.bounds[r.near[a]][k] - r.origin[a]) * r.inv_dir[a];
+            let t1 = (node.bounds[r.far[a]][k] - r.origin[a]) * r.inv_dir[a];
+            near = max_keep(t0, near);
+            far = min_keep(t1, far);
+        }
+        if near <= far * ROBUST_EXIT {
+            *e = near;
+            mask |= 1 << k;
+        }
+    }
+    (out, mask)
+}
+
+/// [`entries_scalar`] for all four children at once with SSE (see the module
+/// docs for why the bits are the same).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE and SSE2 are part of the x86_64 baseline, so these
+    // instructions exist on every machine this code is compiled for; the loads
+    // and the store read/write exactly the 16 bytes of a `[f32; 4]` they are
+    // given a reference to (unaligned access is allowed).
+    unsafe {
+        let load = |a: &[f32; 4]| _mm_loadu_ps(a.as_ptr());
+        let mut near = _mm_set1_ps(t_min);
+        let mut far = _mm_set1_ps(t_max);
+        for a in 0..3 {
+            let o = _mm_set1_ps(r.origin[a]);
+            let inv = _mm_set1_ps(r.inv_dir[a]);
+            let t0 = _mm_mul_ps(_mm_sub_ps(load(&node.bounds[r.near[a]]), o), inv);
+            let t1 = _mm_mul_ps(_mm_sub_ps(load(&node.bounds[r.far[a]]), o), inv);
+            // maxps(x, acc) = x > acc ? x : acc; minps(x, acc) = x < acc ? x : acc.
+            near = _mm_max_ps(t0, near);
+            far = _mm_min_ps(t1, far);
+        }
+        let hit = _mm_cmple_ps(near, _mm_mul_ps(far, _mm_set1_ps(ROBUST_EXIT)));
+        let e = _mm_or_ps(_mm_and_ps(hit, near), _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)));
+        let mut out = [0.0f32; 4];
+        _mm_storeu_ps(out.as_mut_ptr(), e);
+        (out, _mm_movemask_ps(hit) as u32)
+    }
+}
+
+/// Box entries, and a mask with bit `k` set where child `k` is hit, with the
+/// SIMD path when `simd` is set and available.
+#[inline(always)]
+fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f32; 4], u32) {
+    #[cfg(target_arch = "x86_64")]
+    if simd {
+        return entries_sse(node, r, t_min, t_max);
+    }
+    let _ = simd;
+    entries_scalar(node, r, t_min, t_max)
+}
+
+/// True when this build has a SIMD box test (x86_64: SSE2, always present).
+pub(super) const SIMD_AVAILABLE: bool = cfg!(target_arch = "x86_64");
+
+/// Most entries a traversal stack holds: a wide node pushes at most three of
+/// its children and descends into the fourth, at most [`MAX_DEPTH`] levels deep.
+const STACK: usize = 3 * MAX_DEPTH + 4;
+
+/// Fixed-size, uninitialised traversal stack (of wide node indices, with
+/// their entry distances for nearest-hit queries): no per-ray memset.
+struct Stack<T: Copy> {
+    items: [MaybeUninit<T>; STACK],
+    len: usize,
+}
+
+impl<T: Copy> Stack<T> {
+    #[inline(always)]
+    fn new() -> Self {
+        Stack { items: [const { MaybeUninit::uninit() }; STACK], len: 0 }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, item: T) {
+        self.items[self.len] = MaybeUninit::new(item);
+        self.len += 1;
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<T> {
+        self.len = self.len.checked_sub(1)?;
+        // SAFETY: every slot below the length was written by `push`.
+        Some(unsafe { self.items[self.len].assume_init() })
+    }
+}
+
+/// Nearest hit (see [`Bvh::intersect`]).
+///
+/// At each node the hit leaves are tested at once (in lane order: the order
+/// only decides between hits at bit-identical `t`, and it is the same on every
+/// machine); of the hit interior children still in front of the best hit, the
+/// nearest is visited next and the others are pushed, farthest first.
+pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+    let wide = &bvh.wide[..];
+    if wide.is_empty() {
+        return None;
+    }
+    let simd = !bvh.scalar_only;
+    let r = WideRay::new(ray);
+    let tris = &bvh.tris[..];
+    let mut best_t = t_max;
+    let mut best: Option<(usize, f32, f32)> = None;
+    let mut stack = Stack::<(u32, f32)>::new();
+    let mut current = 0u32;
+    loop {
+        let node = &wide[current as usize];
+        let (e, mut mask) = entries(node, &r, t_min, best_t, simd);
+        let mut inner = 0u32;
+        while mask != 0 {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let meta = node.meta[k];
+            if meta == 0 {
+                inner |= 1 << k;
+            } else if e[k] <= best_t * ROBUST_EXIT {
+                let first = node.child[k] as usize;
+                for (i, tri) in tris[first..first + (meta & !LEAF) as usize].iter().enumerate() {
+                    if let Some((t, u, v)) = test(tri, ray, t_min, best_t) {
+                        best_t = t;
+                        best = Some((first + i, u, v));
+                    }
+                }
+            }
+        }
+        // Interior children still in front of the best hit, nearest first
+        // (stable on ties, so deterministic).
+        let limit = best_t * ROBUST_EXIT;
+        let mut order = [(0.0f32, 0u32); 4];
+        let mut n = 0;
+        while inner != 0 {
+            let k = inner.trailing_zeros() as usize;
+            inner &= inner - 1;
+            let t = e[k];
+            if t > limit {
+                continue;
+            }
+            let mut j = n;
+            while j > 0 && order[j - 1].0 > t {
+                order[j] = order[j - 1];
+                j -= 1;
+            }
+            order[j] = (t, node.child[k]);
+            n += 1;
+        }
+        if n > 0 {
+            for &(t, c) in order[1..n].iter().rev() {
+                stack.push((c, t));
+            }
+            current = order[0].1;
+            continue;
+        }
+        current = loop {
+            match stack.pop() {
+                None => return best.map(|(k, u, v)| Hit { t: best_t, u, v, prim: bvh.prim_ids[k] }),
+                Some((c, t)) if t <= best_t * ROBUST_EXIT => break c,
+                Some(_) => {}
+            }
+        };
+    }
+}
+
+#[inline(always)]
+fn test(tri: &PreTriangle, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+    moller_trumbore(tri.v0, tri.e1, tri.e2, ray, t_min, t_max)
+}
+
+/// Any hit (see [`Bvh::occluded`]).
+pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    let wide = &bvh.wide[..];
+    if wide.is_empty() {
+        return false;
+    }
+    let simd = !bvh.scalar_only;
+    let r = WideRay::new(ray);
+    let tris = &bvh.tris[..];
+    let mut stack = Stack::<u32>::new();
+    let mut current = 0u32;
+    loop {
+        let node = &wide[current as usize];
+        let (_, mut mask) = entries(node, &r, t_min, t_max, simd);
+        let mut next = None;
+        while mask != 0 {
+            let k = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let (meta, child) = (node.meta[k], node.child[k]);
+            if meta != 0 {
+                let first = child as usize;
+                let leaf = &tris[first..first + (meta & !LEAF) as usize];
+                for tri in leaf {
+                    if moller_trumbore_any(tri.v0, tri.e1, tri.e2, ray, t_min, t_max) {
+                        return true;
+                    }
+                }
+            } else if next.is_none() {
+                next = Some(child);
+            } else {
+                stack.push(child);
+            }
+        }
+        current = match next.or_else(|| stack.pop()) {
+            Some(c) => c,
+            None => return false,
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Sampler;
+    use glam::Vec3;
+
+    #[test]
+    fn sse_and_scalar_box_tests_agree_bit_for_bit() {
+        // Random boxes and rays, including axis-parallel directions, origins on
+        // box planes and empty slots.
+        let s = Sampler::new(1, 2, 3, 4);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d) * 8.0 - 4.0
+        };
+        for i in 0..20_000 {
+            let mut node = Node4::EMPTY;
+            for k in 0..(1 + i % 4) {
+                let (a, b) = (Vec3::new(next(), next(), next()), Vec3::new(next(), next(), next()));
+                let n = Node { min: a.min(b).to_array(), offset: 0, max: a.max(b).to_array(), count: 1 };
+                node.set(k, &n);
+            }
+            let mut dir = Vec3::new(next(), next(), next());
+            if i % 5 == 0 {
+                dir[i % 3] = if i % 2 == 0 { 0.0 } else { -0.0 };
+            }
+            let mut origin = Vec3::new(next(), next(), next());
+            if i % 7 == 0 {
+                origin[i % 3] = node.bounds[i % 3][0];
+            }
+            let r = WideRay::new(&Ray::new(origin, dir));
+            let (t_min, t_max) = (0.0, if i % 3 == 0 { f32::INFINITY } else { next().abs() * 2.0 });
+            let (a, ma) = entries(&node, &r, t_min, t_max, true);
+            let (b, mb) = entries_scalar(&node, &r, t_min, t_max);
+            assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "case {i}");
+            assert_eq!(ma, mb, "case {i}");
+            for (k, t) in a.iter().enumerate() {
+                assert_eq!(ma & (1 << k) != 0, *t != f32::INFINITY, "case {i}: mask matches entries");
+            }
+        }
+    }
+
+    #[test]
+    fn collapsed_nodes_are_wide_and_cover_the_binary_leaves() {
+        let p = |i: usize, j: usize| Vec3::new(i as f32, (i * j % 5) as f32 * 0.2, j as f32);
+        let mut tris = Vec::new();
+        for i in 0..25 {
+            for j in 0..25 {
+                tris.push(crate::shapes::Triangle { v: [p(i, j), p(i + 1, j), p(i, j + 1)] });
+            }
+        }
+        let bvh = Bvh::build(&tris);
+        let interior = bvh.nodes.iter().filter(|n| !n.is_leaf()).count();
+        let (mut wide_leaves, mut used) = (0, 0);
+        let mut seen = vec![0u32; bvh.tris.len()];
+        for n in &bvh.wide {
+            used += n.meta.iter().filter(|&&m| m != LEAF).count();
+            for k in 0..4 {
+                if n.meta[k] != 0 && n.meta[k] != LEAF {
+                    wide_leaves += 1;
+                    let first = n.child[k] as usize;
+                    seen[first..first + (n.meta[k] & !LEAF) as usize].iter_mut().for_each(|s| *s += 1);
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s == 1), "every triangle in exactly one wide leaf");
+        // Every wide node but the root fills one slot of its parent.
+        assert_eq!(used, bvh.wide.len() - 1 + wide_leaves);
+        // Each wide node absorbs more than 1.5 binary interior nodes on average
+        // (3 when the tree is full; a subtree ending in two leaves absorbs 1).
+        assert!(
+            bvh.wide.len() * 3 < interior * 2,
+            "{} wide for {interior} binary interior nodes",
+            bvh.wide.len()
+        );
+    }
+}

@@ -1,0 +1,467 @@
+//! The QUIC transport over real UDP sockets on 127.0.0.1: delivery and
+//! ordering rules, counters, limits, pinning, closing, vanished peers, and a
+//! listener that keeps serving through broken peers.
+//!
+//! Test frames are `[kind][seq: u32][payload]`; kind 1 is independent (its own
+//! stream), anything else ordered, by the test's own classifier. Payload bytes
+//! are a function of (seq, index), so corruption is caught too.
+
+mod relay;
+
+use isin_actors::protocol::HANDSHAKE_MAX_FRAME;
+use isin_actors::transport::{Connection, Listener, Transport, TransportError};
+use isin_transport_quic::tls::{self, Identity};
+use isin_transport_quic::wire::{self, Delivery};
+use isin_transport_quic::{QuicOptions, QuicTransport};
+use relay::Relay;
+use std::collections::HashSet;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::time::timeout;
+
+const BOUND: Duration = Duration::from_secs(20);
+
+fn by_first_byte(frame: &[u8]) -> Delivery {
+    if frame.first() == Some(&1) { Delivery::Independent } else { Delivery::Ordered }
+}
+
+fn options() -> QuicOptions {
+    QuicOptions {
+        keep_alive: Duration::from_millis(200),
+        idle_timeout: Duration::from_secs(1),
+        ..QuicOptions::default()
+    }
+}
+
+/// A server transport and a client transport pinning it.
+fn transports() -> (QuicTransport, QuicTransport) {
+    let id = Identity::generate().unwrap();
+    let server = QuicTransport::server(&id).unwrap().with_options(options()).with_classifier(by_first_byte);
+    let client = QuicTransport::client(id.fingerprint())
+        .unwrap()
+        .with_options(options())
+        .with_classifier(by_first_byte);
+    (server, client)
+}
+
+async fn listen(t: &QuicTransport) -> Box<dyn Listener> {
+    t.listen("127.0.0.1:0").await.unwrap()
+}
+
+/// A connected pair (client side, server side), both accepting frames up to `max`.
+async fn pair(max: usize) -> (Connection, Connection, Box<dyn Listener>, QuicTransport) {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let c = timeout(BOUND, client.connect(&l.local_addr())).await.unwrap().unwrap();
+    let s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    c.sender.set_max_frame(max);
+    s.sender.set_max_frame(max);
+    (c, s, l, client)
+}
+
+fn frame(kind: u8, seq: u32, len: usize) -> Vec<u8> {
+    let mut f = Vec::with_capacity(len.max(5));
+    f.push(kind);
+    f.extend_from_slice(&seq.to_be_bytes());
+    f.extend((5..len).map(|i| (seq as usize).wrapping_mul(31).wrapping_add(i) as u8));
+    f
+}
+
+fn check_payload(f: &[u8]) -> u32 {
+    assert!(f.len() >= 5, "frame of {} bytes", f.len());
+    let seq = u32::from_be_bytes([f[1], f[2], f[3], f[4]]);
+    for (i, &b) in f.iter().enumerate().skip(5) {
+        assert_eq!(b, (seq as usize).wrapping_mul(31).wrapping_add(i) as u8, "frame {seq} byte {i}");
+    }
+    seq
+}
+
+/// A mixed plan: every 5th frame ordered and small, the others independent,
+/// alternating `big` bytes and a few bytes.
+fn plan(n: u32, big: usize) -> Vec<Vec<u8>> {
+    (0..n)
+        .map(|seq| match seq % 5 {
+            0 => frame(0, seq, 40),
+            1 | 3 => frame(1, seq, big),
+            _ => frame(1, seq, 7),
+        })
+        .collect()
+}
+
+fn wire_bytes(frames: &[Vec<u8>]) -> u64 {
+    frames
+        .iter()
+        .map(|f| {
+            let header = match by_first_byte(f) {
+                Delivery::Ordered => wire::CONTROL_HEADER,
+                Delivery::Independent => wire::STREAM_HEADER,
+            };
+            (header + f.len()) as u64
+        })
+        .sum()
+}
+
+/// Receives `sent.len()` frames and checks content and the ordering rules:
+/// an ordered frame arrives after everything sent before it; an independent
+/// frame after every ordered frame sent before it.
+async fn receive_checked(conn: &mut Connection, sent: &[Vec<u8>]) {
+    let mut got = HashSet::new();
+    for _ in 0..sent.len() {
+        let f = timeout(BOUND, conn.receiver.recv()).await.expect("frame in time").expect("open").unwrap();
+        let seq = check_payload(&f);
+        assert_eq!(f, sent[seq as usize], "frame {seq} intact");
+        assert!(got.insert(seq), "frame {seq} delivered twice");
+        for (earlier, e) in sent.iter().enumerate().take(seq as usize) {
+            let must = by_first_byte(&f) == Delivery::Ordered || by_first_byte(e) == Delivery::Ordered;
+            assert!(!must || got.contains(&(earlier as u32)), "frame {seq} overtook frame {earlier}");
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_frames_round_trip_both_ways_with_ordering_rules_and_counters() {
+    let (mut c, mut s, _l, client) = pair(1 << 20).await;
+    let up = plan(300, 200_000);
+    let down = plan(300, 150_000);
+    // Both directions at once, senders on plain threads as render threads would.
+    let (cs, ss) = (c.sender.clone(), s.sender.clone());
+    let (u, d) = (up.clone(), down.clone());
+    let t1 = std::thread::spawn(move || u.into_iter().for_each(|f| cs.send(f).unwrap()));
+    let t2 = std::thread::spawn(move || d.into_iter().for_each(|f| ss.send(f).unwrap()));
+    let (r1, r2) = tokio::join!(receive_checked(&mut s, &up), receive_checked(&mut c, &down));
+    let _ = (r1, r2);
+    t1.join().unwrap();
+    t2.join().unwrap();
+    let (cst, sst) = (c.sender.stats(), s.sender.stats());
+    assert_eq!((cst.frames_sent, sst.frames_received), (300, 300));
+    assert_eq!((sst.frames_sent, cst.frames_received), (300, 300));
+    assert_eq!(cst.bytes_sent, wire_bytes(&up));
+    assert_eq!(sst.bytes_received, cst.bytes_sent);
+    assert_eq!(sst.bytes_sent, wire_bytes(&down));
+    assert_eq!(cst.bytes_received, sst.bytes_sent);
+    // QUIC's own count of UDP bytes covers the frames plus packet overhead
+    // (headers, AEAD tags, ACKs), which is small for large frames.
+    let w = client.wire_stats();
+    assert_eq!(w.connections, 1);
+    assert!(
+        w.udp_tx_bytes > cst.bytes_sent && w.udp_tx_bytes < cst.bytes_sent + cst.bytes_sent / 10,
+        "{w:?}"
+    );
+    assert!(w.udp_rx_bytes > cst.bytes_received, "{w:?}");
+    // The shorter ACK delay was requested from the peer (ACK-frequency extension).
+    assert!(w.ack_frequency_sent >= 1 && w.acks_sent > 0, "{w:?}");
+}
+
+#[tokio::test]
+async fn the_protocol_classifier_sends_tiles_on_streams_and_the_rest_in_order() {
+    use isin_actors::protocol::{self, Message, TileResult};
+    let id = Identity::generate().unwrap();
+    let server = QuicTransport::server(&id).unwrap();
+    let client = QuicTransport::client(id.fingerprint()).unwrap();
+    let mut l = listen(&server).await;
+    let c = client.connect(&l.local_addr()).await.unwrap();
+    let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    s.sender.set_max_frame(1 << 20);
+    let tile = |id| {
+        protocol::encode(&Message::TileResult(TileResult {
+            frame: 1,
+            id,
+            tile: isin_tracer::Tile { x: 0, y: 0, w: 64, h: 64 },
+            render_micros: 1,
+            pixels: vec![id as u8; 12_288].into(),
+        }))
+        .unwrap()
+    };
+    let hb = protocol::encode(&Message::Heartbeat).unwrap();
+    for id in 0..20 {
+        c.sender.send(tile(id)).unwrap();
+    }
+    c.sender.send(hb.clone()).unwrap();
+    let mut tiles = HashSet::new();
+    for _ in 0..20 {
+        let f = timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap();
+        match protocol::decode(&f, 1 << 20).unwrap() {
+            Message::TileResult(r) => assert!(tiles.insert(r.id)),
+            other => panic!("{} overtook a tile sent before it", other.kind()),
+        }
+    }
+    assert_eq!(timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap(), hb);
+    // 20 tiles on streams (12-byte header), the heartbeat on the control stream (13).
+    let expected = 20 * (tile(0).len() + wire::STREAM_HEADER) + hb.len() + wire::CONTROL_HEADER;
+    assert_eq!(s.sender.stats().bytes_received, expected as u64);
+}
+
+#[tokio::test]
+async fn oversized_frames_close_that_connection_and_the_listener_serves_others() {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let addr = l.local_addr();
+    // Once on the control stream (kind 0), once on a frame stream (kind 1).
+    for kind in [0u8, 1] {
+        let mut bad = client.connect(&addr).await.unwrap();
+        let mut served = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+        let len = HANDSHAKE_MAX_FRAME + 1;
+        bad.sender.send(frame(kind, 0, len)).unwrap();
+        match timeout(BOUND, served.receiver.recv()).await.unwrap() {
+            Some(Err(TransportError::FrameTooLarge { len: l, max })) => {
+                assert_eq!((l, max), (len as u64, HANDSHAKE_MAX_FRAME), "kind {kind}")
+            }
+            other => panic!("kind {kind}: expected FrameTooLarge, got {other:?}"),
+        }
+        assert!(timeout(BOUND, served.receiver.recv()).await.unwrap().is_none());
+        assert_eq!(served.sender.stats().frames_received, 0);
+        // The offender's connection is closed too.
+        assert!(timeout(BOUND, bad.receiver.recv()).await.unwrap().is_none(), "kind {kind}");
+        // And the listener still serves others.
+        let good = client.connect(&addr).await.unwrap();
+        let mut ok = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+        good.sender.send(frame(kind, 7, 100)).unwrap();
+        assert_eq!(check_payload(&timeout(BOUND, ok.receiver.recv()).await.unwrap().unwrap().unwrap()), 7);
+    }
+}
+
+#[tokio::test]
+async fn a_wrong_fingerprint_fails_clearly_and_delivers_nothing() {
+    let (server, _) = transports();
+    let mut l = listen(&server).await;
+    let addr = l.local_addr();
+    let impostor = Identity::generate().unwrap();
+    let wrong = QuicTransport::client(impostor.fingerprint()).unwrap().with_options(options());
+    let err = timeout(BOUND, wrong.connect(&addr)).await.unwrap().unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    assert!(text.contains("fingerprint") && text.contains(&impostor.fingerprint().to_string()), "{text}");
+    assert!(text.contains(&server.fingerprint().unwrap().to_string()), "{text}");
+    // The listener never produced that connection: the next one accepted is a good one.
+    let right = QuicTransport::client(server.fingerprint().unwrap()).unwrap();
+    let good = right.connect(&addr).await.unwrap();
+    good.sender.send(frame(0, 3, 10)).unwrap();
+    let mut first = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, first.receiver.recv()).await.unwrap().unwrap().unwrap()), 3);
+}
+
+#[tokio::test]
+async fn close_delivers_everything_queued_then_ends_both_sides() {
+    let (c, mut s, _l, _t) = pair(1 << 20).await;
+    let frames = plan(50, 60_000);
+    for f in &frames {
+        c.sender.send(f.clone()).unwrap();
+    }
+    c.sender.close();
+    assert!(c.sender.send(frame(0, 0, 5)).is_err());
+    receive_checked(&mut s, &frames).await;
+    assert!(timeout(BOUND, s.receiver.recv()).await.unwrap().is_none());
+    // The server's side learns the connection is gone.
+    let t0 = Instant::now();
+    while !s.sender.is_closed() {
+        assert!(t0.elapsed() < BOUND, "server sender never saw the close");
+        let _ = s.sender.send(frame(0, 0, 5));
+        tokio::task::yield_now().await;
+    }
+}
+
+#[tokio::test]
+async fn dropping_the_senders_half_closes_and_the_other_direction_still_works() {
+    let (c, mut s, _l, _t) = pair(1 << 20).await;
+    let Connection { sender, mut receiver, .. } = c;
+    let frames = plan(20, 30_000);
+    for f in &frames {
+        sender.send(f.clone()).unwrap();
+    }
+    drop(sender);
+    receive_checked(&mut s, &frames).await;
+    assert!(timeout(BOUND, s.receiver.recv()).await.unwrap().is_none(), "end of the client's direction");
+    // The server can still talk to the client.
+    let back = plan(20, 30_000);
+    for f in &back {
+        s.sender.send(f.clone()).unwrap();
+    }
+    s.sender.close();
+    for _ in 0..back.len() {
+        let f = timeout(BOUND, receiver.recv()).await.unwrap().unwrap().unwrap();
+        check_payload(&f);
+    }
+    assert!(timeout(BOUND, receiver.recv()).await.unwrap().is_none());
+}
+
+#[tokio::test]
+async fn dropping_a_connection_ends_the_peers_stream() {
+    let (c, mut s, _l, _t) = pair(1 << 20).await;
+    c.sender.send(frame(1, 0, 5000)).unwrap();
+    drop(c);
+    assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 0);
+    assert!(timeout(BOUND, s.receiver.recv()).await.unwrap().is_none());
+}
+
+#[tokio::test]
+async fn a_vanished_peer_is_noticed_within_the_idle_timeout() {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let relay = Relay::start(l.local_addr().parse().unwrap(), 0, 1).await;
+    let mut c = client.connect(&relay.addr.to_string()).await.unwrap();
+    let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    c.sender.send(frame(0, 1, 10)).unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 1);
+    // Keep-alives hold an idle connection open well past the idle timeout…
+    let idle = options().idle_timeout;
+    assert!(timeout(idle * 3, s.receiver.recv()).await.is_err(), "idle but alive connection must stay open");
+    // …and when the peer vanishes without a word, both ends notice within it.
+    relay.go_silent();
+    let t0 = Instant::now();
+    let end = timeout(idle * 4, s.receiver.recv()).await.expect("server noticed the vanished client");
+    assert!(end.is_none(), "{end:?}");
+    let elapsed = t0.elapsed();
+    assert!(elapsed >= idle / 2 && elapsed <= idle * 3, "{elapsed:?}");
+    assert!(timeout(idle * 4, c.receiver.recv()).await.expect("client noticed too").is_none());
+    assert!(relay.dropped.load(std::sync::atomic::Ordering::Relaxed) > 0);
+}
+
+#[tokio::test]
+async fn broken_peers_do_not_hold_up_accept() {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let addr: std::net::SocketAddr = l.local_addr().parse().unwrap();
+    // Garbage datagrams.
+    let junk = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    for i in 0..20u8 {
+        junk.send_to(&[i; 1200], addr).await.unwrap();
+    }
+    // A peer that completes TLS (right fingerprint) but never opens the control stream.
+    let ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    let tls_cfg = tls::client_config(server.fingerprint().unwrap(), &[tls::ALPN_QUIC]).unwrap();
+    let crypto = quinn::crypto::rustls::QuicClientConfig::try_from(tls_cfg).unwrap();
+    let silent = ep
+        .connect_with(quinn::ClientConfig::new(Arc::new(crypto)), addr, tls::SERVER_NAME)
+        .unwrap()
+        .await
+        .unwrap();
+    // A peer speaking another application protocol.
+    let tls_cfg = tls::client_config(server.fingerprint().unwrap(), &[b"h3"]).unwrap();
+    let crypto = quinn::crypto::rustls::QuicClientConfig::try_from(tls_cfg).unwrap();
+    let other = ep.connect_with(quinn::ClientConfig::new(Arc::new(crypto)), addr, tls::SERVER_NAME).unwrap();
+    assert!(timeout(BOUND, other).await.unwrap().is_err(), "ALPN mismatch must fail the handshake");
+    // A peer that opens the control stream with a wrong preamble.
+    let tls_cfg = tls::client_config(server.fingerprint().unwrap(), &[tls::ALPN_QUIC]).unwrap();
+    let crypto = quinn::crypto::rustls::QuicClientConfig::try_from(tls_cfg).unwrap();
+    let liar = ep
+        .connect_with(quinn::ClientConfig::new(Arc::new(crypto)), addr, tls::SERVER_NAME)
+        .unwrap()
+        .await
+        .unwrap();
+    let (mut send, _recv) = liar.open_bi().await.unwrap();
+    send.write_all(b"GET / HTTP/1.1\r\n").await.unwrap();
+    assert!(timeout(BOUND, liar.closed()).await.is_ok(), "a wrong preamble closes the connection");
+    // Meanwhile a proper peer is accepted promptly, long before the silent
+    // one's handshake timeout (10 s) could have freed a serial accept loop.
+    let t0 = Instant::now();
+    let good = client.connect(&l.local_addr()).await.unwrap();
+    good.sender.send(frame(0, 9, 20)).unwrap();
+    let mut conn = timeout(Duration::from_secs(5), l.accept()).await.expect("accept not held up").unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, conn.receiver.recv()).await.unwrap().unwrap().unwrap()), 9);
+    assert!(t0.elapsed() < Duration::from_secs(5));
+    drop(silent);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn under_packet_loss_everything_arrives_in_a_legal_order() {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let relay = Relay::start(l.local_addr().parse().unwrap(), 30, 7).await;
+    let mut c = timeout(BOUND, client.connect(&relay.addr.to_string())).await.unwrap().unwrap();
+    let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    c.sender.set_max_frame(1 << 20);
+    s.sender.set_max_frame(1 << 20);
+    let up = plan(200, 12_288);
+    let down = plan(100, 30_000);
+    for f in &up {
+        c.sender.send(f.clone()).unwrap();
+    }
+    for f in &down {
+        s.sender.send(f.clone()).unwrap();
+    }
+    tokio::join!(receive_checked(&mut s, &up), receive_checked(&mut c, &down));
+    let dropped = relay.dropped.load(std::sync::atomic::Ordering::Relaxed);
+    let forwarded = relay.forwarded.load(std::sync::atomic::Ordering::Relaxed);
+    assert!(dropped > 0 && forwarded > 10 * dropped, "the relay dropped {dropped} of {forwarded} datagrams");
+}
+
+#[tokio::test]
+async fn misuse_is_reported_not_panicked() {
+    let (server, client) = transports();
+    let err = client.listen("127.0.0.1:0").await.err().expect("a client-only transport cannot listen");
+    assert!(err.to_string().contains("certificate"), "{err}");
+    let err = server.connect("127.0.0.1:9").await.unwrap_err();
+    assert!(err.to_string().contains("fingerprint"), "{err}");
+    // Names resolve (IPv4 first).
+    let mut l = listen(&server).await;
+    let port = l.local_addr().rsplit_once(':').unwrap().1.to_string();
+    let c = timeout(BOUND, client.connect(&format!("localhost:{port}"))).await.unwrap().unwrap();
+    c.sender.send(frame(0, 4, 9)).unwrap();
+    let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 4);
+    let err = client.connect("no-such-host.invalid:1").await.unwrap_err();
+    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    assert_eq!(server.name(), "quic");
+}
+
+#[tokio::test]
+async fn dropping_the_listener_refuses_newcomers_but_keeps_established_connections() {
+    let (mut c, mut s, l, client) = pair(1 << 20).await;
+    let addr = l.local_addr();
+    drop(l);
+    let err = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap_err();
+    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    c.sender.send(frame(0, 1, 100)).unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 1);
+    s.sender.send(frame(1, 2, 100)).unwrap();
+    assert_eq!(check_payload(&timeout(BOUND, c.receiver.recv()).await.unwrap().unwrap().unwrap()), 2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_clients_at_once_each_get_their_own_frames() {
+    let (server, client) = transports();
+    let mut l = listen(&server).await;
+    let addr = l.local_addr();
+    let clients: Vec<_> = (0..16u8)
+        .map(|k| {
+            let (client, addr) = (client.clone(), addr.clone());
+            tokio::spawn(async move {
+                let mut c = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap();
+                c.sender.set_max_frame(1 << 20);
+                // Announce who we are; once the server has raised its limit (its
+                // "go"), send 40 frames and expect them echoed back in a legal order.
+                c.sender.send(vec![0, k]).unwrap();
+                assert_eq!(timeout(BOUND, c.receiver.recv()).await.unwrap().unwrap().unwrap(), b"go");
+                let frames = plan(40, 20_000);
+                for f in &frames {
+                    c.sender.send(f.clone()).unwrap();
+                }
+                receive_checked(&mut c, &frames).await;
+                c.sender.close();
+            })
+        })
+        .collect();
+    let mut servers = Vec::new();
+    for _ in 0..16 {
+        let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+        s.sender.set_max_frame(1 << 20);
+        servers.push(tokio::spawn(async move {
+            let hello = timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap();
+            assert_eq!(hello.len(), 2);
+            s.sender.send(b"go".to_vec()).unwrap();
+            while let Some(f) = timeout(BOUND, s.receiver.recv()).await.unwrap() {
+                s.sender.send(f.unwrap()).unwrap();
+            }
+            hello[1]
+        }));
+    }
+    for c in clients {
+        timeout(BOUND, c).await.unwrap().unwrap();
+    }
+    let mut seen = HashSet::new();
+    for s in servers {
+        assert!(seen.insert(timeout(BOUND, s).await.unwrap().unwrap()));
+    }
+    assert_eq!(seen.len(), 16);
+    assert_eq!(server.wire_stats().connections, 16);
+}
