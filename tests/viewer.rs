@@ -436,24 +436,31 @@ fn overlay_pixels(img: &image::RgbImage, owner: u32) -> usize {
 }
 
 #[test]
-fn view_connects_to_a_cluster_and_leaves_it_running() {
+fn view_connects_to_a_tcp_cluster_and_leaves_it_running() {
+    view_on_cluster(util::Transport::Tcp);
+}
+
+#[test]
+fn view_connects_to_a_quic_cluster_and_leaves_it_running() {
+    view_on_cluster(util::Transport::Quic);
+}
+
+/// `isin view --connect` on a master with two slaves over `transport`.
+fn view_on_cluster(transport: util::Transport) {
     let (_xvfb, display) = match start_xvfb() {
         Ok(x) => x,
         Err(why) => {
             use std::io::Write;
-            let _ = writeln!(
-                std::io::stderr(),
-                "SKIPPED view_connects_to_a_cluster_and_leaves_it_running: {why}"
-            );
+            let _ = writeln!(std::io::stderr(), "SKIPPED view_on_cluster({transport:?}): {why}");
             return;
         }
     };
     for tool in ["xdotool", "import"] {
         assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
     }
-    let artefacts = repo().join("target/test-artifacts/viewer-cluster");
+    let artefacts = repo().join(format!("target/test-artifacts/viewer-cluster-{}", transport.name()));
     std::fs::create_dir_all(&artefacts).unwrap();
-    let cluster = util::Cluster::start(util::Transport::Tcp, 2, &[]);
+    let cluster = util::Cluster::start(transport, 2, &[]);
 
     // No scene file: the master's scene, camera and settings are shown.
     let args: Vec<OsString> = [
@@ -476,7 +483,7 @@ fn view_connects_to_a_cluster_and_leaves_it_running() {
     let line = v.wait_line("a status line", |l| l.starts_with("status: "));
     let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
     assert_eq!(status.live, 2, "{line}");
-    assert_eq!(status.transport, "tcp", "{line}");
+    assert_eq!(status.transport, transport.name(), "{line}");
     let owners: Vec<u32> = status.tiles.iter().filter(|(_, n)| *n > 0).map(|(id, _)| *id).collect();
     assert_eq!(owners.len(), 2, "tiles from both slaves: {line}");
     let before = v.screenshot(&artefacts.join("before.png"));
