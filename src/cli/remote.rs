@@ -9,6 +9,8 @@
 //! [`SourceEvent::Tile`]s owned by the slave that rendered them; `FrameDone`
 //! becomes [`SourceEvent::FrameComplete`] after the status counters (live
 //! slaves, tiles per slave, bytes received on the connection) are updated.
+//! Live slaves are those that delivered tiles in the last [`LIVE_FRAMES`]
+//! completed frames (the master does not tell viewers about its slaves).
 //!
 //! When the window closes, its end of the channel is dropped; the thread then
 //! disconnects from the master (which keeps its slaves for the next viewer)
@@ -21,10 +23,13 @@ use isin_actors::client::HANDSHAKE_TIMEOUT;
 use isin_actors::protocol::SceneInfo;
 use isin_actors::viewer::{self, Disconnect, GetWireStats, RequestFrameAs, ViewerActor, ViewerEvent};
 use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
+
+/// A slave counts as live while it delivered tiles in this many of the latest frames.
+const LIVE_FRAMES: usize = 3;
 
 /// How often the bytes-received counter is refreshed between frames.
 const WIRE_POLL: Duration = Duration::from_millis(250);
@@ -75,6 +80,7 @@ impl Remote {
                         transport: ticket.transport.clone(),
                         current: None,
                         frame_slaves: BTreeSet::new(),
+                        recent: VecDeque::new(),
                         tiles: BTreeMap::new(),
                     };
                     link.run(request_rx, events).await;
@@ -109,6 +115,8 @@ struct Link {
     current: Option<(u64, Instant)>,
     /// Slaves that delivered tiles of the latest request.
     frame_slaves: BTreeSet<u64>,
+    /// The slaves of the latest completed frames, newest last.
+    recent: VecDeque<BTreeSet<u64>>,
     /// Tiles received per slave id, over the whole session.
     tiles: BTreeMap<u32, u64>,
 }
@@ -121,7 +129,7 @@ impl Link {
     ) {
         let mut poll = tokio::time::interval(WIRE_POLL);
         poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        self.update_status(0).await;
+        self.update_status().await;
         loop {
             tokio::select! {
                 r = requests.recv() => {
@@ -143,16 +151,16 @@ impl Link {
                         break;
                     }
                 }
-                _ = poll.tick() => self.update_status(self.live()).await,
+                _ = poll.tick() => self.update_status().await,
             }
         }
         // Closes the connection: the master drops this viewer and keeps its slaves.
         let _ = self.viewer.send(Disconnect).await;
     }
 
-    /// Live slaves: those that delivered tiles of the latest frame.
+    /// Live slaves: those that delivered tiles of the latest completed frames.
     fn live(&self) -> usize {
-        self.feed.status().live_slaves
+        self.recent.iter().flatten().collect::<BTreeSet<_>>().len()
     }
 
     /// Handles one event of the viewer actor; false when the link is over.
@@ -171,12 +179,13 @@ impl Link {
                     Some((id, at)) if id == request => at.elapsed(),
                     _ => Duration::from_micros(stats.micros),
                 };
-                let live = if self.current.is_some_and(|(id, _)| id == request) {
-                    self.frame_slaves.len()
-                } else {
-                    stats.per_slave.len()
-                };
-                self.update_status(live).await;
+                if self.current.is_some_and(|(id, _)| id == request) {
+                    self.recent.push_back(std::mem::take(&mut self.frame_slaves));
+                    while self.recent.len() > LIVE_FRAMES {
+                        self.recent.pop_front();
+                    }
+                }
+                self.update_status().await;
                 self.feed.send(SourceEvent::FrameComplete { frame_id: request, elapsed })
             }
             ViewerEvent::Error(message) => self.feed.send(SourceEvent::Failed(message)),
@@ -187,7 +196,8 @@ impl Link {
         }
     }
 
-    async fn update_status(&self, live_slaves: usize) {
+    async fn update_status(&self) {
+        let live_slaves = self.live();
         let bytes_received = match self.viewer.send(GetWireStats).await {
             Ok(wire) => wire.bytes_received,
             Err(_) => self.feed.status().bytes_received,
