@@ -66,6 +66,48 @@ pub trait Renderer: Send + Sync + 'static {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Tracer;
 
+/// A renderer that needs no tracer: every pixel is a hash of its coordinates
+/// and the camera ([`Pattern::pixel`]), so a frame's expected bytes are known
+/// without rendering. It counts scene loads and tiles. For tests of the
+/// cluster and of transports, and for measuring the network alone.
+#[derive(Debug, Default)]
+pub struct Pattern {
+    /// Scenes loaded.
+    pub loads: std::sync::atomic::AtomicU64,
+    /// Tiles rendered.
+    pub tiles: std::sync::atomic::AtomicU64,
+}
+
+impl Pattern {
+    /// The RGB8 value of pixel `(x, y)` seen by `camera`.
+    pub fn pixel(camera: &Camera, x: u32, y: u32) -> [u8; 3] {
+        let h = (x as u64).wrapping_mul(0x9e37_79b9)
+            ^ (y as u64).wrapping_mul(0x85eb_ca6b)
+            ^ camera.eye.z.to_bits() as u64;
+        [h as u8, (h >> 8) as u8, (h >> 16) as u8]
+    }
+}
+
+impl Renderer for Pattern {
+    type Scene = String;
+
+    fn load(&self, bundle: SceneBundle) -> Result<String, String> {
+        self.loads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        Ok(bundle.source)
+    }
+
+    fn render(&self, _: &String, camera: &Camera, _: &RenderSettings, t: Tile) -> Vec<u8> {
+        self.tiles.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let mut out = Vec::with_capacity(t.pixel_count() * 3);
+        for y in t.y..t.y + t.h {
+            for x in t.x..t.x + t.w {
+                out.extend_from_slice(&Self::pixel(camera, x, y));
+            }
+        }
+        out
+    }
+}
+
 impl Renderer for Tracer {
     type Scene = Scene;
 

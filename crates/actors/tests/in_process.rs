@@ -5,48 +5,20 @@
 use isin_actors::auth::Ticket;
 use isin_actors::client::JoinError;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
-use isin_actors::slave::{self, Renderer, SlaveOptions};
+use isin_actors::slave::{self, Pattern, SlaveOptions};
 use isin_actors::transport::Transport;
 use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer;
-use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
+use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-/// Pixels from coordinates; counts loads and tiles.
-#[derive(Default)]
-struct Fake {
-    loads: AtomicU64,
-    tiles: AtomicU64,
-}
+type Fake = Pattern;
 
 fn pixel(cam: &Camera, x: u32, y: u32) -> [u8; 3] {
-    let h = (x as u64).wrapping_mul(0x9e37_79b9)
-        ^ (y as u64).wrapping_mul(0x85eb_ca6b)
-        ^ cam.eye.z.to_bits() as u64;
-    [h as u8, (h >> 8) as u8, (h >> 16) as u8]
-}
-
-impl Renderer for Fake {
-    type Scene = String;
-
-    fn load(&self, bundle: SceneBundle) -> Result<String, String> {
-        self.loads.fetch_add(1, Ordering::Relaxed);
-        Ok(bundle.source)
-    }
-
-    fn render(&self, _: &String, camera: &Camera, _: &RenderSettings, t: Tile) -> Vec<u8> {
-        self.tiles.fetch_add(1, Ordering::Relaxed);
-        let mut out = Vec::with_capacity(t.pixel_count() * 3);
-        for y in t.y..t.y + t.h {
-            for x in t.x..t.x + t.w {
-                out.extend_from_slice(&pixel(camera, x, y));
-            }
-        }
-        out
-    }
+    Pattern::pixel(cam, x, y)
 }
 
 fn bundle() -> SceneBundle {
