@@ -1,6 +1,4 @@
 //! Surface materials of a Whitted ray tracer.
-//!
-//! OWNER: shading helper (evaluation); the types are shared with the scene loader.
 
 use glam::Vec3;
 

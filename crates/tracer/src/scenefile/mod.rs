@@ -1,8 +1,6 @@
 //! The human-editable scene description (TOML) and its loaders (built-in
 //! primitives, Wavefront OBJ + MTL, glTF 2.0).
 //!
-//! OWNER: scene helper.
-//!
 //! The format is described in [`format`](mod@format); `scenes/paper.toml` opens with a
 //! commented example of every section.
 //!
