@@ -4,6 +4,7 @@ use anyhow::Context;
 use isin_tracer::{AssetSource, Scene, SceneBundle};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// An [`AssetSource`] that reads files relative to the scene's directory and
 /// remembers every file it read, so the scene can be shipped as a bundle.
@@ -34,12 +35,30 @@ impl AssetSource for DiskAssets {
 /// Loads a scene file from disk: the built scene and the self-contained bundle
 /// (text + every asset read) that reproduces it elsewhere.
 pub fn load_scene_file(path: &Path) -> anyhow::Result<(Scene, SceneBundle)> {
+    load_scene_file_timed(path).map(|(scene, bundle, _)| (scene, bundle))
+}
+
+/// How long loading a scene took.
+#[derive(Clone, Copy, Debug)]
+pub struct LoadTimes {
+    /// Reading and parsing the scene and its assets, building the triangles.
+    pub parse: Duration,
+    /// Building the BVH.
+    pub bvh: Duration,
+}
+
+/// [`load_scene_file`], also reporting how long parsing and the BVH build took.
+pub fn load_scene_file_timed(path: &Path) -> anyhow::Result<(Scene, SceneBundle, LoadTimes)> {
+    let t0 = Instant::now();
     let source = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read scene file {}", path.display()))?;
     let base = path.parent().unwrap_or(Path::new("."));
     let mut assets = DiskAssets::new(base);
     let name = path.display().to_string();
-    let scene = isin_tracer::load_scene(&name, &source, &mut assets)?;
+    let parts = isin_tracer::parse_scene(&name, &source, &mut assets)?;
+    let t1 = Instant::now();
+    let scene = Scene::new(parts);
+    let times = LoadTimes { parse: t1 - t0, bvh: t1.elapsed() };
     let bundle = SceneBundle { name, source, assets: assets.read };
-    Ok((scene, bundle))
+    Ok((scene, bundle, times))
 }

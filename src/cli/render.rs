@@ -1,6 +1,6 @@
 //! `isin render`: one frame of a scene to a PNG file.
 
-use crate::assets::load_scene_file;
+use crate::assets::load_scene_file_timed;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -44,9 +44,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     if let Some(ticket) = &args.cluster {
         return run_cluster(&args, ticket);
     }
-    let t0 = Instant::now();
-    let (scene, _bundle) = load_scene_file(&args.scene)?;
-    let load_time = t0.elapsed();
+    let (scene, _bundle, load) = load_scene_file_timed(&args.scene)?;
 
     let mut settings = scene.settings;
     if let Some(w) = args.width {
@@ -91,7 +89,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         pool.current_num_threads()
     );
     println!("triangles  {}", scene.triangle_count());
-    println!("load+BVH   {:.1} ms", load_time.as_secs_f64() * 1e3);
+    println!("load       {:.1} ms", load.parse.as_secs_f64() * 1e3);
+    println!("BVH build  {:.1} ms", load.bvh.as_secs_f64() * 1e3);
     println!("render     {:.1} ms", render_time.as_secs_f64() * 1e3);
     println!(
         "rays       {:.2} M ({:.2} M primary, {:.2} M secondary, {:.2} M shadow): {:.2} Mrays/s",
