@@ -384,16 +384,16 @@ impl<'a> Integrator<'a> {
                         cone.reflected(hit.t, self.curvature(hit.prim)),
                         depth,
                         weight,
-                        r,
+                        Vec3::splat(r),
                         sample,
                         counts,
-                    ) * r;
+                    );
                 }
                 c
             }
             Material::Mirror { tint } => {
                 let dir = sp.reflect(ray.dir);
-                self.secondary_tinted(
+                self.secondary(
                     Ray::new(sp.above(), dir),
                     cone.reflected(hit.t, self.curvature(hit.prim)),
                     depth,
@@ -410,13 +410,14 @@ impl<'a> Integrator<'a> {
                 let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
                 let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
                 match refract(ray.dir, sp.ns, n1 / n2) {
-                    None => self.secondary(refl, mirrored, depth, weight, 1.0, sample, counts),
+                    None => self.secondary(refl, mirrored, depth, weight, Vec3::ONE, sample, counts),
                     Some(t) => {
                         let cos = if n1 <= n2 { -ray.dir.dot(sp.ns) } else { -t.dot(sp.ns) };
                         let f = schlick(cos, n1, n2);
                         let tint = if sp.front { *tint } else { Vec3::ONE };
-                        let reflected = self.secondary(refl, mirrored, depth, weight, f, sample, counts) * f;
-                        let transmitted = self.secondary_tinted(
+                        let reflected =
+                            self.secondary(refl, mirrored, depth, weight, Vec3::splat(f), sample, counts);
+                        let transmitted = self.secondary(
                             Ray::new(sp.below(), t),
                             next,
                             depth,
@@ -433,7 +434,8 @@ impl<'a> Integrator<'a> {
         }
     }
 
-    /// Traces a secondary ray whose result will be scaled by `factor`.
+    /// Traces a secondary ray and returns its radiance scaled by `factor`
+    /// (the path weight is scaled alike, for the throughput cut-off).
     #[allow(clippy::too_many_arguments)]
     #[inline]
     fn secondary(
@@ -442,7 +444,7 @@ impl<'a> Integrator<'a> {
         cone: RayCone,
         depth: u32,
         weight: Vec3,
-        factor: f32,
+        factor: Vec3,
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
@@ -451,28 +453,7 @@ impl<'a> Integrator<'a> {
             return Vec3::ZERO;
         }
         counts.secondary += 1;
-        self.radiance(&ray, cone, depth + 1, w, sample, counts)
-    }
-
-    /// Traces a secondary ray and multiplies the result by `tint`.
-    #[allow(clippy::too_many_arguments)]
-    #[inline]
-    fn secondary_tinted(
-        &self,
-        ray: Ray,
-        cone: RayCone,
-        depth: u32,
-        weight: Vec3,
-        tint: Vec3,
-        sample: &SampleId,
-        counts: &mut RayCounts,
-    ) -> Vec3 {
-        let w = weight * tint;
-        if depth >= self.max_depth || w.max_element() < MIN_THROUGHPUT {
-            return Vec3::ZERO;
-        }
-        counts.secondary += 1;
-        tint * self.radiance(&ray, cone, depth + 1, w, sample, counts)
+        factor * self.radiance(&ray, cone, depth + 1, w, sample, counts)
     }
 
     /// Direct light from every light source at a Phong surface.
