@@ -232,6 +232,22 @@ fn open_viewer(display: &str, args: &[OsString]) -> Viewer {
     Viewer { child, lines, log: Vec::new(), display, window }
 }
 
+/// Asserts that neither screenshot is blank and that they differ (the view
+/// moved); returns their mean absolute difference.
+fn assert_view_changed(before: &image::RgbImage, after: &image::RgbImage) -> f64 {
+    let (mean_b, var_b) = stats(before);
+    let (mean_a, var_a) = stats(after);
+    println!("before: mean {mean_b:.1} var {var_b:.1}; after: mean {mean_a:.1} var {var_a:.1}");
+    for (name, mean, var) in [("before", mean_b, var_b), ("after", mean_a, var_a)] {
+        assert!(var > 50.0, "{name} screenshot looks blank (luminance variance {var:.1})");
+        assert!(mean > 5.0 && mean < 250.0, "{name} screenshot is uniformly dark or bright ({mean:.1})");
+    }
+    let diff = mean_abs_diff(before, after);
+    println!("mean absolute difference between before and after: {diff:.2}");
+    assert!(diff > 2.0, "the view did not change after moving (difference {diff:.2})");
+    diff
+}
+
 /// Mean and variance of luminance below the status text (top 40 rows).
 fn stats(img: &image::RgbImage) -> (f64, f64) {
     let lum: Vec<f64> = img
@@ -339,16 +355,7 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     let turned = cams[1].forward().cross(cams[2].forward());
     assert!(turned.dot(cams[1].up()) > 1e-3, "Left turns left (about up): {turned:?}");
 
-    let (mean_b, var_b) = stats(&before);
-    let (mean_a, var_a) = stats(&after);
-    println!("before: mean {mean_b:.1} var {var_b:.1}; after: mean {mean_a:.1} var {var_a:.1}");
-    for (name, mean, var) in [("before", mean_b, var_b), ("after", mean_a, var_a)] {
-        assert!(var > 50.0, "{name} screenshot looks blank (luminance variance {var:.1})");
-        assert!(mean > 5.0 && mean < 250.0, "{name} screenshot is uniformly dark or bright ({mean:.1})");
-    }
-    let diff = mean_abs_diff(&before, &after);
-    println!("mean absolute difference between before and after: {diff:.2}");
-    assert!(diff > 2.0, "the view did not change after moving (difference {diff:.2})");
+    let diff = assert_view_changed(&before, &after);
     // The F12 image is the rendered frame, which the window shows 1:1 under the status text.
     let diff_own = mean_abs_diff(&own, &after);
     assert!(diff_own < diff, "the saved screenshot differs from the window ({diff_own:.2})");
@@ -502,16 +509,7 @@ fn view_on_cluster(transport: util::Transport) {
         owners.iter().copied().filter(|&id| count(&after_pass, id) > count(&before_pass, id)).collect();
     assert!(!drawn.is_empty(), "no tiles in the last pass: {before_pass:?} -> {after_pass:?}");
     let after = v.screenshot(&artefacts.join("after.png"));
-    let (mean_b, var_b) = stats(&before);
-    let (mean_a, var_a) = stats(&after);
-    println!("before: mean {mean_b:.1} var {var_b:.1}; after: mean {mean_a:.1} var {var_a:.1}");
-    for (name, mean, var) in [("before", mean_b, var_b), ("after", mean_a, var_a)] {
-        assert!(var > 50.0, "{name} screenshot looks blank (luminance variance {var:.1})");
-        assert!(mean > 5.0 && mean < 250.0, "{name} screenshot is uniformly dark or bright ({mean:.1})");
-    }
-    let diff = mean_abs_diff(&before, &after);
-    println!("mean absolute difference between before and after: {diff:.2}");
-    assert!(diff > 2.0, "the view did not change after moving (difference {diff:.2})");
+    assert_view_changed(&before, &after);
     // The overlay outlines the tiles on screen in the colour of the slave that
     // rendered each: every slave with tiles in the last pass shows.
     for &owner in &drawn {
