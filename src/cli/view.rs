@@ -14,7 +14,7 @@ use clap::Args;
 use isin_actors::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings};
 use isin_viewer::stats::Summary;
-use isin_viewer::{CameraPath, FrameReport};
+use isin_viewer::{CameraPath, Divisor, FrameReport, MovingResolution};
 use isin_viewer::{
     Controls, FrameSource, LocalSource, Quality, Recorder, Session, SessionConfig, SourceStatus, ViewerEvent,
     ViewerOptions,
@@ -58,10 +58,16 @@ pub struct WindowArgs {
     /// Stop refining a still view at this many samples per pixel.
     #[arg(long, default_value_t = 64)]
     pub max_spp: u32,
-    /// While moving, render at 1/N of the resolution in each direction (shown
-    /// enlarged); refinement of a still view is always at full resolution.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
-    pub moving_scale: u32,
+    /// While moving, always render at 1/N of the resolution in each direction
+    /// (shown enlarged; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
+    /// N is chosen from the measured frame times to hold --target-fps.
+    /// A still view is sharpened and refined at full resolution.
+    #[arg(long, value_name = "N")]
+    pub moving_scale: Option<Divisor>,
+    /// Frames per second to hold while moving, by rendering moving frames at
+    /// a lower resolution (1/1 to 1/8) when needed.
+    #[arg(long, default_value_t = 30.0, value_parser = parse_fps)]
+    pub target_fps: f32,
     /// Directory screenshots (F12 / P) are saved to.
     #[arg(long, default_value = ".")]
     pub screenshot_dir: PathBuf,
@@ -89,7 +95,8 @@ impl Default for WindowArgs {
             height: None,
             record: None,
             max_spp: 64,
-            moving_scale: 1,
+            moving_scale: None,
+            target_fps: 30.0,
             screenshot_dir: PathBuf::from("."),
             print_frames: false,
             play: None,
@@ -202,7 +209,10 @@ pub fn run_with_source(
     anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
     let mut quality = Quality::for_settings(&settings);
     quality.max_spp = window.max_spp.max(1);
-    quality.moving_scale = window.moving_scale;
+    quality.moving = match window.moving_scale {
+        Some(d) => MovingResolution::Fixed(d),
+        None => MovingResolution::dynamic(window.target_fps),
+    };
     let config = SessionConfig { settings, quality, controls: Controls::for_scene_extent(extent), camera };
     let mut session = Session::new(source, config);
     if let Some(path) = &window.record {
@@ -229,11 +239,14 @@ pub fn run_with_source(
                     return;
                 }
                 let mut line = format!(
-                    "frame {} complete: view {} pass {} spp {} render {:.1} ms",
+                    "frame {} complete: view {} pass {} spp {} size {}x{} scale {} render {:.1} ms",
                     r.frame_id,
                     r.view,
                     r.pass,
                     r.spp,
+                    r.size.0,
+                    r.size.1,
+                    r.divisor,
                     r.render_time.as_secs_f64() * 1e3
                 );
                 if let Some(l) = r.latency {
@@ -285,16 +298,36 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
     };
     let fps = if span > 0.0 { (shown.len() - 1) as f64 / span } else { 0.0 };
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    // Sizes of the moving frames (every move after the starting view).
+    let mut divisors: Vec<(Divisor, (u32, u32))> =
+        shown.iter().skip(1).map(|(_, r)| (r.divisor, r.size)).collect();
+    divisors.sort();
+    let sizes = match (divisors.first(), divisors.get(divisors.len() / 2), divisors.last()) {
+        (Some(lo), Some(mid), Some(hi)) => {
+            let at = |(d, (w, h)): &(Divisor, (u32, u32))| format!("1/{d} ({w}x{h})");
+            format!("  moving frames at {} median, {} to {}", at(mid), at(lo), at(hi))
+        }
+        _ => String::new(),
+    };
     println!(
         "playback: {} moves  motion-to-photon median {:.1} ms  p95 {:.1} ms  render median {:.1} ms  \
-         p95 {:.1} ms  {:.1} fps while moving",
+         p95 {:.1} ms  {:.1} fps while moving{}",
         lat.count,
         ms(lat.median),
         ms(lat.p95),
         ms(render.median),
         ms(render.p95),
-        fps
+        fps,
+        sizes
     );
+}
+
+/// Parses `--target-fps`: a positive, finite number.
+fn parse_fps(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 0.0 && f <= 1000.0 => Ok(f),
+        _ => Err(format!("expected frames per second between 0 and 1000, not {s:?}")),
+    }
 }
 
 #[cfg(test)]
@@ -311,5 +344,15 @@ mod tests {
     #[test]
     fn default_window_args_match_an_empty_command_line() {
         assert_eq!(Wrapper::parse_from(["isin"]).window, WindowArgs::default());
+    }
+
+    #[test]
+    fn moving_scale_and_target_fps_parse() {
+        let w = Wrapper::parse_from(["isin", "--moving-scale", "2.5", "--target-fps", "60"]).window;
+        assert_eq!(w.moving_scale.map(|d| d.quarters()), Some(10));
+        assert_eq!(w.target_fps, 60.0);
+        for bad in [["--moving-scale", "0.5"], ["--moving-scale", "2.2"], ["--target-fps", "0"]] {
+            assert!(Wrapper::try_parse_from(["isin", bad[0], bad[1]]).is_err(), "{bad:?}");
+        }
     }
 }

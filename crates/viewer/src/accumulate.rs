@@ -26,6 +26,16 @@ pub enum TileError {
         /// Bytes expected.
         expected: usize,
     },
+    /// A lower-resolution tile claims an image size that is empty or larger than the image.
+    #[error("a {size:?} image cannot be shown in the {width}x{height} image")]
+    BadSize {
+        /// The claimed size of the tile's image.
+        size: (u32, u32),
+        /// Width of the displayed image.
+        width: u32,
+        /// Height of the displayed image.
+        height: u32,
+    },
 }
 
 /// sRGB byte → linear value.
@@ -139,21 +149,27 @@ impl Accumulator {
         Ok(())
     }
 
-    /// Adds a tile of an image rendered at `1/scale` of this one's resolution
-    /// (each side rounded up): every pixel of the tile covers a `scale × scale`
-    /// block here, clipped at the image's edges. `scale` 1 is [`Accumulator::add_tile`].
-    pub fn add_scaled_tile(
+    /// Adds a tile of the same view rendered at a lower resolution, `size`
+    /// (`width × height`, each at most this image's): every pixel of the tile
+    /// covers the block of this image's pixels whose centres fall in it, so
+    /// any size — also non-integer fractions such as 1/2.5 — is shown
+    /// enlarged over the whole image (nearest neighbour). `size` equal to
+    /// this image's is [`Accumulator::add_tile`].
+    pub fn add_tile_of(
         &mut self,
         view: u32,
         weight: f32,
         tile: Tile,
         rgb: &[u8],
-        scale: u32,
+        size: (u32, u32),
     ) -> Result<(), TileError> {
-        if scale <= 1 {
+        let (lw, lh) = size;
+        if size == (self.width, self.height) {
             return self.add_tile(view, weight, tile, rgb);
         }
-        let (lw, lh) = (self.width.div_ceil(scale), self.height.div_ceil(scale));
+        if lw == 0 || lh == 0 || lw > self.width || lh > self.height {
+            return Err(TileError::BadSize { size, width: self.width, height: self.height });
+        }
         let fits = tile.x.checked_add(tile.w).is_some_and(|r| r <= lw)
             && tile.y.checked_add(tile.h).is_some_and(|b| b <= lh);
         if !fits {
@@ -163,12 +179,17 @@ impl Accumulator {
         if rgb.len() != expected {
             return Err(TileError::WrongLength { tile, got: rgb.len(), expected });
         }
-        let big = scale_tile(tile, scale, self.width, self.height);
+        let big = map_tile(tile, size, (self.width, self.height));
+        // Source column of every destination column, and source row per row.
+        // The low-resolution pixel holding the centre of pixel `v`: ⌊(v + ½)·small/full⌋.
+        let src = |v: u32, small: u32, full: u32| ((2 * v as u64 + 1) * small as u64 / (2 * full as u64)) as u32;
+        let cols: Vec<usize> =
+            (big.x..big.x + big.w).map(|x| (src(x, lw, self.width) - tile.x) as usize).collect();
         let mut up = Vec::with_capacity(big.pixel_count() * 3);
         for y in big.y..big.y + big.h {
-            let row = (y / scale - tile.y) as usize * tile.w as usize;
-            for x in big.x..big.x + big.w {
-                let i = (row + (x / scale - tile.x) as usize) * 3;
+            let row = (src(y, lh, self.height) - tile.y) as usize * tile.w as usize;
+            for &c in &cols {
+                let i = (row + c) * 3;
                 up.extend_from_slice(&rgb[i..i + 3]);
             }
         }
@@ -191,14 +212,25 @@ impl Accumulator {
     }
 }
 
-/// The region of a `width × height` image covered by `tile` of the same image
-/// rendered at `1/scale` resolution.
-pub fn scale_tile(tile: Tile, scale: u32, width: u32, height: u32) -> Tile {
-    let x = (tile.x.saturating_mul(scale)).min(width);
-    let y = (tile.y.saturating_mul(scale)).min(height);
-    let r = (tile.x.saturating_add(tile.w)).saturating_mul(scale).min(width);
-    let b = (tile.y.saturating_add(tile.h)).saturating_mul(scale).min(height);
-    Tile { x, y, w: r - x, h: b - y }
+/// The region of a `full` (`width × height`) image covered by `tile` of the
+/// same image rendered at the lower resolution `small`: the pixels whose
+/// centres fall in the tile, i.e. destination `x` with `⌊(x + ½)·small_w/full_w⌋`
+/// inside the tile (so neighbouring tiles share no pixel and leave none out).
+pub fn map_tile(tile: Tile, small: (u32, u32), full: (u32, u32)) -> Tile {
+    // First destination pixel x whose centre reaches low-resolution index v:
+    // (x + ½)·small/full ≥ v, i.e. x ≥ (2·v·full − small) / (2·small).
+    let edge = |v: u32, small: u32, full: u32| -> u32 {
+        let (v, small, full) = (v as u64, small as u64, full as u64);
+        if small == 0 || 2 * v * full <= small {
+            return 0;
+        }
+        (2 * v * full - small).div_ceil(2 * small).min(full) as u32
+    };
+    let x = edge(tile.x, small.0, full.0);
+    let y = edge(tile.y, small.1, full.1);
+    let r = edge(tile.x.saturating_add(tile.w), small.0, full.0);
+    let b = edge(tile.y.saturating_add(tile.h), small.1, full.1);
+    Tile { x, y, w: r.saturating_sub(x), h: b.saturating_sub(y) }
 }
 
 #[cfg(test)]
@@ -271,18 +303,57 @@ mod tests {
 
     #[test]
     fn low_resolution_tiles_cover_blocks_clipped_at_the_edge() {
-        // 5 × 3 at scale 2 is rendered as 3 × 2.
+        // 5 × 3 at half resolution is rendered as 3 × 2.
         let mut a = Accumulator::new(5, 3);
         let t = Tile { x: 1, y: 0, w: 2, h: 2 };
         let rgb: Vec<u8> = [10u8, 20, 30, 40].iter().flat_map(|&v| [v, v, v]).collect();
-        a.add_scaled_tile(0, 1.0, t, &rgb, 2).unwrap();
+        a.add_tile_of(0, 1.0, t, &rgb, (3, 2)).unwrap();
         let grey = |v: u8| pack_rgb(v, v, v);
         let d = a.display();
-        assert_eq!(&d[0..5], [0, 0, grey(10), grey(10), grey(20)]);
-        assert_eq!(&d[5..10], [0, 0, grey(10), grey(10), grey(20)]);
-        assert_eq!(&d[10..15], [0, 0, grey(30), grey(30), grey(40)], "last row clipped");
+        // Pixel centres: columns 2, 3, 4 at 2.5/5, 3.5/5, 4.5/5 → low-resolution
+        // columns 1, 2, 2; rows 0, 1, 2 at 0.5/3, 1.5/3, 2.5/3 → rows 0, 1, 1.
+        assert_eq!(&d[0..5], [0, 0, grey(10), grey(20), grey(20)]);
+        assert_eq!(&d[5..10], [0, 0, grey(30), grey(40), grey(40)]);
+        assert_eq!(&d[10..15], [0, 0, grey(30), grey(40), grey(40)]);
         let out = Tile { x: 2, y: 1, w: 2, h: 1 };
-        assert!(matches!(a.add_scaled_tile(0, 1.0, out, &[0; 6], 2), Err(TileError::OutOfBounds(..))));
-        assert_eq!(scale_tile(Tile { x: 2, y: 1, w: 1, h: 1 }, 2, 5, 3), Tile { x: 4, y: 2, w: 1, h: 1 });
+        assert!(matches!(a.add_tile_of(0, 1.0, out, &[0; 6], (3, 2)), Err(TileError::OutOfBounds(..))));
+        assert!(matches!(a.add_tile_of(0, 1.0, t, &rgb, (6, 2)), Err(TileError::BadSize { .. })));
+        assert!(matches!(a.add_tile_of(0, 1.0, t, &rgb, (0, 2)), Err(TileError::BadSize { .. })));
+        assert_eq!(map_tile(Tile { x: 2, y: 1, w: 1, h: 1 }, (3, 2), (5, 3)), Tile { x: 3, y: 1, w: 2, h: 2 });
+        assert_eq!(map_tile(t, (5, 3), (5, 3)), t, "full size maps to itself");
+    }
+
+    #[test]
+    fn non_integer_fractions_tile_the_image_exactly() {
+        // 640 × 480 at 1/2.5 is 256 × 192, split into 32-pixel tiles (the
+        // last column and row narrower): every pixel is painted exactly once,
+        // by the low-resolution pixel whose area holds its centre.
+        let (w, h, lw, lh) = (640u32, 480u32, 256u32, 192u32);
+        let mut a = Accumulator::new(w, h);
+        let mut painted = vec![0u32; (w * h) as usize];
+        for ty in (0..lh).step_by(32) {
+            for tx in (0..lw).step_by(40) {
+                let t = Tile { x: tx, y: ty, w: 40.min(lw - tx), h: 32.min(lh - ty) };
+                // Each low-resolution pixel carries its own coordinates.
+                let rgb: Vec<u8> = (0..t.h)
+                    .flat_map(|j| (0..t.w).flat_map(move |i| [(tx + i) as u8, (ty + j) as u8, 7]))
+                    .collect();
+                a.add_tile_of(1, 1.0, t, &rgb, (lw, lh)).unwrap();
+                let big = map_tile(t, (lw, lh), (w, h));
+                for y in big.y..big.y + big.h {
+                    for x in big.x..big.x + big.w {
+                        painted[(y * w + x) as usize] += 1;
+                    }
+                }
+            }
+        }
+        assert!(painted.iter().all(|&n| n == 1), "some pixel painted {:?} times", painted.iter().max());
+        for (x, y) in [(0, 0), (1, 1), (2, 2), (3, 4), (639, 479), (321, 100), (5, 7)] {
+            // Pixel centre (x + ½)/640 lies in low-resolution pixel ⌊(x + ½)·256/640⌋.
+            let sx = ((x as f64 + 0.5) * lw as f64 / w as f64) as u32;
+            let sy = ((y as f64 + 0.5) * lh as f64 / h as f64) as u32;
+            let p = a.display()[(y * w + x) as usize];
+            assert_eq!(p, pack_rgb(sx as u8, sy as u8, 7), "pixel ({x}, {y})");
+        }
     }
 }

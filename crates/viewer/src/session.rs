@@ -2,20 +2,36 @@
 //! [`FrameRequest`]s, feeds arriving tiles into the [`Accumulator`], refines a
 //! still view pass after pass, and keeps the numbers for the status line.
 //!
-//! Every camera change starts a new *view*. Its first pass is rendered in fast
-//! mode ([`Quality::moving_spp`] samples, [`Quality::moving_light_samples`]
-//! shadow rays); once it completes and no further input came, refinement passes
-//! follow, each with [`Quality::still_spp`] stratified, jittered samples, the
-//! scene's shadow rays and a different [`RenderSettings::seed`] (base seed +
-//! pass number), so each adds new, deterministic samples. Refinement passes are
-//! averaged in linear light (the fast pass, rendered at pixel centres with one
-//! shadow ray, is replaced rather than averaged in) until the view has
-//! [`Quality::max_spp`] samples per pixel. Input at any time supersedes the pass
-//! in flight.
+//! Every camera change starts a new *view*, rendered as a sequence of passes
+//! ([`PassKind`]):
+//!
+//! 1. [`PassKind::Moving`]: fast mode ([`Quality::moving_spp`] samples,
+//!    [`Quality::moving_light_samples`] shadow rays) at a lower resolution,
+//!    shown enlarged. The divisor comes from [`Quality::moving`]: fixed, or
+//!    chosen by a [`Controller`] from the measured times of recent fast passes
+//!    so that moving frames hold a target frame rate. The very first view
+//!    (nothing has moved yet) starts at full resolution.
+//! 2. [`PassKind::Sharp`]: when no further input came, the same fast settings
+//!    at full resolution, so the still image is sharp quickly (skipped when the
+//!    moving pass was already full size).
+//! 3. [`PassKind::Refine`]: passes of [`Quality::still_spp`] stratified,
+//!    jittered samples with the scene's shadow rays and a different
+//!    [`RenderSettings::seed`] (base seed + pass number), so each adds new,
+//!    deterministic samples. They are averaged in linear light (replacing the
+//!    fast passes, which sample pixel centres with one shadow ray) until the
+//!    view has [`Quality::max_spp`] samples per pixel.
+//!
+//! Each pass paints over the previous one tile by tile, so the screen never
+//! goes black. Input at any time supersedes the pass in flight; while a move
+//! key is held ([`Session::hold`]) the sharp and refinement passes wait, so the
+//! renderers are not handed full-resolution work that the next step of the
+//! motion would throw away. Only settings (size, samples, seed) differ between
+//! passes: the timing-driven divisor never changes how a pixel is rendered.
 
-use crate::accumulate::{Accumulator, scale_tile};
+use crate::accumulate::{Accumulator, map_tile};
 use crate::input::{Controls, Move};
 use crate::path::Recorder;
+use crate::resolution::{Controller, Divisor, MovingResolution};
 use crate::source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, Waker};
 use isin_tracer::{Camera, RenderSettings, Tile};
 use std::collections::{BTreeMap, VecDeque};
@@ -28,9 +44,9 @@ pub struct Quality {
     pub moving_spp: u32,
     /// Shadow rays per area light in the first pass after a move.
     pub moving_light_samples: u32,
-    /// The first pass after a move renders at `1/moving_scale` of the
-    /// resolution in each direction (1: full resolution), shown enlarged.
-    pub moving_scale: u32,
+    /// Resolution of the first pass after a move: a fixed divisor, or
+    /// dynamic to hold a frame rate.
+    pub moving: MovingResolution,
     /// Camera samples per pixel of each refinement pass.
     pub still_spp: u32,
     /// Shadow rays per area light in refinement passes.
@@ -40,14 +56,15 @@ pub struct Quality {
 }
 
 impl Quality {
-    /// Fast passes of 1 sample (the pixel centre) and 1 shadow ray; refinement
-    /// passes of 4 jittered samples with the scene's shadow rays, up to 64
-    /// samples per pixel.
+    /// Fast passes of 1 sample (the pixel centre) and 1 shadow ray, sized
+    /// dynamically for 30 frames per second while moving; refinement passes of
+    /// 4 jittered samples with the scene's shadow rays, up to 64 samples per
+    /// pixel.
     pub fn for_settings(settings: &RenderSettings) -> Self {
         Self {
             moving_spp: 1,
             moving_light_samples: 1,
-            moving_scale: 1,
+            moving: MovingResolution::default(),
             still_spp: 4,
             still_light_samples: settings.light_samples.max(1),
             max_spp: 64,
@@ -69,6 +86,29 @@ pub struct SessionConfig {
     pub camera: Camera,
 }
 
+/// What a pass of a view is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PassKind {
+    /// The first pass after a move: fast settings, possibly reduced resolution.
+    Moving,
+    /// The fast settings at full resolution once motion stopped.
+    Sharp,
+    /// Anti-aliased, soft-shadowed samples added to a still view.
+    Refine,
+}
+
+impl PassKind {
+    /// Accumulation slot within a view: a pass of another kind replaces the
+    /// image instead of averaging with it.
+    fn slot(self) -> u32 {
+        match self {
+            PassKind::Moving => 0,
+            PassKind::Sharp => 1,
+            PassKind::Refine => 2,
+        }
+    }
+}
+
 /// A completed pass, reported once it is on screen.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameReport {
@@ -76,8 +116,14 @@ pub struct FrameReport {
     pub frame_id: FrameId,
     /// The view (camera generation): 0 for the starting camera, +1 per move.
     pub view: u32,
-    /// Pass within the view: 0 is the fast pass.
+    /// Pass within the view: 0 is the moving pass.
     pub pass: u32,
+    /// What the pass was for.
+    pub kind: PassKind,
+    /// The pass's resolution divisor (1 for full resolution).
+    pub divisor: Divisor,
+    /// The pass's rendered size in pixels.
+    pub size: (u32, u32),
     /// Samples per pixel in the view's image after this pass (the fast pass's
     /// one sample is dropped once refinement starts).
     pub spp: u32,
@@ -93,9 +139,11 @@ struct InFlight {
     frame_id: FrameId,
     view: u32,
     pass: u32,
+    kind: PassKind,
     weight: u32,
-    /// Resolution divisor of the pass.
-    scale: u32,
+    divisor: Divisor,
+    /// Rendered size of the pass.
+    size: (u32, u32),
     input_at: Option<Instant>,
 }
 
@@ -107,6 +155,16 @@ pub struct Session {
     view: u32,
     /// Samples per pixel of the current view's completed passes.
     view_spp: u32,
+    /// True once the current view has a completed refinement pass.
+    refining: bool,
+    /// Divisor of the current view's moving pass.
+    view_divisor: Divisor,
+    /// Chooses the divisor of moving passes.
+    controller: Controller,
+    /// True while motion goes on (a move key is held): no still passes.
+    hold: bool,
+    /// The pass that waits for [`Session::hold`] to be released.
+    held_pass: Option<u32>,
     /// Time of the first move not yet sent to the source.
     pending_input: Option<Instant>,
     dirty: bool,
@@ -114,8 +172,8 @@ pub struct Session {
     in_flight: Option<InFlight>,
     accum: Accumulator,
     owners: BTreeMap<(u32, u32), (Tile, u32)>,
-    /// Resolution divisor of the tiles in `owners`.
-    owners_scale: u32,
+    /// Rendered size of the tiles in `owners`.
+    owners_size: (u32, u32),
     recorder: Option<Recorder>,
     /// Completed passes not yet reported, with the input time of fast passes.
     completed: Vec<(FrameReport, Option<Instant>)>,
@@ -133,20 +191,26 @@ pub struct Session {
 impl Session {
     /// A session drawing from `source`; nothing is requested until [`Session::start`].
     pub fn new(source: Box<dyn FrameSource>, config: SessionConfig) -> Self {
-        let accum = Accumulator::new(config.settings.width, config.settings.height);
+        let (width, height) = (config.settings.width, config.settings.height);
+        let accum = Accumulator::new(width, height);
         Self {
             source,
             camera: config.camera,
+            controller: Controller::new(config.quality.moving, width, height),
             config,
             view: 0,
             view_spp: 0,
+            refining: false,
+            view_divisor: Divisor::ONE,
+            hold: false,
+            held_pass: None,
             pending_input: None,
             dirty: false,
             next_id: 1,
             in_flight: None,
             accum,
             owners: BTreeMap::new(),
-            owners_scale: 1,
+            owners_size: (width, height),
             recorder: None,
             completed: Vec::new(),
             completions: VecDeque::new(),
@@ -227,6 +291,26 @@ impl Session {
         self.dirty || self.in_flight.is_some_and(|f| f.pass == 0)
     }
 
+    /// Tells the session whether motion goes on (a move key is held down).
+    /// While it does, a completed moving pass is not followed by the sharp
+    /// and refinement passes — the next step of the motion would supersede
+    /// them; once released, the view is sharpened and refined as usual.
+    pub fn hold(&mut self, moving: bool) {
+        self.hold = moving;
+        if !moving
+            && !self.dirty
+            && self.in_flight.is_none()
+            && let Some(pass) = self.held_pass.take()
+        {
+            self.request_pass(pass, None);
+        }
+    }
+
+    /// The divisor the next moving pass will use.
+    pub fn moving_divisor(&self) -> Divisor {
+        self.controller.divisor()
+    }
+
     /// Mouse-drag look by `(dx, dy)` pixels.
     pub fn look(&mut self, dx: f64, dy: f64, at: Instant) {
         let mut camera = self.camera;
@@ -265,6 +349,11 @@ impl Session {
             self.view += 1;
         }
         self.view_spp = 0;
+        self.refining = false;
+        self.held_pass = None;
+        // The first view is not a move: it starts sharp, and measures the
+        // full-resolution cost the controller starts from.
+        self.view_divisor = if self.next_id > 1 { self.controller.divisor() } else { Divisor::ONE };
         if let Some(r) = &mut self.recorder {
             r.record(&self.camera);
         }
@@ -272,30 +361,45 @@ impl Session {
         self.request_pass(0, input_at);
     }
 
-    fn pass_settings(&self, pass: u32) -> RenderSettings {
+    fn pass_kind(&self, pass: u32) -> PassKind {
+        match pass {
+            0 => PassKind::Moving,
+            1 if !self.view_divisor.is_one() => PassKind::Sharp,
+            _ => PassKind::Refine,
+        }
+    }
+
+    fn pass_settings(&self, pass: u32) -> (RenderSettings, Divisor) {
         let q = &self.config.quality;
         let mut s = self.config.settings;
-        if pass == 0 {
-            s.spp = q.moving_spp.max(1);
-            s.light_samples = q.moving_light_samples.max(1);
-            let scale = q.moving_scale.max(1);
-            s.width = s.width.div_ceil(scale);
-            s.height = s.height.div_ceil(scale);
-        } else {
+        let kind = self.pass_kind(pass);
+        let divisor = if kind == PassKind::Moving { self.view_divisor } else { Divisor::ONE };
+        if kind == PassKind::Refine {
             s.spp = q.still_spp.max(1);
             s.light_samples = q.still_light_samples.max(1);
+        } else {
+            s.spp = q.moving_spp.max(1);
+            s.light_samples = q.moving_light_samples.max(1);
         }
+        (s.width, s.height) = divisor.apply(s.width, s.height);
         s.seed = self.config.settings.seed.wrapping_add(pass as u64);
-        s
+        (s, divisor)
     }
 
     fn request_pass(&mut self, pass: u32, input_at: Option<Instant>) {
-        let settings = self.pass_settings(pass);
+        let (settings, divisor) = self.pass_settings(pass);
         let frame_id = self.next_id;
         self.next_id += 1;
-        let scale = if pass == 0 { self.config.quality.moving_scale.max(1) } else { 1 };
-        self.in_flight =
-            Some(InFlight { frame_id, view: self.view, pass, weight: settings.spp, scale, input_at });
+        self.in_flight = Some(InFlight {
+            frame_id,
+            view: self.view,
+            pass,
+            kind: self.pass_kind(pass),
+            weight: settings.spp,
+            divisor,
+            size: (settings.width, settings.height),
+            input_at,
+        });
         self.source.request(FrameRequest { frame_id, camera: self.camera, settings });
     }
 
@@ -309,16 +413,17 @@ impl Session {
                         continue; // a superseded frame's tile
                     };
                     // Refinement passes share one accumulation key per view; the
-                    // fast pass has its own, so the first refined tile replaces it.
-                    let key = f.view.wrapping_mul(2).wrapping_add(u32::from(f.pass > 0));
-                    match self.accum.add_scaled_tile(key, f.weight as f32, t.tile, &t.rgb, f.scale) {
+                    // moving and sharp passes have their own, so each next kind's
+                    // tiles replace the previous kind's.
+                    let key = f.view.wrapping_mul(3).wrapping_add(f.kind.slot());
+                    match self.accum.add_tile_of(key, f.weight as f32, t.tile, &t.rgb, f.size) {
                         Ok(()) => {
-                            let (w, h) = (self.accum.width(), self.accum.height());
-                            let tile = scale_tile(t.tile, f.scale, w, h);
-                            if f.scale != self.owners_scale {
+                            let full = (self.accum.width(), self.accum.height());
+                            let tile = map_tile(t.tile, f.size, full);
+                            if f.size != self.owners_size {
                                 // Tiles of another size: the old borders no longer apply.
                                 self.owners.clear();
-                                self.owners_scale = f.scale;
+                                self.owners_size = f.size;
                             }
                             self.owners.insert((tile.x, tile.y), (tile, t.owner));
                             changed = true;
@@ -330,14 +435,25 @@ impl Session {
                     let Some(f) = self.in_flight.filter(|f| f.frame_id == frame_id) else {
                         continue;
                     };
-                    if f.pass == 1 {
-                        self.view_spp = 0; // the fast pass's sample was replaced
+                    match f.kind {
+                        PassKind::Refine if self.refining => self.view_spp += f.weight,
+                        PassKind::Refine => {
+                            // The fast passes' sample is replaced, not averaged in.
+                            self.refining = true;
+                            self.view_spp = f.weight;
+                        }
+                        PassKind::Moving | PassKind::Sharp => {
+                            self.view_spp = f.weight;
+                            self.controller.observe(f.size.0, f.size.1, elapsed);
+                        }
                     }
-                    self.view_spp += f.weight;
                     let report = FrameReport {
                         frame_id,
                         view: f.view,
                         pass: f.pass,
+                        kind: f.kind,
+                        divisor: f.divisor,
+                        size: f.size,
                         spp: self.view_spp,
                         render_time: elapsed,
                         latency: None, // measured when it is on screen
@@ -353,8 +469,17 @@ impl Session {
                             None => self.played = Some(true),
                         }
                     }
-                    if !self.dirty && self.view_spp < self.config.quality.max_spp {
-                        self.request_pass(f.pass + 1, None);
+                    let next = f.pass + 1;
+                    let wanted = match self.pass_kind(next) {
+                        PassKind::Sharp => true,
+                        _ => self.view_spp < self.config.quality.max_spp,
+                    };
+                    if !self.dirty && wanted {
+                        if self.hold {
+                            self.held_pass = Some(next);
+                        } else {
+                            self.request_pass(next, None);
+                        }
                     }
                 }
                 SourceEvent::Failed(message) => {
@@ -441,6 +566,10 @@ impl Session {
         if let Some(l) = self.last_report.and_then(|r| r.latency) {
             first += &format!("  input->frame {:.0} ms", ms(l));
         }
+        if let Some(r) = self.last_report {
+            first += &format!("  {}x{} (1/{}", r.size.0, r.size.1, r.divisor);
+            first += if self.controller.is_dynamic() { " auto)" } else { ")" };
+        }
         let tiles: Vec<String> = status.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
         let mut lines = vec![
             first,
@@ -494,18 +623,23 @@ mod tests {
         }
         /// Delivers the whole frame as one solid tile, then completes it.
         fn deliver(&self, r: &FrameRequest, value: u8) {
+            self.deliver_in(r, value, Duration::from_millis(5));
+        }
+        /// Delivers the whole frame as one solid tile, then completes it as
+        /// if rendering had taken `elapsed`.
+        fn deliver_in(&self, r: &FrameRequest, value: u8, elapsed: Duration) {
             let tile = Tile { x: 0, y: 0, w: r.settings.width, h: r.settings.height };
-            let mut ev = self.events.lock().unwrap();
-            ev.push_back(SourceEvent::Tile(TileUpdate {
+            self.deliver_tile(r, tile, value);
+            self.events.lock().unwrap().push_back(SourceEvent::FrameComplete { frame_id: r.frame_id, elapsed });
+        }
+        /// Delivers one solid tile of `r`.
+        fn deliver_tile(&self, r: &FrameRequest, tile: Tile, value: u8) {
+            self.events.lock().unwrap().push_back(SourceEvent::Tile(TileUpdate {
                 frame_id: r.frame_id,
                 tile,
                 rgb: vec![value; tile.pixel_count() * 3],
                 owner: 3,
             }));
-            ev.push_back(SourceEvent::FrameComplete {
-                frame_id: r.frame_id,
-                elapsed: Duration::from_millis(5),
-            });
         }
     }
 
@@ -631,22 +765,166 @@ mod tests {
     }
 
     #[test]
-    fn moving_frames_can_render_at_lower_resolution() {
+    fn moving_frames_can_render_at_a_fixed_lower_resolution() {
         let fake = Fake::default();
         let settings = RenderSettings { width: 5, height: 3, ..Default::default() };
-        let quality = Quality { moving_scale: 2, ..Quality::for_settings(&settings) };
+        let quality =
+            Quality { moving: MovingResolution::Fixed(Divisor::whole(2)), ..Quality::for_settings(&settings) };
         let config =
             SessionConfig { settings, quality, controls: Controls::default(), camera: Camera::default() };
         let mut s = Session::new(Box::new(fake.clone()), config);
         s.start();
+        let first = fake.last();
+        assert_eq!((first.settings.width, first.settings.height), (5, 3), "nothing moved yet: full size");
+        fake.deliver(&first, 10);
+        s.pump(Instant::now());
+        s.move_camera(Move::Forward, Instant::now());
+        s.flush();
         let fast = fake.last();
         assert_eq!((fast.settings.width, fast.settings.height), (3, 2));
         fake.deliver(&fast, 90);
         s.pump(Instant::now());
         assert!(s.image().display().iter().all(|&p| p == 0x5a5a5a), "the small frame fills the window");
         assert_eq!(s.tile_owners().next().map(|o| o.0), Some(Tile { x: 0, y: 0, w: 5, h: 3 }));
+        let sharp = fake.last();
+        assert_eq!((sharp.settings.width, sharp.settings.height, sharp.settings.spp), (5, 3, 1));
+        fake.deliver(&sharp, 91);
+        s.pump(Instant::now());
         let refine = fake.last();
-        assert_eq!((refine.settings.width, refine.settings.height), (5, 3), "refinement at full size");
+        assert_eq!((refine.settings.width, refine.settings.height, refine.settings.spp), (5, 3, 4));
+        let kinds: Vec<(PassKind, Divisor)> =
+            s.take_completed(Instant::now()).iter().map(|r| (r.kind, r.divisor)).collect();
+        assert_eq!(
+            kinds,
+            [
+                (PassKind::Moving, Divisor::ONE),
+                (PassKind::Moving, Divisor::whole(2)),
+                (PassKind::Sharp, Divisor::ONE)
+            ]
+        );
+    }
+
+    /// A 640 × 480 session whose fake renderer takes `ms_per_mpx` ms per
+    /// million pixels of a fast pass; returns it after its first (full-size) pass.
+    fn timed_session(ms_per_mpx: f64) -> (Session, Fake) {
+        let fake = Fake::default();
+        let settings = RenderSettings { width: 640, height: 480, light_samples: 8, ..Default::default() };
+        let config = SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default(),
+        };
+        let mut s = Session::new(Box::new(fake.clone()), config);
+        s.start();
+        let first = fake.last();
+        assert_eq!((first.settings.width, first.settings.height), (640, 480));
+        fake.deliver_in(&first, 1, fast_time(&first, ms_per_mpx));
+        s.pump(Instant::now());
+        (s, fake)
+    }
+
+    fn fast_time(r: &FrameRequest, ms_per_mpx: f64) -> Duration {
+        let mpx = r.settings.width as f64 * r.settings.height as f64 / 1e6;
+        Duration::from_secs_f64(ms_per_mpx * mpx / 1e3)
+    }
+
+    /// Moves `n` times, each moving pass rendered at `ms_per_mpx`; returns the
+    /// moving passes' sizes.
+    fn fly(s: &mut Session, fake: &Fake, n: usize, ms_per_mpx: f64) -> Vec<(u32, u32)> {
+        (0..n)
+            .map(|i| {
+                s.move_camera(Move::Forward, Instant::now());
+                s.flush();
+                let r = fake.last();
+                assert_eq!(r.settings.spp, 1, "move {i}");
+                fake.deliver_in(&r, 2, fast_time(&r, ms_per_mpx));
+                s.pump(Instant::now());
+                (r.settings.width, r.settings.height)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn slow_moving_frames_render_smaller_and_fast_ones_full_size() {
+        // 690 ms per Mpx: 212 ms at 640 × 480, far from 30 fps.
+        let (mut s, fake) = timed_session(690.0);
+        let sizes = fly(&mut s, &fake, 12, 690.0);
+        let (w, h) = sizes[0];
+        assert!(w < 320 && h < 240, "the first move is already small: {sizes:?}");
+        assert!(sizes.iter().all(|&(w, h)| (w as f64 / h as f64 - 4.0 / 3.0).abs() < 0.01), "aspect: {sizes:?}");
+        let budget = 1e3 / 30.0;
+        for &(w, h) in &sizes {
+            let t = 690.0 * (w * h) as f64 / 1e6;
+            assert!(t < budget, "{w}x{h} takes {t:.1} ms");
+        }
+        assert!(sizes[4..].iter().all(|&sz| sz == sizes[4]), "settled: {sizes:?}");
+        let divisor = s.moving_divisor();
+        assert!(divisor > Divisor::whole(2), "{divisor}");
+        let lines = s.status_lines(Instant::now()).join("\n");
+        assert!(lines.contains(&format!("(1/{divisor} auto)")), "{lines}");
+        // Now the renderers are 20 × faster: back to full size while moving.
+        let sizes = fly(&mut s, &fake, 40, 30.0);
+        assert_eq!(sizes.last(), Some(&(640, 480)), "{sizes:?}");
+    }
+
+    #[test]
+    fn when_motion_stops_a_sharp_fast_pass_comes_before_refinement_without_a_black_frame() {
+        let (mut s, fake) = timed_session(690.0);
+        s.move_camera(Move::Forward, Instant::now());
+        s.flush();
+        let moving = fake.last();
+        assert!(moving.settings.width < 640);
+        fake.deliver_in(&moving, 50, fast_time(&moving, 690.0));
+        s.pump(Instant::now());
+        assert!(s.image().display().iter().all(|&p| p == 0x323232), "the moving pass fills the window");
+        // No further input: the same fast settings at full resolution.
+        let sharp = fake.last();
+        assert_eq!(sharp.camera, moving.camera);
+        assert_eq!((sharp.settings.width, sharp.settings.height), (640, 480));
+        assert_eq!((sharp.settings.spp, sharp.settings.light_samples), (1, 1));
+        // Its first tile paints over the enlarged image; the rest still shows it.
+        fake.deliver_tile(&sharp, Tile { x: 0, y: 0, w: 32, h: 32 }, 60);
+        s.pump(Instant::now());
+        let d = s.image().display();
+        assert_eq!(d[0], 0x3c3c3c);
+        assert_eq!(d[640 * 479 + 639], 0x323232, "not yet rendered: the moving image, not black");
+        assert!(d.iter().all(|&p| p != 0));
+        fake.deliver_in(&sharp, 60, fast_time(&sharp, 690.0));
+        s.pump(Instant::now());
+        // Then refinement, which replaces the fast samples.
+        let refine = fake.last();
+        assert_eq!((refine.settings.width, refine.settings.height), (640, 480));
+        assert_eq!((refine.settings.spp, refine.settings.light_samples), (4, 8));
+        fake.deliver_tile(&refine, Tile { x: 0, y: 0, w: 640, h: 1 }, 200);
+        s.pump(Instant::now());
+        assert_eq!(s.image().display()[5], 0xc8c8c8, "refinement replaces the fast pass");
+        assert_eq!(s.image().display()[640 * 2], 0x3c3c3c, "the sharp pass stays until then");
+        let reports: Vec<(u32, PassKind, u32)> =
+            s.take_completed(Instant::now()).iter().map(|r| (r.view, r.kind, r.spp)).collect();
+        assert_eq!(reports, [(0, PassKind::Moving, 1), (1, PassKind::Moving, 1), (1, PassKind::Sharp, 1)]);
+    }
+
+    #[test]
+    fn a_held_key_defers_the_still_passes_until_release() {
+        let (mut s, fake) = timed_session(690.0);
+        s.hold(true);
+        s.move_camera(Move::Forward, Instant::now());
+        s.flush();
+        assert_eq!(fake.count(), 3, "start, its refinement, the move");
+        let moving = fake.last();
+        fake.deliver_in(&moving, 50, fast_time(&moving, 690.0));
+        s.pump(Instant::now());
+        assert_eq!(fake.count(), 3, "no full-resolution pass while the key is down");
+        assert!(!s.moving_frame_pending(), "the next step of the motion may go");
+        s.hold(false);
+        assert_eq!(fake.count(), 4);
+        let sharp = fake.last();
+        assert_eq!((sharp.settings.width, sharp.settings.spp), (640, 1));
+        // A release with nothing pending requests nothing.
+        s.hold(true);
+        s.hold(false);
+        assert_eq!(fake.count(), 4);
     }
 
     #[test]

@@ -346,6 +346,8 @@ impl ApplicationHandler<Wake> for App<'_> {
                 self.session.move_steps(mv, steps, now);
             }
         }
+        // While a move key is down the motion goes on: no still passes yet.
+        self.session.hold(!self.held.is_empty());
         // One request per batch of input events.
         self.session.flush();
         if !self.held.is_empty() {
