@@ -182,7 +182,8 @@ impl Accumulator {
         let big = map_tile(tile, size, (self.width, self.height));
         // Source column of every destination column, and source row per row.
         // The low-resolution pixel holding the centre of pixel `v`: ⌊(v + ½)·small/full⌋.
-        let src = |v: u32, small: u32, full: u32| ((2 * v as u64 + 1) * small as u64 / (2 * full as u64)) as u32;
+        let src =
+            |v: u32, small: u32, full: u32| ((2 * v as u64 + 1) * small as u64 / (2 * full as u64)) as u32;
         let cols: Vec<usize> =
             (big.x..big.x + big.w).map(|x| (src(x, lw, self.width) - tile.x) as usize).collect();
         let mut up = Vec::with_capacity(big.pixel_count() * 3);
@@ -319,7 +320,10 @@ mod tests {
         assert!(matches!(a.add_tile_of(0, 1.0, out, &[0; 6], (3, 2)), Err(TileError::OutOfBounds(..))));
         assert!(matches!(a.add_tile_of(0, 1.0, t, &rgb, (6, 2)), Err(TileError::BadSize { .. })));
         assert!(matches!(a.add_tile_of(0, 1.0, t, &rgb, (0, 2)), Err(TileError::BadSize { .. })));
-        assert_eq!(map_tile(Tile { x: 2, y: 1, w: 1, h: 1 }, (3, 2), (5, 3)), Tile { x: 3, y: 1, w: 2, h: 2 });
+        assert_eq!(
+            map_tile(Tile { x: 2, y: 1, w: 1, h: 1 }, (3, 2), (5, 3)),
+            Tile { x: 3, y: 1, w: 2, h: 2 }
+        );
         assert_eq!(map_tile(t, (5, 3), (5, 3)), t, "full size maps to itself");
     }
 

@@ -196,15 +196,7 @@ impl Controller {
         };
         let fps = if fps.is_finite() && fps > 0.0 { fps as f64 } else { 30.0 };
         let index = (ladder.len() == 1).then_some(0);
-        Self {
-            width,
-            height,
-            ladder,
-            budget: HEADROOM / fps,
-            index,
-            costs: VecDeque::new(),
-            since_change: 0,
-        }
+        Self { width, height, ladder, budget: HEADROOM / fps, index, costs: VecDeque::new(), since_change: 0 }
     }
 
     /// The divisor for the next moving pass: the finest allowed until
@@ -242,7 +234,9 @@ impl Controller {
 
     /// The finest ladder position at or after `from` predicted to fit the budget.
     fn finest_fitting(&self, from: usize, cost: f64) -> usize {
-        (from..self.ladder.len()).find(|&i| cost * self.pixels(i) <= self.budget).unwrap_or(self.ladder.len() - 1)
+        (from..self.ladder.len())
+            .find(|&i| cost * self.pixels(i) <= self.budget)
+            .unwrap_or(self.ladder.len() - 1)
     }
 
     /// Takes the render time of a fast pass (1 sample, 1 shadow ray) of
@@ -360,11 +354,8 @@ mod tests {
 
     #[test]
     fn stays_within_bounds() {
-        let bounded = MovingResolution::Dynamic {
-            target_fps: 30.0,
-            min: Divisor::whole(2),
-            max: Divisor::whole(4),
-        };
+        let bounded =
+            MovingResolution::Dynamic { target_fps: 30.0, min: Divisor::whole(2), max: Divisor::whole(4) };
         let mut c = Controller::new(bounded, W, H);
         let slow = run(&mut c, 10, 0.0, 10_000.0);
         assert!(slow.iter().all(|&d| d >= Divisor::whole(2) && d <= Divisor::whole(4)), "{slow:?}");

@@ -630,7 +630,10 @@ mod tests {
         fn deliver_in(&self, r: &FrameRequest, value: u8, elapsed: Duration) {
             let tile = Tile { x: 0, y: 0, w: r.settings.width, h: r.settings.height };
             self.deliver_tile(r, tile, value);
-            self.events.lock().unwrap().push_back(SourceEvent::FrameComplete { frame_id: r.frame_id, elapsed });
+            self.events
+                .lock()
+                .unwrap()
+                .push_back(SourceEvent::FrameComplete { frame_id: r.frame_id, elapsed });
         }
         /// Delivers one solid tile of `r`.
         fn deliver_tile(&self, r: &FrameRequest, tile: Tile, value: u8) {
@@ -768,8 +771,10 @@ mod tests {
     fn moving_frames_can_render_at_a_fixed_lower_resolution() {
         let fake = Fake::default();
         let settings = RenderSettings { width: 5, height: 3, ..Default::default() };
-        let quality =
-            Quality { moving: MovingResolution::Fixed(Divisor::whole(2)), ..Quality::for_settings(&settings) };
+        let quality = Quality {
+            moving: MovingResolution::Fixed(Divisor::whole(2)),
+            ..Quality::for_settings(&settings)
+        };
         let config =
             SessionConfig { settings, quality, controls: Controls::default(), camera: Camera::default() };
         let mut s = Session::new(Box::new(fake.clone()), config);
@@ -852,7 +857,10 @@ mod tests {
         let sizes = fly(&mut s, &fake, 12, 690.0);
         let (w, h) = sizes[0];
         assert!(w < 320 && h < 240, "the first move is already small: {sizes:?}");
-        assert!(sizes.iter().all(|&(w, h)| (w as f64 / h as f64 - 4.0 / 3.0).abs() < 0.01), "aspect: {sizes:?}");
+        assert!(
+            sizes.iter().all(|&(w, h)| (w as f64 / h as f64 - 4.0 / 3.0).abs() < 0.01),
+            "aspect: {sizes:?}"
+        );
         let budget = 1e3 / 30.0;
         for &(w, h) in &sizes {
             let t = 690.0 * (w * h) as f64 / 1e6;
