@@ -567,3 +567,57 @@ fn isin_without_arguments_opens_the_viewer_on_its_embedded_cluster() {
     let exit = v.wait_exit();
     assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
 }
+
+/// The `--print-frames` lines of a playback's moving passes (pass 0 of every
+/// view after the first): `(size, scale)` as printed.
+fn moving_passes(stdout: &str) -> Vec<(String, String)> {
+    stdout
+        .lines()
+        .filter_map(|l| {
+            let rest = l.strip_prefix("frame ")?.split_once(" complete: ")?.1;
+            let words: Vec<&str> = rest.split_whitespace().collect();
+            let field = |name: &str| Some(words[words.iter().position(|w| *w == name)? + 1].to_string());
+            (field("pass")? == "0" && field("view")? != "0").then(|| Some((field("size")?, field("scale")?)))?
+        })
+        .collect()
+}
+
+#[test]
+fn play_sizes_moving_frames_for_the_target_frame_rate_or_a_fixed_scale() {
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr(), "SKIPPED play_sizes_moving_frames…: {why}");
+            return;
+        }
+    };
+    let frames = isin_viewer::CameraPath::load(&repo().join("scenes/paths/paper.toml")).unwrap().frames.len();
+    let play = |extra: &[&str]| -> String {
+        let out = Command::new(env!("CARGO_BIN_EXE_isin"))
+            .args(["view", "scenes/paper.toml", "--width", "160", "--height", "120", "--threads", "1"])
+            .args(["--play", "scenes/paths/paper.toml", "--exit-after-play", "--print-frames"])
+            .args(extra)
+            .env("DISPLAY", &display)
+            .env_remove("WAYLAND_DISPLAY")
+            .current_dir(repo())
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(out.status.success(), "{extra:?}: {stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+        assert!(stdout.contains(&format!("playback: {} moves", frames - 1)), "{stdout}");
+        stdout
+    };
+    // No renderer draws 160 × 120 in a millisecond: 1000 fps asks for the
+    // smallest moving frames, 1/8 of the size, from the first move on.
+    let fast = play(&["--target-fps", "1000"]);
+    let moves = moving_passes(&fast);
+    assert_eq!(moves.len(), frames - 1, "{fast}");
+    assert!(moves.iter().all(|(size, scale)| size == "20x15" && scale == "8"), "{moves:?}");
+    assert!(fast.contains("moving frames at 1/8 (20x15) median"), "{fast}");
+    // A fixed divisor, fractional: 160 / 2.5 = 64, 120 / 2.5 = 48.
+    let fixed = play(&["--moving-scale", "2.5"]);
+    let moves = moving_passes(&fixed);
+    assert_eq!(moves.len(), frames - 1, "{fixed}");
+    assert!(moves.iter().all(|(size, scale)| size == "64x48" && scale == "2.5"), "{moves:?}");
+}

@@ -23,10 +23,14 @@
 //!   `isin fly` (headless) and `isin view --play` (in the window, measuring
 //!   motion-to-photon latency); [`stats`] summarises the timings.
 //!
+//! - [`resolution`]: dynamic resolution while moving — a [`Divisor`] for the
+//!   moving passes chosen from measured pass times to hold a target frame rate.
+//!
 //! The window renders at a fixed resolution and scales the image to fit;
-//! while the camera moves, passes are fast (1 sample, 1 shadow ray, optionally
-//! lower resolution), and while it is still, passes with new seeds are averaged
-//! in until [`Quality::max_spp`] — see [`session`].
+//! while the camera moves, passes are fast (1 sample, 1 shadow ray) and as
+//! small as needed to hold `--target-fps`; when it stops, a fast pass at full
+//! resolution sharpens the image, then passes with new seeds are averaged in
+//! until [`Quality::max_spp`] — see [`session`].
 
 pub mod accumulate;
 pub mod channel;
@@ -47,6 +51,6 @@ pub use input::{Command, Controls, Move};
 pub use local::LocalSource;
 pub use path::{CameraPath, PathFrame, Recorder};
 pub use resolution::{Divisor, MovingResolution};
-pub use session::{FrameReport, Quality, Session, SessionConfig};
+pub use session::{FrameReport, PassKind, Quality, Session, SessionConfig};
 pub use source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker};
 pub use window::{ViewerEvent, ViewerOptions, check_display, run};
