@@ -577,7 +577,10 @@ fn moving_passes(stdout: &str) -> Vec<(String, String)> {
             let rest = l.strip_prefix("frame ")?.split_once(" complete: ")?.1;
             let words: Vec<&str> = rest.split_whitespace().collect();
             let field = |name: &str| Some(words[words.iter().position(|w| *w == name)? + 1].to_string());
-            (field("pass")? == "0" && field("view")? != "0").then(|| Some((field("size")?, field("scale")?)))?
+            if field("pass")? != "0" || field("view")? == "0" {
+                return None;
+            }
+            Some((field("size")?, field("scale")?))
         })
         .collect()
 }
