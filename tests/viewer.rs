@@ -612,11 +612,13 @@ fn play_sizes_moving_frames_for_the_target_frame_rate_or_a_fixed_scale() {
         stdout
     };
     // No renderer draws 160 × 120 in a millisecond: 1000 fps asks for the
-    // smallest moving frames, 1/8 of the size, from the first move on.
+    // smallest moving frames, 1/8 of the size, from the first move on. (A view
+    // of little but sky can be cheap enough for the next size up, 1/7.)
     let fast = play(&["--target-fps", "1000"]);
     let moves = moving_passes(&fast);
     assert_eq!(moves.len(), frames - 1, "{fast}");
-    assert!(moves.iter().all(|(size, scale)| size == "20x15" && scale == "8"), "{moves:?}");
+    assert_eq!(moves[0], ("20x15".to_string(), "8".to_string()));
+    assert!(moves.iter().all(|(_, scale)| scale == "8" || scale == "7"), "{moves:?}");
     assert!(fast.contains("moving frames at 1/8 (20x15) median"), "{fast}");
     // A fixed divisor, fractional: 160 / 2.5 = 64, 120 / 2.5 = 48.
     let fixed = play(&["--moving-scale", "2.5"]);
