@@ -514,7 +514,11 @@ fn view_on_cluster(transport: util::Transport) {
     // rendered each: every slave with tiles in the last pass shows.
     for &owner in &drawn {
         let n = overlay_pixels(&after, owner);
-        assert!(n >= 20, "slave {owner}'s tiles are not outlined ({n} pixels of its colour)");
+        assert!(
+            n >= 20,
+            "slave {owner}'s tiles are not outlined ({n} pixels of its colour); output:\n{:#?}",
+            v.log
+        );
         assert!(overlay_pixels(&before, owner) < n, "the overlay was off before");
     }
 
