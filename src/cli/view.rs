@@ -41,7 +41,8 @@ Keys:
   O / Tab                   tile-ownership overlay (tile borders coloured per slave)
   H                         status text (fps, frame time, slaves, tiles, bytes/s, transport)
   Escape                    quit
-A held move key keeps moving; a still view refines until --max-spp samples per pixel.";
+A held move key keeps moving, in frames made as small as needed to hold --target-fps; a still
+view is redrawn at full resolution, then refined until --max-spp samples per pixel.";
 
 /// Options of the window itself, shared by every way of starting a viewer.
 #[derive(Args, Debug, Clone, PartialEq)]
@@ -285,7 +286,7 @@ pub fn run_with_source(
     Ok(result?)
 }
 
-/// Prints latency and frame-rate figures of a playback: every fast pass shown
+/// Prints latency and frame-rate figures of a playback: every moving pass shown
 /// after the first, i.e. one per camera move.
 fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
     let latencies: Vec<Duration> = shown.iter().filter_map(|(_, r)| r.latency).collect();

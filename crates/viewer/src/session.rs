@@ -175,7 +175,7 @@ pub struct Session {
     /// Rendered size of the tiles in `owners`.
     owners_size: (u32, u32),
     recorder: Option<Recorder>,
-    /// Completed passes not yet reported, with the input time of fast passes.
+    /// Completed passes not yet reported, with the input time of moving passes.
     completed: Vec<(FrameReport, Option<Instant>)>,
     completions: VecDeque<Instant>,
     last_report: Option<FrameReport>,
