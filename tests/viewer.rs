@@ -630,3 +630,67 @@ fn play_sizes_moving_frames_for_the_target_frame_rate_or_a_fixed_scale() {
     assert_eq!(moves.len(), frames - 1, "{fixed}");
     assert!(moves.iter().all(|(size, scale)| size == "64x48" && scale == "2.5"), "{moves:?}");
 }
+
+/// A parsed `--print-frames` line with the fields the held-key test needs.
+#[derive(Debug, Clone)]
+struct Pass {
+    frame: u64,
+    view: u32,
+    pass: u32,
+    size: String,
+}
+
+fn parse_pass(line: &str) -> Option<Pass> {
+    let rest = line.strip_prefix("frame ")?;
+    let (frame, rest) = rest.split_once(" complete: ")?;
+    let words: Vec<&str> = rest.split_whitespace().collect();
+    let field = |name: &str| Some(words[words.iter().position(|w| *w == name)? + 1]);
+    Some(Pass {
+        frame: frame.parse().ok()?,
+        view: field("view")?.parse().ok()?,
+        pass: field("pass")?.parse().ok()?,
+        size: field("size")?.to_string(),
+    })
+}
+
+#[test]
+fn a_held_key_moves_without_still_passes_then_sharpens_on_release() {
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr(), "SKIPPED a_held_key_moves…: {why}");
+            return;
+        }
+    };
+    assert!(tool_exists("xdotool"), "xdotool is needed (apt-get install xdotool)");
+    let args: Vec<OsString> = ["view", "scenes/paper.toml", "--width", "320", "--height", "240"]
+        .into_iter()
+        .chain(["--print-frames", "--max-spp", &MAX_SPP.to_string()])
+        .map(OsString::from)
+        .collect();
+    let mut v = open_viewer(&display, &args);
+    v.wait_view_final(0);
+    v.xdotool(&["windowfocus", "--sync", &v.window]);
+    v.xdotool(&["keydown", "w"]);
+    // Several steps of continuous motion while the key is down.
+    v.wait_line("view 6", |l| parse_pass(l).is_some_and(|p| p.view >= 6));
+    v.xdotool(&["keyup", "w"]);
+    let last = v.log.iter().rev().find_map(|l| parse_pass(l)).unwrap().view;
+    // After the release the view is sharpened at full size (pass 1), then refined.
+    let line = v.wait_line("the still passes after the release", |l| {
+        parse_pass(l).is_some_and(|p| p.view >= last && p.pass >= 1)
+    });
+    let still = parse_pass(&line).unwrap();
+    assert_eq!(still.size, "320x240", "{line}");
+    let held: Vec<Pass> = v.log.iter().filter_map(|l| parse_pass(l)).filter(|p| p.view >= 1).collect();
+    let moving: Vec<&Pass> = held.iter().filter(|p| p.view < still.view || p.pass == 0).collect();
+    assert!(moving.iter().all(|p| p.pass == 0), "a still pass while the key was down: {held:#?}");
+    // Each step of the motion was the next request: no full-size pass was
+    // requested in between (and then superseded, which prints nothing).
+    let ids: Vec<u64> = moving.iter().map(|p| p.frame).collect();
+    assert!(ids.windows(2).all(|w| w[1] == w[0] + 1), "requests in between the moves: {held:#?}");
+    v.xdotool(&["key", "Escape"]);
+    let exit = v.wait_exit();
+    assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
+}
