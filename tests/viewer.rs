@@ -65,34 +65,55 @@ fn display_answers(display: &str) -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// Starts Xvfb on a display number it picks itself (`-displayfd`: it writes
-/// the number once it accepts connections); `Err` with the reason when it cannot.
+/// Starts Xvfb; `Err` with the reason when it cannot.
+///
+/// Each server gets an explicit display number from a range of this test
+/// process's own (by process id, then a counter), and `-displayfd` tells when
+/// it accepts connections. Letting concurrent servers pick numbers themselves
+/// (`-displayfd` alone) made them probe each other's displays, and a probing
+/// server can remove a running server's socket: viewers then failed with
+/// "Failed to open connection to X server" when the tests ran in parallel.
+/// With an explicit number a server checks the display's lock first and
+/// exits if it is taken, and the next number is tried.
 fn start_xvfb() -> Result<(Reaper, String), String> {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static NEXT: AtomicU32 = AtomicU32::new(0);
     if !tool_exists("Xvfb") {
         return Err("Xvfb is not installed".into());
     }
-    let mut child = Command::new("Xvfb")
-        .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .map_err(|e| format!("cannot run Xvfb: {e}"))?;
-    let stdout = child.stdout.take().ok_or("no pipe to Xvfb")?;
-    let xvfb = Reaper(child);
-    let (tx, rx) = channel();
-    std::thread::spawn(move || {
-        let mut line = String::new();
-        let _ = BufReader::new(stdout).read_line(&mut line);
-        let _ = tx.send(line);
-    });
-    let line =
-        rx.recv_timeout(Duration::from_secs(30)).map_err(|_| "Xvfb did not report a display".to_string())?;
-    let n: u32 = line.trim().parse().map_err(|_| format!("Xvfb could not start (it said {line:?})"))?;
-    let display = format!(":{n}");
-    if tool_exists("xdpyinfo") && !display_answers(&display) {
-        return Err(format!("Xvfb reported {display} but it does not answer"));
+    let base = 100 + (std::process::id() % 1000) * 32;
+    let mut said = Vec::new();
+    for _ in 0..16 {
+        let n = base + NEXT.fetch_add(1, Ordering::Relaxed) % 32;
+        let display = format!(":{n}");
+        let mut child = Command::new("Xvfb")
+            .arg(&display)
+            .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(|e| format!("cannot run Xvfb: {e}"))?;
+        let stdout = child.stdout.take().ok_or("no pipe to Xvfb")?;
+        let xvfb = Reaper(child);
+        let (tx, rx) = channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = BufReader::new(stdout).read_line(&mut line);
+            let _ = tx.send(line);
+        });
+        let line = rx
+            .recv_timeout(Duration::from_secs(30))
+            .map_err(|_| format!("Xvfb {display} did not report that it is ready"))?;
+        if line.trim() != n.to_string() {
+            said.push(format!("{display}: {line:?}")); // taken (it exited): try the next
+            continue;
+        }
+        if tool_exists("xdpyinfo") && !display_answers(&display) {
+            return Err(format!("Xvfb reported {display} but it does not answer"));
+        }
+        return Ok((xvfb, display));
     }
-    Ok((xvfb, display))
+    Err(format!("Xvfb could not start on any display: {said:?}"))
 }
 
 /// A parsed `--print-frames` line.
