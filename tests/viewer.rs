@@ -69,12 +69,12 @@ fn display_answers(display: &str) -> bool {
 ///
 /// Each server gets an explicit display number from a range of this test
 /// process's own (by process id, then a counter), and `-displayfd` tells when
-/// it accepts connections. Letting concurrent servers pick numbers themselves
-/// (`-displayfd` alone) made them probe each other's displays, and a probing
-/// server can remove a running server's socket: viewers then failed with
-/// "Failed to open connection to X server" when the tests ran in parallel.
-/// With an explicit number a server checks the display's lock first and
-/// exits if it is taken, and the next number is tried.
+/// it accepts connections. With servers picking numbers themselves
+/// (`-displayfd` alone), tests running in parallel now and then saw a viewer
+/// fail with "Failed to open connection to X server" on a display that had
+/// just answered — most likely a server probing the numbers disturbed
+/// another's socket. With an explicit number a server checks that display's
+/// lock and exits if it is taken, and the next number is tried.
 fn start_xvfb() -> Result<(Reaper, String), String> {
     use std::sync::atomic::{AtomicU32, Ordering};
     static NEXT: AtomicU32 = AtomicU32::new(0);
