@@ -406,4 +406,8 @@ pub struct ObjectDef {
     pub caps: Option<bool>,
     /// OBJ and glTF: file path relative to the scene file.
     pub path: Option<String>,
+    /// Midpoint subdivision levels (each splits every triangle 1 → 4, the
+    /// shape unchanged); default 0, at most
+    /// [`MAX_SUBDIVIDE`](super::subdivide::MAX_SUBDIVIDE).
+    pub subdivide: Option<u32>,
 }
