@@ -133,7 +133,7 @@ fn every_shipped_scene_loads() {
     for name in &names {
         let text = std::fs::read_to_string(scenes_dir().join(name)).unwrap();
         if let Some(shared) = missing_shared_mesh(&text) {
-            eprintln!("skipping {name}: {shared} is absent");
+            eprintln!("skipping {name}: {} is absent", shared.display());
             continue;
         }
         let (p, _) = load_shipped(name);
@@ -160,7 +160,7 @@ fn shared_mesh_scenes_have_the_issues_ingredients() {
     for (name, min_tris) in [("bunny.toml", 69_000), ("dragon.toml", 1_600_000)] {
         let text = std::fs::read_to_string(scenes_dir().join(name)).unwrap();
         if let Some(shared) = missing_shared_mesh(&text) {
-            eprintln!("skipping {name}: {shared} is absent");
+            eprintln!("skipping {name}: {} is absent", shared.display());
             continue;
         }
         let (p, read) = load_shipped(name);
