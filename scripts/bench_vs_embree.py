@@ -110,6 +110,7 @@ def main():
     for c in a.cases:
         if c not in cases:
             print(f"skipping {c}: unknown case or mesh absent", file=sys.stderr)
+    exe = bench_executable(root)  # before the long Embree runs: later edits do not rebuild it
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     load_before = open("/proc/loadavg").read().split()[:3]
 
@@ -124,7 +125,6 @@ def main():
         embree[c] = parse_embree(open(log).read())
         embree_rss[c] = rss
 
-    exe = bench_executable(root)
     print("== isin, bvh, obvhs: " + " ".join(cases), file=sys.stderr)
     code, _ = run_measured([exe, "--bench", "json=tracer.json"] + cases, os.path.join(a.out, "tracer.txt"))
     if code != 0:
