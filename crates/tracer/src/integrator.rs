@@ -700,7 +700,7 @@ pub fn triangle_curvature(v: &[Vec3; 3], normals: &[Vec3; 3]) -> f32 {
 /// otherwise. Both are deterministic.
 #[inline]
 pub fn phong_lobe(x: f32, s: f32) -> f32 {
-    if (0.0..=4096.0).contains(&s) && s == s.floor() {
+    if (0.0..=4096.0).contains(&s) && s == crate::textures::floor_f32(s) {
         let mut n = s as u32;
         let (mut base, mut acc) = (x, 1.0f32);
         while n > 0 {
