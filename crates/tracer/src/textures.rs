@@ -328,9 +328,30 @@ mod tests {
     #[test]
     fn inline_floors_equal_the_std_ones_bit_for_bit() {
         let mut xs: Vec<f32> = vec![
-            0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5, 0.999_999_94, -0.999_999_94, 1e-45, -1e-45,
-            8_388_607.5, -8_388_607.5, 8_388_608.0, -8_388_608.0, 16_777_217.0, 3e9, -3e9, f32::MAX,
-            f32::MIN, f32::INFINITY, f32::NEG_INFINITY, f32::NAN,
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            1.5,
+            -1.5,
+            0.999_999_94,
+            -0.999_999_94,
+            1e-45,
+            -1e-45,
+            8_388_607.5,
+            -8_388_607.5,
+            8_388_608.0,
+            -8_388_608.0,
+            16_777_217.0,
+            3e9,
+            -3e9,
+            f32::MAX,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
         ];
         // A deterministic spread of bit patterns over the whole range.
         let mut z = 0x9e37_79b9_7f4a_7c15u64;
