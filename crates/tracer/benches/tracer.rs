@@ -11,10 +11,20 @@
 //!   (side d/4, centre c + (0.3 d, ·, 0.3 d) at height max.y + d/2), any-hit, with
 //!   t in (1e-4 d, 0.999 · distance).
 //!
+//! Meshes: the bunny, the 100k dragon, Sponza seen from inside (the README's
+//! `-cam -14 3 0 10 5 0`) and the dragon with every triangle split 1 → 4 twice
+//! (1.6M triangles, `embree_bench -s 2`), read with the same OBJ rules as
+//! `embree_bench.c` (every `v`, fanned `f`) so both trace the same triangles;
+//! the box `c`, `d` come from all vertices, as there.
+//!
 //! Each tracing case reports the MEDIAN Mrays/s over [`REPS`] runs, for 1 and 2
-//! threads. Run with `cargo bench -p isin-tracer --bench tracer`; prints a
-//! Markdown table and writes `target/bench/tracer.json`. Meshes that are absent
-//! are skipped with a message. Ratio columns are "how many times faster isin is"
+//! threads, and isin's best run (`isin_best` in the JSON: Embree prints its
+//! best). Per mesh the JSON also has isin's BVH + triangle bytes per triangle,
+//! and at the end the process's peak RSS (VmHWM). Run with
+//! `cargo bench -p isin-tracer --bench tracer`; prints a Markdown table and
+//! writes `target/bench/tracer.json` (`-- json=NAME` for another name; see
+//! `main` for the mesh filter). `scripts/bench-vs-embree.sh` runs it next to
+//! the Embree benchmark. Meshes that are absent are skipped with a message. Ratio columns are "how many times faster isin is"
 //! (Mrays/s ratio for tracing, time ratio for builds).
 
 use isin_tracer::Vec3;
@@ -61,6 +71,11 @@ pub struct Row {
     pub bvh: Option<f64>,
     /// `obvhs`'s figure.
     pub obvhs: Option<f64>,
+    /// isin's best repetition (tracing rows; the statistic the Embree benchmark prints).
+    pub isin_best: Option<f64>,
+    /// isin's rays per CPU-second of the process (tracing rows), in millions:
+    /// robust to other load on the machine, like Embree's "per CPU-s" figure.
+    pub isin_per_cpu: Option<f64>,
 }
 
 impl Row {
@@ -81,6 +96,8 @@ pub struct Report {
     pub rows: Vec<Row>,
     /// Free-form notes printed under the table.
     pub notes: Vec<String>,
+    /// Per mesh: (name, triangles, bytes per triangle of isin's BVH + triangle data).
+    pub meshes: Vec<(String, usize, f64)>,
 }
 
 /// Adds a row to `report` (also the hook for later rows such as a scene's frame time).
@@ -93,7 +110,15 @@ pub fn report_row(
     obvhs: Option<f64>,
 ) {
     eprintln!("  {case}: isin {isin:.3}, bvh {bvh:.3?}, obvhs {obvhs:.3?}");
-    report.rows.push(Row { case: case.to_string(), unit, isin, bvh, obvhs });
+    report.rows.push(Row {
+        case: case.to_string(),
+        unit,
+        isin,
+        bvh,
+        obvhs,
+        isin_best: None,
+        isin_per_cpu: None,
+    });
 }
 
 impl Report {
@@ -132,14 +157,16 @@ impl Report {
             .iter()
             .map(|r| {
                 format!(
-                    "    {{\"case\": {:?}, \"unit\": {:?}, \"isin\": {}, \"bvh\": {}, \"obvhs\": {}, \
-                     \"isin_over_bvh\": {}, \"isin_over_obvhs\": {}}}",
+                    "    {{\"case\": {:?}, \"unit\": {:?}, \"isin\": {}, \"isin_best\": {}, \"isin_per_cpu\": {}, \
+                     \"bvh\": {}, \"obvhs\": {}, \"isin_over_bvh\": {}, \"isin_over_obvhs\": {}}}",
                     r.case,
                     match r.unit {
                         Unit::MraysPerSec => "Mrays/s",
                         Unit::Millis => "ms",
                     },
                     num(Some(r.isin)),
+                    num(r.isin_best),
+                    num(r.isin_per_cpu),
                     num(r.bvh),
                     num(r.obvhs),
                     num(r.speedup(r.bvh)),
@@ -148,8 +175,18 @@ impl Report {
             })
             .collect();
         let notes: Vec<String> = self.notes.iter().map(|n| format!("{n:?}")).collect();
+        let meshes: Vec<String> = self
+            .meshes
+            .iter()
+            .map(|(name, tris, bpt)| {
+                format!("    {{\"mesh\": {name:?}, \"triangles\": {tris}, \"bytes_per_triangle\": {bpt:.2}}}")
+            })
+            .collect();
+        let rss = num(peak_rss_mb());
         format!(
-            "{{\n  \"machine\": {machine:?},\n  \"reps\": {REPS},\n  \"rows\": [\n{}\n  ],\n  \"notes\": [{}]\n}}\n",
+            "{{\n  \"machine\": {machine:?},\n  \"reps\": {REPS},\n  \"peak_rss_mb\": {rss},\n  \"meshes\": [\n{}\n  ],\n  \
+             \"rows\": [\n{}\n  ],\n  \"notes\": [{}]\n}}\n",
+            meshes.join(",\n"),
             rows.join(",\n"),
             notes.join(", ")
         )
@@ -182,34 +219,95 @@ impl EmbreeRng {
     }
 }
 
-fn load_mesh(path: &Path) -> Option<Vec<Triangle>> {
-    if !path.exists() {
-        println!("skipping {}: not found", path.display());
-        return None;
-    }
-    let opts = tobj::LoadOptions { triangulate: true, ..Default::default() };
-    let (models, _) = match tobj::load_obj(path, &opts) {
-        Ok(m) => m,
+/// A mesh as the Embree benchmark sees it: every `v` line and every `f` line
+/// (polygons fanned), plus the bounds of all vertices.
+pub struct BenchMesh {
+    /// Triangles in file order.
+    pub tris: Vec<Triangle>,
+    /// Bounds of every vertex in the file (used or not), as Embree computes them.
+    pub bounds: Aabb,
+}
+
+/// Loads an OBJ the way `embree_bench.c` does (`v x y z`, `f` with `/vt/vn`
+/// suffixes and negative indices, fanned), so both see the same triangles in
+/// the same order; faces with out-of-range indices are skipped.
+fn load_mesh(path: &Path) -> Option<BenchMesh> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
         Err(e) => {
             println!("skipping {}: {e}", path.display());
             return None;
         }
     };
+    let mut verts: Vec<Vec3> = Vec::new();
     let mut tris = Vec::new();
-    for m in &models {
-        let p = &m.mesh.positions;
-        let vert = |i: u32| Vec3::new(p[3 * i as usize], p[3 * i as usize + 1], p[3 * i as usize + 2]);
-        for f in m.mesh.indices.chunks_exact(3) {
-            tris.push(Triangle { v: [vert(f[0]), vert(f[1]), vert(f[2])] });
+    let mut bounds = Aabb::EMPTY;
+    for line in text.lines() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let c: Vec<f32> = it.take(3).filter_map(|x| x.parse().ok()).collect();
+                if let [x, y, z] = c[..] {
+                    let v = Vec3::new(x, y, z);
+                    bounds = bounds.union(&Aabb { min: v, max: v });
+                    verts.push(v);
+                }
+            }
+            Some("f") => {
+                let idx: Vec<Option<Vec3>> = it
+                    .map_while(|w| w.split('/').next()?.parse::<i64>().ok())
+                    .map(|i| {
+                        let i = if i < 0 { verts.len() as i64 + i } else { i - 1 };
+                        usize::try_from(i).ok().and_then(|i| verts.get(i).copied())
+                    })
+                    .collect();
+                for k in 1..idx.len().saturating_sub(1) {
+                    if let (Some(a), Some(b), Some(c)) = (idx[0], idx[k], idx[k + 1]) {
+                        tris.push(Triangle { v: [a, b, c] });
+                    }
+                }
+            }
+            _ => {}
         }
     }
-    Some(tris)
+    Some(BenchMesh { tris, bounds })
 }
 
-fn primary_rays(b: &Aabb, width: usize, height: usize) -> Vec<BenchRay> {
+/// Splits every triangle 1 → 4 at its edge midpoints, in `embree_bench.c`'s
+/// order: `(a, ab, ca)`, `(ab, b, bc)`, `(ca, bc, c)`, `(ab, bc, ca)`.
+fn subdivide(tris: &[Triangle]) -> Vec<Triangle> {
+    let mut out = Vec::with_capacity(tris.len() * 4);
+    for t in tris {
+        let [a, b, c] = t.v;
+        let mid = |p: Vec3, q: Vec3| (p + q) * 0.5;
+        let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+        out.extend_from_slice(&[
+            Triangle { v: [a, ab, ca] },
+            Triangle { v: [ab, b, bc] },
+            Triangle { v: [ca, bc, c] },
+            Triangle { v: [ab, bc, ca] },
+        ]);
+    }
+    out
+}
+
+/// The camera of a ray set: Embree's default view of the box, or an explicit
+/// eye and target (its `-cam`).
+#[derive(Clone, Copy, Debug)]
+pub enum View {
+    /// `eye = c + (0.2, 0.25, 0.75)·d` looking at `c`.
+    Default,
+    /// Eye and target.
+    At(Vec3, Vec3),
+}
+
+fn primary_rays(b: &Aabb, view: View, width: usize, height: usize) -> Vec<BenchRay> {
     let (c, d) = (b.center(), b.diagonal());
-    let eye = c + Vec3::new(0.2, 0.25, 0.75) * d;
-    let w = (c - eye).normalize();
+    let (eye, target) = match view {
+        View::Default => (c + Vec3::new(0.2, 0.25, 0.75) * d, c),
+        View::At(e, t) => (e, t),
+    };
+    let w = (target - eye).normalize();
     let u0 = w.cross(Vec3::Y).normalize();
     let v0 = u0.cross(w).normalize();
     let th = math::tan(45f32.to_radians() / 2.0);
@@ -447,7 +545,7 @@ fn trace_once(pool: &rayon::ThreadPool, t: &dyn Tracer, rays: &[BenchRay], q: Qu
     (t0.elapsed().as_secs_f64(), hits)
 }
 
-/// Median Mrays/s over [`REPS`] runs. Tracers too slow for the budget trace an
+/// (Median, best, per CPU-second) Mrays/s over [`REPS`] runs. Tracers too slow for the budget trace an
 /// evenly strided subset (noted in the report).
 fn trace_mrays(
     pool: &rayon::ThreadPool,
@@ -456,7 +554,7 @@ fn trace_mrays(
     q: Query,
     label: &str,
     report: &mut Report,
-) -> f64 {
+) -> (f64, f64, Option<f64>) {
     // Probe on 1/64 of the rays to pick a stride.
     let probe: Vec<BenchRay> = rays.iter().step_by(64).copied().collect();
     let (secs, _) = trace_once(pool, t, &probe, q);
@@ -474,11 +572,37 @@ fn trace_mrays(
     } else {
         rays
     };
+    let cpu0 = process_cpu_seconds();
     let runs: Vec<f64> = (0..REPS).map(|_| set.len() as f64 / trace_once(pool, t, set, q).0 * 1e-6).collect();
-    median(runs)
+    let per_cpu = match (cpu0, process_cpu_seconds()) {
+        (Some(a), Some(b)) if b > a => Some((set.len() * REPS) as f64 / (b - a) * 1e-6),
+        _ => None,
+    };
+    let best = runs.iter().copied().fold(0.0, f64::max);
+    (median(runs), best, per_cpu)
 }
 
-fn bench_mesh(name: &str, tris: &[Triangle], isin_only: bool, report: &mut Report) {
+/// User + system CPU seconds of the whole process so far (Linux: /proc, in
+/// clock ticks of 10 ms; a case's repetitions take seconds, so ~1%).
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are 14 and 15.
+    let rest = stat.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// The process's peak resident set size (VmHWM), in MB (Linux only).
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn bench_mesh(name: &str, mesh: &BenchMesh, view: View, isin_only: bool, report: &mut Report) {
+    let tris = &mesh.tris[..];
     println!("== {name}: {} triangles", tris.len());
     let pools = [(1, pool(1)), (2, pool(2))];
     let mut isin = None;
@@ -500,10 +624,13 @@ fn bench_mesh(name: &str, tris: &[Triangle], isin_only: bool, report: &mut Repor
     if let Err(e) = isin.validate() {
         panic!("isin BVH invalid: {e}");
     }
+    let bytes_per_tri = isin.memory_bytes() as f64 / tris.len().max(1) as f64;
+    println!("  isin BVH + triangle data: {bytes_per_tri:.1} bytes/triangle");
+    report.meshes.push((name.to_string(), tris.len(), bytes_per_tri));
 
-    let b = isin.bounds();
+    let b = mesh.bounds;
     let mut rng = EmbreeRng(12345);
-    let primary = primary_rays(&b, 1024, 768);
+    let primary = primary_rays(&b, view, 1024, 768);
     let incoherent = incoherent_rays(&b, 1 << 20, &mut rng);
     let shadow = shadow_rays(&b, &primary, &isin, &mut rng);
     let sets = [
@@ -529,11 +656,14 @@ fn bench_mesh(name: &str, tris: &[Triangle], isin_only: bool, report: &mut Repor
         ));
         for (n, p) in &pools {
             let label = format!("{name} {kind} {n}T");
-            let m: Vec<f64> = tracers
+            let m: Vec<(f64, f64, Option<f64>)> = tracers
                 .iter()
                 .map(|(lib, t)| trace_mrays(p, *t, rays, q, &format!("{label} {lib}"), report))
                 .collect();
-            report_row(report, &label, Unit::MraysPerSec, m[0], m.get(1).copied(), m.get(2).copied());
+            let other = |i: usize| m.get(i).map(|x| x.0);
+            report_row(report, &label, Unit::MraysPerSec, m[0].0, other(1), other(2));
+            let row = report.rows.last_mut().expect("row just added");
+            (row.isin_best, row.isin_per_cpu) = (Some(m[0].1), m[0].2);
         }
     }
 }
@@ -553,30 +683,52 @@ fn machine() -> String {
 
 fn main() {
     // `cargo bench` passes `--bench`; `isin-only` skips the other libraries and any
-    // other argument filters meshes by name (`cargo bench ... -- isin-only bunny`).
+    // other argument selects meshes by exact name (`cargo bench ... -- isin-only bunny`:
+    // bunny, dragon_100k, sponza, dragon_1.6M).
     let mut filter: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
     let isin_only = filter.iter().any(|a| a == "isin-only");
-    filter.retain(|a| a != "isin-only");
+    // `json=NAME` writes target/bench/NAME instead of tracer.json.
+    let json_name = filter
+        .iter()
+        .find_map(|a| a.strip_prefix("json="))
+        .map_or_else(|| "tracer.json".to_string(), str::to_string);
+    filter.retain(|a| a != "isin-only" && !a.starts_with("json="));
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let meshes = root.join("../../../shared/meshes");
     let mut report = Report::default();
     let start = Instant::now();
-    for (name, rel) in [("bunny", "bunny/stanford-bunny.obj"), ("dragon_100k", "dragon/dragon_100k.obj")] {
-        if !filter.is_empty() && !filter.iter().any(|f| name.contains(f.as_str())) {
+    let cases: [(&str, &str, View, u32); 4] = [
+        ("bunny", "bunny/stanford-bunny.obj", View::Default, 0),
+        ("dragon_100k", "dragon/dragon_100k.obj", View::Default, 0),
+        // The README's Sponza view: `-cam -14 3 0 10 5 0`, inside the atrium.
+        (
+            "sponza",
+            "sponza_dabrovic/sponza.obj",
+            View::At(Vec3::new(-14.0, 3.0, 0.0), Vec3::new(10.0, 5.0, 0.0)),
+            0,
+        ),
+        // Every triangle split 1 → 4 twice (`embree_bench -s 2`).
+        ("dragon_1.6M", "dragon/dragon_100k.obj", View::Default, 2),
+    ];
+    for (name, rel, view, levels) in cases {
+        if !filter.is_empty() && !filter.iter().any(|f| name == f.as_str()) {
             continue;
         }
-        if let Some(tris) = load_mesh(&meshes.join(rel)) {
-            bench_mesh(name, &tris, isin_only, &mut report);
+        if let Some(mut mesh) = load_mesh(&meshes.join(rel)) {
+            for _ in 0..levels {
+                mesh.tris = subdivide(&mesh.tris);
+            }
+            bench_mesh(name, &mesh, view, isin_only, &mut report);
         }
     }
     let machine = machine();
     report.notes.push(format!("machine: {machine}; total bench time {:.0} s", start.elapsed().as_secs_f64()));
     println!("\n{}", report.markdown());
     let out = root.join("../../target/bench");
-    let written = std::fs::create_dir_all(&out)
-        .and_then(|_| std::fs::write(out.join("tracer.json"), report.json(&machine)));
+    let file = out.join(json_name);
+    let written = std::fs::create_dir_all(&out).and_then(|_| std::fs::write(&file, report.json(&machine)));
     match written {
-        Ok(()) => println!("wrote {}", out.join("tracer.json").display()),
+        Ok(()) => println!("wrote {}", file.display()),
         Err(e) => println!("could not write {}: {e}", out.display()),
     }
 }

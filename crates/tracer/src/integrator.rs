@@ -290,7 +290,14 @@ pub struct Integrator<'a> {
     light_grid: u32,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
+    /// The first [`PREPARED_LIGHTS`] lights, prepared once
+    /// ([`crate::lights::Light::prepare_area`]; `None` for point lights and degenerate ones).
+    prepared: [Option<AreaSampler<'a>>; PREPARED_LIGHTS],
 }
+
+/// How many of a scene's lights an [`Integrator`] prepares up front; further
+/// ones are prepared at each shading point (same numbers, more work).
+const PREPARED_LIGHTS: usize = 8;
 
 impl<'a> Integrator<'a> {
     /// An integrator with the recursion depth (at most [`MAX_DEPTH_LIMIT`])
@@ -299,7 +306,18 @@ impl<'a> Integrator<'a> {
         let light_samples = settings.light_samples.max(1);
         let per_pixel = light_samples.saturating_mul(settings.spp.max(1)).min(1 << 24);
         let max_depth = settings.max_depth.min(MAX_DEPTH_LIMIT);
-        Self { scene, max_depth, light_samples, light_grid: ceil_sqrt(per_pixel), adaptive_shadows: true }
+        let mut prepared = [None; PREPARED_LIGHTS];
+        for (slot, light) in prepared.iter_mut().zip(&scene.lights) {
+            *slot = light.prepare_area();
+        }
+        Self {
+            scene,
+            max_depth,
+            light_samples,
+            light_grid: ceil_sqrt(per_pixel),
+            adaptive_shadows: true,
+            prepared,
+        }
     }
 
     /// Switches adaptive area-light sampling on (the default) or off (every
@@ -494,7 +512,11 @@ impl<'a> Integrator<'a> {
             }
             // Area lights: skip them when the point is behind the emitter, and
             // give each its own stratified, jittered set of samples.
-            let Some(prepared) = light.area_sampler(sp.p) else { continue };
+            let prepared = match self.prepared.get(index) {
+                Some(p) => p.filter(|a| a.faces(sp.p)),
+                None => light.area_sampler(sp.p),
+            };
+            let Some(prepared) = prepared else { continue };
             let light_sampler = depth_sampler.child(index as u32);
             let n = self.light_samples;
             let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
@@ -678,7 +700,7 @@ pub fn triangle_curvature(v: &[Vec3; 3], normals: &[Vec3; 3]) -> f32 {
 /// otherwise. Both are deterministic.
 #[inline]
 pub fn phong_lobe(x: f32, s: f32) -> f32 {
-    if (0.0..=4096.0).contains(&s) && s == s.floor() {
+    if (0.0..=4096.0).contains(&s) && s == crate::textures::floor_f32(s) {
         let mut n = s as u32;
         let (mut base, mut acc) = (x, 1.0f32);
         while n > 0 {

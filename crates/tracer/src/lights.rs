@@ -171,6 +171,8 @@ pub struct AreaSampler<'l> {
     light: &'l Light,
     /// Unit emitting normal.
     pub normal: Vec3,
+    /// The polygon's first vertex (a point of its plane).
+    origin: Vec3,
     radiance: Vec3,
     shape: Shape,
 }
@@ -190,8 +192,18 @@ impl Light {
     /// `p` lies strictly on its emitting side (see [`Light::area_normal_towards`]).
     #[inline]
     pub fn area_sampler(&self, p: Vec3) -> Option<AreaSampler<'_>> {
-        let normal = self.area_normal_towards(p)?;
+        self.prepare_area().filter(|s| s.faces(p))
+    }
+
+    /// The area light prepared for sampling from any point (its normal and
+    /// shape do not depend on the point); `None` for a point light or a
+    /// degenerate polygon. [`AreaSampler::faces`] then tells which points it
+    /// reaches; together they are [`Light::area_sampler`], with the work done
+    /// once per light instead of once per shading point.
+    #[inline]
+    pub fn prepare_area(&self) -> Option<AreaSampler<'_>> {
         let Light::Area { vertices: v, radiance } = self else { return None };
+        let normal = self.normal()?;
         let shape = match v.len() {
             3 => Shape::Triangle { v0: v[0], e1: v[1] - v[0], e2: v[2] - v[0], density: self.area() },
             4 if v[1] - v[0] == v[2] - v[3] => {
@@ -200,11 +212,18 @@ impl Light {
             }
             _ => Shape::General,
         };
-        Some(AreaSampler { light: self, normal, radiance: *radiance, shape })
+        Some(AreaSampler { light: self, normal, origin: v[0], radiance: *radiance, shape })
     }
 }
 
 impl AreaSampler<'_> {
+    /// True when `p` lies strictly on the emitting side of the light's plane
+    /// (the test of [`Light::area_normal_towards`]).
+    #[inline]
+    pub fn faces(&self, p: Vec3) -> bool {
+        (p - self.origin).dot(self.normal) > 0.0
+    }
+
     /// [`Light::sample_area`] from `p` for the unit-square sample `u` (the
     /// same point of the light up to rounding).
     #[inline]

@@ -3,6 +3,7 @@
 
 use super::errors::{Location, SceneError, SourceMap};
 use super::format::*;
+use super::subdivide::{self, MAX_SUBDIVIDE};
 use super::{AssetSource, gltf, obj};
 use crate::cameras::Camera;
 use crate::lights::Light;
@@ -58,6 +59,8 @@ pub(crate) struct Placement {
     pub uv_scale: Vec2,
     /// Material overriding the mesh file's own, if the object names one.
     pub material: Option<u32>,
+    /// Midpoint subdivision levels applied to every mesh (see [`super::subdivide`]).
+    pub subdivide: u32,
 }
 
 /// Accumulates the scene while entries are processed.
@@ -535,8 +538,12 @@ impl<'a> Builder<'a> {
                         mesh.indices.push([0, 2, 3]);
                     }
                     let origin = self.origin(&span, what);
-                    let placement =
-                        Placement { transform: Transform::IDENTITY, uv_scale: Vec2::ONE, material: None };
+                    let placement = Placement {
+                        transform: Transform::IDENTITY,
+                        uv_scale: Vec2::ONE,
+                        material: None,
+                        subdivide: 0,
+                    };
                     self.emit(&mesh, &placement, material, &origin)?;
                 }
                 self.parts.lights.push(Light::Area { vertices, radiance });
@@ -591,8 +598,17 @@ impl<'a> Builder<'a> {
             d.rotate.map_or(Vec3::ZERO, vec3),
             d.translate.map_or(Vec3::ZERO, vec3),
         );
+        let subdivide = d.subdivide.unwrap_or(0);
+        if subdivide > MAX_SUBDIVIDE {
+            return Err(self.invalid_field(
+                &span,
+                &what,
+                "subdivide",
+                format!("must be between 0 and {MAX_SUBDIVIDE}, got {subdivide}"),
+            ));
+        }
         let placement =
-            Placement { transform, uv_scale: d.uv_scale.map_or(Vec2::ONE, Splat::vec2), material };
+            Placement { transform, uv_scale: d.uv_scale.map_or(Vec2::ONE, Splat::vec2), material, subdivide };
         let origin = self.origin(&span, what.clone());
         let count = |key: &str, value: Option<u32>, default: u32, min: u32| -> Result<u32, SceneError> {
             let n = value.unwrap_or(default);
@@ -651,9 +667,21 @@ impl<'a> Builder<'a> {
         origin: &Origin,
     ) -> Result<(), SceneError> {
         let n = mesh.positions.len();
-        if self.parts.triangles.len() + mesh.indices.len() > MAX_TRIANGLES {
+        let split = 4usize.pow(placement.subdivide.min(MAX_SUBDIVIDE));
+        if self.parts.triangles.len() + mesh.indices.len().saturating_mul(split) > MAX_TRIANGLES {
             return Err(origin.invalid(format!("the scene would exceed {MAX_TRIANGLES} triangles")));
         }
+        if let Some(&bad) = mesh.indices.iter().flatten().find(|&&i| i as usize >= n) {
+            return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
+        }
+        let subdivided;
+        let mesh = if placement.subdivide > 0 {
+            subdivided = subdivide::subdivide(mesh, placement.subdivide);
+            &subdivided
+        } else {
+            mesh
+        };
+        let n = mesh.positions.len();
         let t = &placement.transform;
         let normal_matrix = t.normal_matrix();
         let flip = t.flips_winding();

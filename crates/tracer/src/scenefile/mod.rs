@@ -15,6 +15,7 @@ mod errors;
 pub mod format;
 mod gltf;
 mod obj;
+pub mod subdivide;
 
 pub use build::{MAX_IMAGE_SIDE, MAX_TRIANGLES};
 pub use errors::{Location, SceneError};
