@@ -43,7 +43,11 @@ pub enum JoinError {
 impl JoinError {
     /// Whether trying again later could help.
     pub fn is_retryable(&self) -> bool {
-        matches!(self, JoinError::Transport(_) | JoinError::Timeout(_) | JoinError::Closed)
+        match self {
+            JoinError::Transport(TransportError::Untrusted { .. }) => false,
+            JoinError::Transport(_) | JoinError::Timeout(_) | JoinError::Closed => true,
+            _ => false,
+        }
     }
 }
 

@@ -9,7 +9,7 @@
 //! Modules:
 //! - [`protocol`]: every message, the versioned wire encoding, scene hashes.
 //! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never sent),
-//!   join tickets (`isin://TOKEN@HOST:PORT`).
+//!   join tickets (`isin://TOKEN@HOST:PORT?fp=CERT-SHA256`).
 //! - [`scheduler`]: the pure scheduling core (`handle_*` / `poll_*`, time as an argument).
 //! - [`transport`]: the interface a transport implements — a connection is a pair
 //!   of frame channels with byte counters — plus the length-delimited stream codec

@@ -227,7 +227,7 @@ async fn a_wrong_fingerprint_fails_clearly_and_delivers_nothing() {
     let wrong = QuicTransport::client(impostor.fingerprint()).unwrap().with_options(options());
     let err = timeout(BOUND, wrong.connect(&addr)).await.unwrap().unwrap_err();
     let text = err.to_string();
-    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    assert!(matches!(err, TransportError::Untrusted { .. }), "{err:?}");
     assert!(text.contains("fingerprint") && text.contains(&impostor.fingerprint().to_string()), "{text}");
     assert!(text.contains(&server.fingerprint().unwrap().to_string()), "{text}");
     // The listener never produced that connection: the next one accepted is a good one.

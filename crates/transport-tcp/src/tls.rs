@@ -1,5 +1,5 @@
-//! The master's TLS identity and certificate pinning, for QUIC and (later) TLS
-//! over TCP alike.
+//! The master's TLS identity and certificate pinning, for TLS over TCP and
+//! QUIC alike (`isin-transport-quic` re-exports this module).
 //!
 //! The master generates a self-signed certificate ([`Identity::generate`]); the
 //! SHA-256 of its DER encoding, the [`Fingerprint`], travels in the join
@@ -12,8 +12,8 @@
 //! precisely than any host name could).
 //!
 //! [`server_config`] and [`client_config`] build plain rustls configurations
-//! (TLS 1.3 only, ring provider) with the ALPN protocol chosen by the caller,
-//! so the TCP transport can wrap them in `tokio-rustls` unchanged.
+//! (TLS 1.3 only, ring provider) with the ALPN protocol chosen by the caller:
+//! the TCP transport wraps them in `tokio-rustls`, QUIC hands them to quinn.
 
 use rustls::client::danger::{HandshakeSignatureValid, ServerCertVerified, ServerCertVerifier};
 use rustls::crypto::{CryptoProvider, WebPkiSupportedAlgorithms};
