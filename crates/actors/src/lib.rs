@@ -25,6 +25,7 @@
 
 pub mod auth;
 pub mod client;
+pub mod codec;
 pub mod master;
 pub mod protocol;
 pub mod scheduler;
