@@ -4,6 +4,7 @@ use super::cluster;
 use crate::assets::load_scene_file;
 use clap::Args;
 use isin_actors::auth::{self, Ticket};
+use isin_actors::codec::Compression;
 use isin_actors::master::{Master, MasterConfig};
 use std::io::Write;
 use std::path::PathBuf;
@@ -42,6 +43,10 @@ pub struct MasterArgs {
     /// Do not hand idle slaves copies of straggling tiles.
     #[arg(long)]
     pub no_duplicates: bool,
+    /// Tile compression: `auto` (the best codec a slave offers: delta-lz4), `raw`,
+    /// or a codec (`delta-lz4`, `lz4`; raw for slaves that do not offer it).
+    #[arg(long, default_value = "auto")]
+    pub compression: Compression,
 }
 
 /// Runs `isin master` until killed.
@@ -57,6 +62,7 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.scheduler.tile_size = args.tile.max(1);
     cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
     cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
+    cfg.compression = args.compression;
     let name = match (args.transport.as_str(), args.insecure) {
         (_, false) => args.transport.as_str(),
         ("tcp", true) => isin_actors::auth::PLAINTEXT_TCP,

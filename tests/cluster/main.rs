@@ -19,6 +19,8 @@
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
 //! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
 //!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
+//! - `every_codec_is_byte_identical`: `--compression raw|lz4|delta-lz4` (and `auto`, in
+//!   `identical`) all deliver frames equal to `isin render`; slaves report the codec picked.
 //! - `wrong_fingerprint`: a slave whose ticket pins another certificate gives up at once with
 //!   both fingerprints named; the master never sees it authenticate.
 //! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
@@ -266,3 +268,16 @@ fn tls_ticket_never_falls_back_to_plaintext() {
     c.master.wait_for(Stream::Err, "bad frame");
     assert_eq!(c.master.matching(Stream::Err, |l| l.contains("authenticated")).len(), 1);
 }
+
+cluster_test!(every_codec_is_byte_identical, |t: Transport| {
+    let local = render_local(SMALL);
+    for codec in ["raw", "lz4", "delta-lz4"] {
+        let c = Cluster::start(t, 2, &["--compression", codec]);
+        for s in &c.slaves {
+            let line = s.wait_for(Stream::Err, "joined master");
+            assert!(line.contains(&format!("tiles in {codec})")), "{line}");
+        }
+        let (cluster, _) = c.render("frame.png", SMALL);
+        assert_same_pixels(&cluster, &local, &format!("cluster frame with {codec} vs isin render"));
+    }
+});

@@ -84,6 +84,7 @@ fn tile_prefixes() -> &'static [Vec<u8>] {
                 id: 0,
                 tile: Tile { x: 0, y: 0, w: 1, h: 1 },
                 render_micros: 0,
+                codec: Default::default(),
                 pixels: Default::default(),
             })
         };
@@ -93,6 +94,7 @@ fn tile_prefixes() -> &'static [Vec<u8>] {
                 slave: 0,
                 slave_name: String::new(),
                 tile: Tile { x: 0, y: 0, w: 1, h: 1 },
+                codec: Default::default(),
                 pixels: Default::default(),
             })
         };
