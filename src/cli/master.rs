@@ -43,8 +43,8 @@ pub struct MasterArgs {
     /// Do not hand idle slaves copies of straggling tiles.
     #[arg(long)]
     pub no_duplicates: bool,
-    /// Tile compression: `auto` (the best codec a slave offers: delta-lz4), `raw`,
-    /// or a codec (`delta-lz4`, `lz4`; raw for slaves that do not offer it).
+    /// Tile compression: `auto` (the best codec a slave offers: qoi), `raw`,
+    /// or a codec (`qoi`, `lz4`; raw for slaves that do not offer it).
     #[arg(long, default_value = "auto")]
     pub compression: Compression,
 }

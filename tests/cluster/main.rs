@@ -19,7 +19,7 @@
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
 //! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
 //!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
-//! - `every_codec_is_byte_identical`: `--compression raw|lz4|delta-lz4` (and `auto`, in
+//! - `every_codec_is_byte_identical`: `--compression raw|lz4|qoi` (and `auto`, in
 //!   `identical`) all deliver frames equal to `isin render`; slaves report the codec picked.
 //! - `wrong_fingerprint`: a slave whose ticket pins another certificate gives up at once with
 //!   both fingerprints named; the master never sees it authenticate.
@@ -271,7 +271,7 @@ fn tls_ticket_never_falls_back_to_plaintext() {
 
 cluster_test!(every_codec_is_byte_identical, |t: Transport| {
     let local = render_local(SMALL);
-    for codec in ["raw", "lz4", "delta-lz4"] {
+    for codec in ["raw", "lz4", "qoi"] {
         let c = Cluster::start(t, 2, &["--compression", codec]);
         for s in &c.slaves {
             let line = s.wait_for(Stream::Err, "joined master");

@@ -418,7 +418,7 @@ mod tests {
                     camera: Camera::default(),
                     settings: RenderSettings::default(),
                 },
-                codec: Codec::DeltaLz4,
+                codec: Codec::Qoi,
             }),
             Message::Reject { reason: "no".into() },
             Message::SceneSync { hash: scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
@@ -539,8 +539,8 @@ mod tests {
             id: 2,
             tile: Tile { x: 0, y: 0, w: 4, h: 4 },
             render_micros: 0,
-            codec: Codec::DeltaLz4,
-            pixels: ByteBuf::from(codec::encode(Codec::DeltaLz4, 4, &rgb)),
+            codec: Codec::Qoi,
+            pixels: ByteBuf::from(codec::encode(Codec::Qoi, 4, &rgb)),
         };
         assert_eq!(t.decoded_pixels().unwrap(), rgb);
         let lying = TileResult { tile: Tile { x: 0, y: 0, w: 4, h: 5 }, ..t };

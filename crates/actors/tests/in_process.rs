@@ -328,7 +328,7 @@ async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
         (Compression::Auto, Codec::ALL[0]),
         (Compression::Use(Codec::Raw), Codec::Raw),
         (Compression::Use(Codec::Lz4), Codec::Lz4),
-        (Compression::Use(Codec::DeltaLz4), Codec::DeltaLz4),
+        (Compression::Use(Codec::Qoi), Codec::Qoi),
     ] {
         let t = MemTransport::new();
         let (master, ticket) = start_master_with(&t, "tok", compression).await;
