@@ -210,7 +210,8 @@ pub struct FrameStats {
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
     /// Bytes the master received from all peers while the frame was open
-    /// (tiles, framing and heartbeats): the frame's cost on the slaves' links.
+    /// (tiles, framing and heartbeats, as the transport counts them — over TLS,
+    /// what crossed the socket): the frame's cost on the slaves' links.
     pub bytes_in: u64,
 }
 
