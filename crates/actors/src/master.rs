@@ -88,8 +88,8 @@ struct Peer {
     addr: String,
     state: PeerState,
     since: Duration,
-    /// Slaves: the codec their tiles come in. Viewers: the best codec they
-    /// offered, for forwarding.
+    /// The codec picked at join (the `Welcome` says it): slaves encode their
+    /// tiles with it. (Viewers get tiles in any codec they offered.)
     codec: Codec,
     /// Viewers: every codec they offered (tiles in another are sent raw).
     decodes: Vec<Codec>,
