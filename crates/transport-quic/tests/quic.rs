@@ -166,6 +166,7 @@ async fn the_protocol_classifier_sends_tiles_on_streams_and_the_rest_in_order() 
             id,
             tile: isin_tracer::Tile { x: 0, y: 0, w: 64, h: 64 },
             render_micros: 1,
+            codec: Default::default(),
             pixels: vec![id as u8; 12_288].into(),
         }))
         .unwrap()
