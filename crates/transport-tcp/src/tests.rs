@@ -183,3 +183,33 @@ async fn misuse_and_unreachable_masters_are_clear_errors() {
         assert!(matches!(err, TransportError::Connect { .. }) && err.to_string().contains(&addr), "{err}");
     }
 }
+
+#[tokio::test]
+async fn a_tls_peer_vanishing_between_frames_ends_the_stream_cleanly() {
+    // As a killed slave does: the socket closes without a TLS close_notify.
+    let id = Identity::generate().unwrap();
+    let server_t = TcpTransport::server(&id).unwrap();
+    let mut l = server_t.listen("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr();
+    let cfg = tls::client_config(id.fingerprint(), &[tls::ALPN_TCP]).unwrap();
+    let sock = TcpStream::connect(&addr).await.unwrap();
+    let name = tokio_rustls::rustls::pki_types::ServerName::try_from(tls::SERVER_NAME).unwrap();
+    let mut raw = TlsConnector::from(Arc::new(cfg)).connect(name, sock).await.unwrap();
+    raw.write_all(&[0, 0, 0, 2, b'h', b'i']).await.unwrap();
+    raw.flush().await.unwrap();
+    let mut server = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    assert_eq!(next(&mut server).await, b"hi");
+    drop(raw);
+    let end = timeout(BOUND, server.receiver.recv()).await.unwrap();
+    assert!(end.is_none(), "a clean end, not {end:?}");
+    // Cut inside a frame, it is an error.
+    let cfg = tls::client_config(id.fingerprint(), &[tls::ALPN_TCP]).unwrap();
+    let sock = TcpStream::connect(&addr).await.unwrap();
+    let name = tokio_rustls::rustls::pki_types::ServerName::try_from(tls::SERVER_NAME).unwrap();
+    let mut raw = TlsConnector::from(Arc::new(cfg)).connect(name, sock).await.unwrap();
+    raw.write_all(&[0, 0, 0, 9, b'h']).await.unwrap();
+    raw.flush().await.unwrap();
+    let mut server = timeout(BOUND, l.accept()).await.unwrap().unwrap();
+    drop(raw);
+    assert!(matches!(timeout(BOUND, server.receiver.recv()).await.unwrap(), Some(Err(_))));
+}

@@ -167,6 +167,10 @@ pub fn server_config(identity: &Identity, alpn: &[&[u8]]) -> Result<rustls::Serv
         .with_no_client_auth()
         .with_single_cert(vec![identity.cert.clone()], PrivateKeyDer::Pkcs8(identity.key.clone_key()))?;
     cfg.alpn_protocols = alpn.iter().map(|p| p.to_vec()).collect();
+    // No session resumption (every peer does the full handshake and the token
+    // challenge anyway): no tickets to send, and none left unread in a peer's
+    // socket to turn its close into a reset.
+    cfg.send_tls13_tickets = 0;
     Ok(cfg)
 }
 

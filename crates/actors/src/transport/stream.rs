@@ -131,7 +131,14 @@ async fn read_frame<R: AsyncRead + Unpin>(
     let mut len = [0u8; 4];
     let mut got = 0;
     while got < 4 {
-        let n = reader.read(&mut len[got..]).await?;
+        let n = match reader.read(&mut len[got..]).await {
+            Ok(n) => n,
+            // A peer that vanished between frames (killed, or a TLS peer whose
+            // socket closed without close_notify) ends the stream as a FIN
+            // does: frames are self-delimiting, so nothing was cut short.
+            Err(e) if got == 0 && e.kind() == std::io::ErrorKind::UnexpectedEof => 0,
+            Err(e) => return Err(e.into()),
+        };
         if n == 0 {
             if got == 0 {
                 return Ok(None);
