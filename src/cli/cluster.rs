@@ -1,37 +1,53 @@
 //! Shared pieces of the cluster commands, and the embedded default: master,
-//! local slaves and a viewer in one process over loopback TCP — the viewer
+//! local slaves and a viewer in one process over loopback TLS/TCP — the viewer
 //! window when there is a display, a few frames to `paper.png` otherwise.
 
 use crate::assets::load_scene_file;
 use actix::Addr;
 use anyhow::Context;
 use isin_actors::auth::{self, Ticket};
+use isin_actors::auth::{ENCRYPTED_TCP, PLAINTEXT_TCP};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, SlaveOptions, Tracer};
 use isin_actors::transport::Transport;
 use isin_actors::viewer;
 use isin_tracer::{Camera, RenderSettings};
 use isin_transport_quic::QuicTransport;
-use isin_transport_quic::tls::Identity;
+use isin_transport_tcp::TcpTransport;
+use isin_transport_tcp::tls::{Fingerprint, Identity};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// The transport a master listens with (`name` from the command line), and the
-/// certificate fingerprint its ticket must carry (QUIC). A QUIC master keeps its
-/// TLS identity in `identity_dir` when given (created on first use), so tickets
-/// stay valid across restarts; otherwise it generates a fresh one.
+/// The transport a master listens with (`name`: `tcp` — TLS —, `quic`, or
+/// `tcp-insecure` for plaintext, which `isin master` only picks with
+/// `--insecure`), and the certificate fingerprint its ticket must carry (the
+/// encrypted ones). The master keeps its TLS identity in `identity_dir` when
+/// given (created on first use), so tickets stay valid across restarts;
+/// otherwise it generates a fresh one. The transport's `name()` is the
+/// ticket's transport.
 pub fn server_transport(
     name: &str,
     identity_dir: Option<&Path>,
 ) -> anyhow::Result<(Arc<dyn Transport>, Option<String>)> {
+    let identity = || match identity_dir {
+        Some(dir) => load_or_create_identity(dir),
+        None => Ok(Identity::generate()?),
+    };
     match name {
-        "tcp" => Ok((Arc::new(isin_transport_tcp::TcpTransport::new()), None)),
+        ENCRYPTED_TCP => {
+            let identity = identity()?;
+            let fingerprint = identity.fingerprint().to_string();
+            Ok((Arc::new(TcpTransport::server(&identity)?), Some(fingerprint)))
+        }
+        PLAINTEXT_TCP => {
+            if identity_dir.is_some() {
+                tracing::warn!("--identity is not used by plaintext TCP (--insecure)");
+            }
+            Ok((Arc::new(TcpTransport::insecure()), None))
+        }
         "quic" => {
-            let identity = match identity_dir {
-                Some(dir) => load_or_create_identity(dir)?,
-                None => Identity::generate()?,
-            };
+            let identity = identity()?;
             let fingerprint = identity.fingerprint().to_string();
             Ok((Arc::new(QuicTransport::server(&identity)?), Some(fingerprint)))
         }
@@ -39,18 +55,25 @@ pub fn server_transport(
     }
 }
 
-/// The transport a slave or viewer reaches the master of `ticket` with.
+/// The transport a slave or viewer reaches the master of `ticket` with: TLS
+/// pinning the ticket's fingerprint for `tcp` and `quic`, plaintext only for
+/// a `tcp-insecure` ticket (never as a fallback).
 pub fn client_transport(ticket: &Ticket) -> anyhow::Result<Arc<dyn Transport>> {
-    match ticket.transport.as_str() {
-        "tcp" => Ok(Arc::new(isin_transport_tcp::TcpTransport::new())),
-        "quic" => {
-            let fp = ticket.fingerprint.as_deref().context(
-                "a QUIC ticket must carry the master's certificate fingerprint (`?fp=…`): \
+    let pinned = || -> anyhow::Result<Fingerprint> {
+        let fp = ticket.fingerprint.as_deref().with_context(|| {
+            format!(
+                "a {} ticket must carry the master's certificate fingerprint (`?fp=…`): \
                  pass the whole ticket the master printed",
-            )?;
-            Ok(Arc::new(QuicTransport::client(fp.parse()?)?))
-        }
-        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic)"),
+                ticket.transport
+            )
+        })?;
+        Ok(fp.parse()?)
+    };
+    match ticket.transport.as_str() {
+        ENCRYPTED_TCP => Ok(Arc::new(TcpTransport::client(pinned()?)?)),
+        PLAINTEXT_TCP => Ok(Arc::new(TcpTransport::insecure())),
+        "quic" => Ok(Arc::new(QuicTransport::client(pinned()?)?)),
+        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic, tcp-insecure)"),
     }
 }
 
@@ -84,7 +107,9 @@ fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     f.write_all(bytes).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// A ticket from `--connect` (a full `isin://…` ticket, or `HOST:PORT` with `--token`).
+/// A ticket from `--connect`: a full `isin://…` ticket, or `HOST:PORT` with
+/// `--token` for a plaintext master (`transport` `tcp-insecure`; the encrypted
+/// transports need the whole ticket, for its fingerprint).
 pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Result<Ticket> {
     if connect.contains("://") {
         let mut t: Ticket = connect.parse()?;
@@ -95,8 +120,10 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Re
     } else {
         let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
         anyhow::ensure!(
-            transport != "quic",
-            "QUIC needs the whole ticket the master printed (it carries the certificate fingerprint)"
+            transport == PLAINTEXT_TCP,
+            "--transport {transport} needs the whole ticket the master printed (it carries the \
+             certificate fingerprint); a bare HOST:PORT only reaches a plaintext master \
+             (--transport tcp-insecure)"
         );
         Ok(Ticket {
             transport: transport.to_string(),
@@ -141,13 +168,15 @@ fn default_scene() -> std::path::PathBuf {
 async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Addr<Master>, Ticket)> {
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let threads = (cores / slaves).max(1);
-    let (tcp, _) = server_transport("tcp", None)?;
+    // TLS even on loopback: the printed ticket lets slaves of other processes join.
+    let identity = Identity::generate()?;
+    let tcp: Arc<dyn Transport> = Arc::new(TcpTransport::both(&identity, identity.fingerprint())?);
     let listener = tcp.listen("127.0.0.1:0").await?;
     let ticket = Ticket {
-        transport: "tcp".into(),
+        transport: ENCRYPTED_TCP.into(),
         token: cfg.token.clone(),
         addr: listener.local_addr(),
-        fingerprint: None,
+        fingerprint: Some(identity.fingerprint().to_string()),
     };
     println!("embedded cluster: master on {} with {slaves} local slaves × {threads} threads", ticket.addr);
     println!("join more slaves with: isin slave --connect {ticket}");

@@ -4,6 +4,7 @@ use super::cluster;
 use crate::assets::load_scene_file;
 use clap::Args;
 use isin_actors::auth::{self, Ticket};
+use isin_actors::codec::Compression;
 use isin_actors::master::{Master, MasterConfig};
 use std::io::Write;
 use std::path::PathBuf;
@@ -17,10 +18,16 @@ pub struct MasterArgs {
     /// Address to listen on (port 0 picks a free port; the ticket shows the real one).
     #[arg(long, default_value = "0.0.0.0:7878")]
     pub listen: String,
-    /// Transport: `tcp` or `quic` (TLS 1.3; the ticket carries the certificate fingerprint).
+    /// Transport: `tcp` or `quic`, both TLS 1.3 with a self-signed certificate
+    /// whose fingerprint the ticket carries and slaves pin.
     #[arg(long, default_value = "tcp")]
     pub transport: String,
-    /// QUIC: directory holding the master's TLS certificate and key (`cert.der`,
+    /// Plaintext TCP instead of TLS (trusted networks only: the token still
+    /// authenticates, but frames can be read and altered). The ticket then
+    /// starts with `isin+tcp-insecure://`.
+    #[arg(long)]
+    pub insecure: bool,
+    /// Directory holding the master's TLS certificate and key (`cert.der`,
     /// `key.der`; created on first use), so tickets survive restarts.
     #[arg(long)]
     pub identity: Option<PathBuf>,
@@ -36,6 +43,10 @@ pub struct MasterArgs {
     /// Do not hand idle slaves copies of straggling tiles.
     #[arg(long)]
     pub no_duplicates: bool,
+    /// Tile compression: `auto` (the best codec a slave offers: qoi), `raw`,
+    /// or a codec (`qoi`, `lz4`; raw for slaves that do not offer it).
+    #[arg(long, default_value = "auto")]
+    pub compression: Compression,
 }
 
 /// Runs `isin master` until killed.
@@ -51,7 +62,13 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.scheduler.tile_size = args.tile.max(1);
     cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
     cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
-    let (transport, fingerprint) = cluster::server_transport(&args.transport, args.identity.as_deref())?;
+    cfg.compression = args.compression;
+    let name = match (args.transport.as_str(), args.insecure) {
+        (_, false) => args.transport.as_str(),
+        ("tcp", true) => isin_actors::auth::PLAINTEXT_TCP,
+        (other, true) => anyhow::bail!("--insecure is for TCP only; --transport {other} is always encrypted"),
+    };
+    let (transport, fingerprint) = cluster::server_transport(name, args.identity.as_deref())?;
     actix::System::new().block_on(async move {
         let listener = transport.listen(&args.listen).await?;
         let addr = listener.local_addr();

@@ -8,8 +8,9 @@ use std::sync::Arc;
 /// Arguments of `isin slave`.
 #[derive(Args, Debug)]
 pub struct SlaveArgs {
-    /// The master's join ticket (`isin://TOKEN@HOST:PORT`, or `isin+quic://…?fp=…`), or
-    /// `HOST:PORT` with `--token` (TCP only).
+    /// The master's join ticket as it printed it (`isin://TOKEN@HOST:PORT?fp=…`,
+    /// `isin+quic://…?fp=…`, or `isin+tcp-insecure://…`), or `HOST:PORT` with
+    /// `--token` and `--transport tcp-insecure` (plaintext masters only).
     #[arg(long)]
     pub connect: String,
     /// The shared secret, when `--connect` is a bare address.

@@ -2,8 +2,10 @@
 //! `isin render --cluster` processes on loopback sockets.
 //!
 //! Each test body takes the transport it runs over; `cluster_test!` expands
-//! it once per transport, so the same assertions hold for TCP and QUIC. Nothing waits on sleeps: tests wait for lines the processes
-//! print (the ticket, "joined", "dead", …) with a timeout.
+//! it once per transport, so the same assertions hold for TLS over TCP and
+//! QUIC (and, for the tests marked `insecure`, plaintext TCP too). Nothing
+//! waits on sleeps: tests wait for lines the processes print (the ticket,
+//! "joined", "dead", …) with a timeout.
 //!
 //! Contents:
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
@@ -17,14 +19,32 @@
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
 //! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
 //!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
+//! - `every_codec_is_byte_identical`: `--compression raw|lz4|qoi` (and `auto`, in
+//!   `identical`) all deliver frames equal to `isin render`; slaves report the codec picked.
+//! - `wrong_fingerprint`: a slave whose ticket pins another certificate gives up at once with
+//!   both fingerprints named; the master never sees it authenticate.
+//! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
 
 mod util;
 
 use util::{Cluster, Proc, Stream, Transport, assert_same_pixels, render_local};
 
-/// Runs `$body(transport)` as one `#[test]` per transport.
+/// Runs `$body(transport)` as one `#[test]` per transport (TLS over TCP and
+/// QUIC; with `insecure` after the body, plaintext TCP as well).
 macro_rules! cluster_test {
     ($(#[$meta:meta])* $name:ident, $body:expr) => {
+        cluster_test!(@mod $(#[$meta])* $name, $body, {});
+    };
+    ($(#[$meta:meta])* $name:ident, $body:expr, insecure) => {
+        cluster_test!(@mod $(#[$meta])* $name, $body, {
+            $(#[$meta])*
+            #[test]
+            fn tcp_insecure() {
+                ($body)(Transport::TcpInsecure)
+            }
+        });
+    };
+    (@mod $(#[$meta:meta])* $name:ident, $body:expr, {$($extra:tt)*}) => {
         mod $name {
             #[allow(unused_imports)]
             use super::*;
@@ -38,6 +58,7 @@ macro_rules! cluster_test {
             fn quic() {
                 ($body)(Transport::Quic)
             }
+            $($extra)*
         }
     };
 }
@@ -47,14 +68,18 @@ const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// test acts on it.
 const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "2"];
 
-cluster_test!(identical, |t: Transport| {
-    let c = Cluster::start(t, 3, &[]);
-    let (cluster, stdout) = c.render("frame.png", SMALL);
-    assert_same_pixels(&cluster, &render_local(SMALL), "cluster frame vs isin render");
-    // Work really was spread: at least two slaves delivered tiles.
-    let line = stdout.lines().find(|l| l.starts_with("tiles")).expect("tiles line");
-    assert!(line.matches('#').count() >= 2, "{line}");
-});
+cluster_test!(
+    identical,
+    |t: Transport| {
+        let c = Cluster::start(t, 3, &[]);
+        let (cluster, stdout) = c.render("frame.png", SMALL);
+        assert_same_pixels(&cluster, &render_local(SMALL), "cluster frame vs isin render");
+        // Work really was spread: at least two slaves delivered tiles.
+        let line = stdout.lines().find(|l| l.starts_with("tiles")).expect("tiles line");
+        assert!(line.matches('#').count() >= 2, "{line}");
+    },
+    insecure
+);
 
 cluster_test!(kill_mid_frame, |t: Transport| {
     // No straggler copies: the killed slave's tiles can only come back through
@@ -117,21 +142,25 @@ cluster_test!(wrong_token, |t: Transport| {
     c.render("ok.png", SMALL);
 });
 
-cluster_test!(garbage, |t: Transport| {
-    let c = Cluster::start(t, 2, &[]);
-    // Random bytes.
-    let junk: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
-    util::RawPeer::connect(&c).send_then_expect_close(&junk);
-    // A frame far beyond the pre-authentication limit.
-    util::RawPeer::connect(&c).send_oversized_then_expect_close();
-    // A well-framed message that is not a message.
-    util::RawPeer::connect(&c).send_frame_then_expect_close(&[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]);
-    c.master.wait_for_n(Stream::Err, "bad frame", 3);
-    // A peer that connects and says nothing does not block anyone either.
-    let _idle = util::RawPeer::connect(&c);
-    let (pixels, _) = c.render("after-garbage.png", SMALL);
-    assert_same_pixels(&pixels, &render_local(SMALL), "frame after garbage");
-});
+cluster_test!(
+    garbage,
+    |t: Transport| {
+        let c = Cluster::start(t, 2, &[]);
+        // Random bytes.
+        let junk: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
+        util::RawPeer::connect(&c).send_then_expect_close(&junk);
+        // A frame far beyond the pre-authentication limit.
+        util::RawPeer::connect(&c).send_oversized_then_expect_close();
+        // A well-framed message that is not a message.
+        util::RawPeer::connect(&c).send_frame_then_expect_close(&[0, 1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1, 0xc1]);
+        c.master.wait_for_n(Stream::Err, "bad frame", 3);
+        // A peer that connects and says nothing does not block anyone either.
+        let _idle = util::RawPeer::connect(&c);
+        let (pixels, _) = c.render("after-garbage.png", SMALL);
+        assert_same_pixels(&pixels, &render_local(SMALL), "frame after garbage");
+    },
+    insecure
+);
 
 cluster_test!(slave_waits_for_master, |t: Transport| {
     // Start the slave before the master exists.
@@ -142,7 +171,7 @@ cluster_test!(slave_waits_for_master, |t: Transport| {
     slave.wait_for(Stream::Err, "retrying");
     let scene = util::scene();
     let mut args = vec!["master", scene.to_str().unwrap(), "--listen", &addr, "--token", "tok"];
-    args.extend(["--transport", t.name()]);
+    args.extend(t.master_args());
     args.extend(identity_args.iter().map(String::as_str));
     let master = Proc::spawn("master", &args, "info");
     master.wait_for(Stream::Out, "ticket ");
@@ -202,3 +231,53 @@ fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
     let cluster = util::pixels(&dir.path().join("paper.png"));
     assert_same_pixels(&cluster, &render_local(&[]), "embedded cluster frame vs isin render");
 }
+
+cluster_test!(wrong_fingerprint, |t: Transport| {
+    let c = Cluster::start(t, 1, &[]);
+    let mut ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
+    let real = ticket.fingerprint.clone().expect("encrypted tickets carry a fingerprint");
+    let other = isin_transport_quic::tls::Identity::generate().expect("identity").fingerprint().to_string();
+    ticket.fingerprint = Some(other.clone());
+    let mut s = Proc::spawn(
+        "impostor-fp slave",
+        &["slave", "--connect", &ticket.to_string(), "--threads", "1"],
+        "info",
+    );
+    // Refused in the TLS handshake, and not retried: a wrong ticket stays wrong.
+    assert!(!s.wait_exit().success(), "{}", s.dump());
+    let line = s.wait_for(Stream::Err, "fingerprint");
+    assert!(line.contains(&real) && line.contains(&other), "{line}");
+    assert!(s.matching(Stream::Err, |l| l.contains("retrying")).is_empty(), "{}", s.dump());
+    // The master never saw it past TLS: still one slave, which renders.
+    assert_eq!(c.master.matching(Stream::Err, |l| l.contains("authenticated")).len(), 1);
+    c.render("still.png", SMALL);
+});
+
+#[test]
+fn tls_ticket_never_falls_back_to_plaintext() {
+    let c = Cluster::start(Transport::TcpInsecure, 1, &[]);
+    // The plaintext master's address in a TLS ticket: the slave must fail the
+    // TLS handshake (and keep retrying it), never speak plaintext.
+    let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
+    let fp = isin_transport_quic::tls::Identity::generate().expect("identity").fingerprint();
+    let tls_ticket = format!("isin://{}@{}?fp={fp}", ticket.token, ticket.addr);
+    let s = Proc::spawn("tls slave", &["slave", "--connect", &tls_ticket, "--threads", "1"], "info");
+    let line = s.wait_for(Stream::Err, "retrying");
+    assert!(line.contains("TLS"), "{line}");
+    assert!(s.matching(Stream::Err, |l| l.contains("joined")).is_empty(), "{}", s.dump());
+    c.master.wait_for(Stream::Err, "bad frame");
+    assert_eq!(c.master.matching(Stream::Err, |l| l.contains("authenticated")).len(), 1);
+}
+
+cluster_test!(every_codec_is_byte_identical, |t: Transport| {
+    let local = render_local(SMALL);
+    for codec in ["raw", "lz4", "qoi"] {
+        let c = Cluster::start(t, 2, &["--compression", codec]);
+        for s in &c.slaves {
+            let line = s.wait_for(Stream::Err, "joined master");
+            assert!(line.contains(&format!("tiles in {codec})")), "{line}");
+        }
+        let (cluster, _) = c.render("frame.png", SMALL);
+        assert_same_pixels(&cluster, &local, &format!("cluster frame with {codec} vs isin render"));
+    }
+});

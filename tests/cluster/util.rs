@@ -16,18 +16,39 @@ pub const TIMEOUT: Duration = Duration::from_secs(60);
 /// The transports a cluster test runs over.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Transport {
-    /// `--transport tcp`.
+    /// `--transport tcp`: TLS over TCP.
     Tcp,
+    /// `--transport tcp --insecure`: plaintext TCP.
+    TcpInsecure,
     /// `--transport quic`.
     Quic,
 }
 
 impl Transport {
-    /// Its command-line name.
+    /// Its name in join tickets (and in the viewer's status).
     pub fn name(self) -> &'static str {
         match self {
             Transport::Tcp => "tcp",
+            Transport::TcpInsecure => "tcp-insecure",
             Transport::Quic => "quic",
+        }
+    }
+
+    /// The master arguments that select it.
+    pub fn master_args(self) -> &'static [&'static str] {
+        match self {
+            Transport::Tcp => &["--transport", "tcp"],
+            Transport::TcpInsecure => &["--transport", "tcp", "--insecure"],
+            Transport::Quic => &["--transport", "quic"],
+        }
+    }
+
+    /// The scheme of the tickets a master on it prints.
+    pub fn scheme(self) -> &'static str {
+        match self {
+            Transport::Tcp => "isin://",
+            Transport::TcpInsecure => "isin+tcp-insecure://",
+            Transport::Quic => "isin+quic://",
         }
     }
 
@@ -35,23 +56,22 @@ impl Transport {
     /// arguments that fix its identity in `dir`, and the join ticket for
     /// `token` at `addr` that the master will print.
     pub fn prepared_ticket(self, dir: &Path, token: &str, addr: &str) -> (Vec<String>, String) {
-        match self {
-            Transport::Tcp => (Vec::new(), format!("isin://{token}@{addr}")),
-            Transport::Quic => {
-                let id = isin_transport_quic::tls::Identity::generate().expect("identity");
-                std::fs::write(dir.join("cert.der"), id.cert_der().as_ref()).expect("cert");
-                std::fs::write(dir.join("key.der"), id.key_der().secret_pkcs8_der()).expect("key");
-                let args = vec!["--identity".to_string(), dir.display().to_string()];
-                (args, format!("isin+quic://{token}@{addr}?fp={}", id.fingerprint()))
-            }
+        let scheme = self.scheme();
+        if self == Transport::TcpInsecure {
+            return (Vec::new(), format!("{scheme}{token}@{addr}"));
         }
+        let id = isin_transport_quic::tls::Identity::generate().expect("identity");
+        std::fs::write(dir.join("cert.der"), id.cert_der().as_ref()).expect("cert");
+        std::fs::write(dir.join("key.der"), id.key_der().secret_pkcs8_der()).expect("key");
+        let args = vec!["--identity".to_string(), dir.display().to_string()];
+        (args, format!("{scheme}{token}@{addr}?fp={}", id.fingerprint()))
     }
 
     /// A loopback address whose port was free a moment ago (for a master that
     /// must start after its slaves).
     pub fn free_addr(self) -> String {
         let port = match self {
-            Transport::Tcp => {
+            Transport::Tcp | Transport::TcpInsecure => {
                 std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
             }
             Transport::Quic => std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port(),
@@ -61,34 +81,35 @@ impl Transport {
 }
 
 /// A peer that writes raw bytes at the master, below the protocol: the
-/// transport's own framing is up to the test (TCP), or whole transport frames
-/// whose content is up to the test (QUIC, whose framing sits under TLS).
+/// transport's own framing is up to the test (plaintext TCP), or whole
+/// transport frames whose content is up to the test (TLS over TCP and QUIC,
+/// whose framing sits under TLS).
 pub enum RawPeer {
     /// A plain TCP connection.
     Tcp(std::net::TcpStream),
-    /// A QUIC connection that passed TLS (it knows the ticket's fingerprint)
-    /// but not the token handshake.
-    Quic(tokio::runtime::Runtime, isin_actors::transport::Connection),
+    /// A TLS/TCP or QUIC connection that passed TLS (it knows the ticket's
+    /// fingerprint) but not the token handshake.
+    Framed(tokio::runtime::Runtime, isin_actors::transport::Connection),
 }
 
 impl RawPeer {
     /// Connects to the master of `c`.
     pub fn connect(c: &Cluster) -> RawPeer {
-        match c.transport {
-            Transport::Tcp => RawPeer::Tcp(std::net::TcpStream::connect(&c.addr).expect("connect")),
-            Transport::Quic => {
-                use isin_actors::transport::Transport as _;
-                let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
-                let fp = ticket.fingerprint.expect("QUIC ticket carries a fingerprint");
-                let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
-                let conn = rt.block_on(async {
-                    let t = isin_transport_quic::QuicTransport::client(fp.parse().expect("fingerprint"))
-                        .expect("client");
-                    t.connect(&c.addr).await.expect("connect")
-                });
-                RawPeer::Quic(rt, conn)
-            }
+        if c.transport == Transport::TcpInsecure {
+            return RawPeer::Tcp(std::net::TcpStream::connect(&c.addr).expect("connect"));
         }
+        let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
+        let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
+        let fp: isin_transport_quic::tls::Fingerprint = fp.parse().expect("fingerprint");
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
+        let conn = rt.block_on(async {
+            let t: Box<dyn isin_actors::transport::Transport> = match c.transport {
+                Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
+                _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
+            };
+            t.connect(&c.addr).await.expect("connect")
+        });
+        RawPeer::Framed(rt, conn)
     }
 
     /// Sends `bytes` (TCP: raw on the stream; QUIC: as one frame) and asserts
@@ -109,7 +130,7 @@ impl RawPeer {
                 }
                 assert!(buf.len() < 1024, "master sent {} bytes to an unauthenticated peer", buf.len());
             }
-            RawPeer::Quic(rt, mut conn) => rt.block_on(async move {
+            RawPeer::Framed(rt, mut conn) => rt.block_on(async move {
                 let _ = conn.sender.send(bytes.to_vec());
                 let mut received = 0;
                 loop {
@@ -125,12 +146,12 @@ impl RawPeer {
     }
 
     /// Announces a frame far longer than the master accepts before a peer has
-    /// authenticated (TCP: a 4 GiB − 1 length prefix; QUIC: a 1 MiB frame) and
-    /// asserts the master closes the connection.
+    /// authenticated (plaintext TCP: a 4 GiB − 1 length prefix; TLS and QUIC:
+    /// a 1 MiB frame) and asserts the master closes the connection.
     pub fn send_oversized_then_expect_close(self) {
         match self {
             RawPeer::Tcp(_) => self.send_then_expect_close(&u32::MAX.to_be_bytes()),
-            RawPeer::Quic(..) => self.send_then_expect_close(&vec![0x5a; 1 << 20]),
+            RawPeer::Framed(..) => self.send_then_expect_close(&vec![0x5a; 1 << 20]),
         }
     }
 
@@ -141,7 +162,7 @@ impl RawPeer {
                 let framed = [&(payload.len() as u32).to_be_bytes()[..], payload].concat();
                 self.send_then_expect_close(&framed)
             }
-            RawPeer::Quic(..) => self.send_then_expect_close(payload),
+            RawPeer::Framed(..) => self.send_then_expect_close(payload),
         }
     }
 }
@@ -330,17 +351,12 @@ impl Cluster {
     /// and waits until they have joined.
     pub fn start(transport: Transport, slaves: usize, master_args: &[&str]) -> Cluster {
         let scene = scene();
-        let mut args = vec![
-            "master",
-            scene.to_str().unwrap(),
-            "--listen",
-            "127.0.0.1:0",
-            "--transport",
-            transport.name(),
-        ];
+        let mut args = vec!["master", scene.to_str().unwrap(), "--listen", "127.0.0.1:0"];
+        args.extend_from_slice(transport.master_args());
         args.extend_from_slice(master_args);
         let master = Proc::spawn("master", &args, "info,isin_actors::master=debug");
         let ticket = master.wait_for(Stream::Out, "ticket ").trim_start_matches("ticket ").trim().to_string();
+        assert!(ticket.starts_with(transport.scheme()), "{transport:?} master printed {ticket}");
         let addr =
             master.wait_for(Stream::Out, "listening ").trim_start_matches("listening ").trim().to_string();
         let mut c = Cluster {

@@ -9,9 +9,18 @@
 //! chosen by the other side.
 //!
 //! A join ticket packs the transport, token and address in one string:
-//! `isin://TOKEN@HOST:PORT` for TCP, `isin+quic://TOKEN@HOST:PORT` for QUIC,
-//! followed by `?fp=HEX` — the SHA-256 of the master's TLS certificate, which
-//! peers pin — when the transport is encrypted.
+//!
+//! | transport | ticket |
+//! | --- | --- |
+//! | TLS over TCP (default) | `isin://TOKEN@HOST:PORT?fp=HEX` (`isin+tcp://` also read) |
+//! | QUIC | `isin+quic://TOKEN@HOST:PORT?fp=HEX` |
+//! | plaintext TCP (`--insecure`) | `isin+tcp-insecure://TOKEN@HOST:PORT` |
+//!
+//! `fp` is the SHA-256 of the master's TLS certificate, which peers pin. The
+//! encrypted transports cannot be named without it, and plaintext has a
+//! scheme of its own: a ticket missing its fingerprint is refused, never read
+//! as plaintext, so a slave cannot be talked out of encryption by trimming a
+//! ticket.
 
 use crate::protocol::{PROTOCOL_VERSION, Role};
 use hmac::{Hmac, Mac};
@@ -24,8 +33,17 @@ type HmacSha256 = Hmac<Sha256>;
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum AuthError {
     /// The ticket does not have the `isin://TOKEN@ADDR` shape.
-    #[error("malformed join ticket `{0}`: expected isin://TOKEN@HOST:PORT[?fp=SHA256-HEX]")]
+    #[error("malformed join ticket `{0}`: expected isin://TOKEN@HOST:PORT?fp=SHA256-HEX")]
     BadTicket(String),
+    /// An encrypted transport's ticket without the certificate fingerprint.
+    #[error(
+        "join ticket for {0} has no certificate fingerprint (`?fp=…`): pass the whole ticket the \
+         master printed (a plaintext master's ticket starts with isin+tcp-insecure://)"
+    )]
+    MissingFingerprint(String),
+    /// A plaintext ticket that names a fingerprint: one of the two is a mistake.
+    #[error("a plaintext (isin+tcp-insecure://) ticket cannot carry a certificate fingerprint")]
+    InsecureWithFingerprint,
     /// The operating system's random source failed.
     #[error("no randomness available: {0}")]
     Random(String),
@@ -72,10 +90,15 @@ pub fn proofs_match(a: &[u8; 32], b: &[u8; 32]) -> bool {
     a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
+/// Transport name of TLS over TCP.
+pub const ENCRYPTED_TCP: &str = "tcp";
+/// Transport name of plaintext TCP.
+pub const PLAINTEXT_TCP: &str = "tcp-insecure";
+
 /// Everything a slave or viewer needs to join a master.
 #[derive(Clone, PartialEq, Eq)]
 pub struct Ticket {
-    /// Transport name: `tcp` or `quic`.
+    /// Transport name: `tcp` (TLS), `quic`, or `tcp-insecure` (plaintext).
     pub transport: String,
     /// The shared secret.
     pub token: String,
@@ -118,7 +141,7 @@ impl std::str::FromStr for Ticket {
         let bad = || AuthError::BadTicket(s.chars().take(80).collect());
         let (scheme, rest) = s.split_once("://").ok_or_else(bad)?;
         let transport = match scheme {
-            "isin" => "tcp".to_string(),
+            "isin" | "isin+tcp" => "tcp".to_string(),
             other => other.strip_prefix("isin+").filter(|t| !t.is_empty()).ok_or_else(bad)?.to_string(),
         };
         let (rest, query) = rest.split_once('?').unwrap_or((rest, ""));
@@ -135,6 +158,11 @@ impl std::str::FromStr for Ticket {
                 }
                 fingerprint = Some(value.to_ascii_lowercase());
             }
+        }
+        match (transport.as_str(), &fingerprint) {
+            (ENCRYPTED_TCP | "quic", None) => return Err(AuthError::MissingFingerprint(transport)),
+            (PLAINTEXT_TCP, Some(_)) => return Err(AuthError::InsecureWithFingerprint),
+            _ => {}
         }
         Ok(Ticket { transport, token: token.to_string(), addr: addr.to_string(), fingerprint })
     }
@@ -166,17 +194,36 @@ mod tests {
 
     #[test]
     fn tickets_round_trip() {
-        for text in ["isin://abc@127.0.0.1:7878", "isin+quic://t0k@[::1]:9000"] {
+        let fp = "ab".repeat(32);
+        for text in [
+            format!("isin://abc@127.0.0.1:7878?fp={fp}"),
+            format!("isin+quic://t0k@[::1]:9000?fp={fp}"),
+            "isin+tcp-insecure://t0k@host:1".to_string(),
+        ] {
             let t: Ticket = text.parse().unwrap();
             assert_eq!(t.to_string(), text);
         }
-        let t: Ticket = "isin://abc@127.0.0.1:7878".parse().unwrap();
+        let t: Ticket = format!("isin+tcp://abc@127.0.0.1:7878?fp={fp}").parse().unwrap();
         assert_eq!(
             (t.transport.as_str(), t.token.as_str(), t.addr.as_str()),
             ("tcp", "abc", "127.0.0.1:7878")
         );
         assert!(!format!("{t:?}").contains("abc"));
-        assert_eq!(t.fingerprint, None);
+        assert_eq!(t.to_string(), format!("isin://abc@127.0.0.1:7878?fp={fp}"));
+        let plain: Ticket = "isin+tcp-insecure://abc@h:1".parse().unwrap();
+        assert_eq!((plain.transport.as_str(), plain.fingerprint), ("tcp-insecure", None));
+    }
+
+    #[test]
+    fn encrypted_tickets_without_a_fingerprint_are_never_read_as_plaintext() {
+        for text in ["isin://abc@127.0.0.1:7878", "isin+tcp://abc@h:1", "isin+quic://abc@h:1"] {
+            let err = text.parse::<Ticket>().unwrap_err();
+            assert!(matches!(err, AuthError::MissingFingerprint(_)), "{text}: {err:?}");
+            assert!(err.to_string().contains("isin+tcp-insecure://"), "{err}");
+        }
+        let fp = "cd".repeat(32);
+        let err = format!("isin+tcp-insecure://abc@h:1?fp={fp}").parse::<Ticket>().unwrap_err();
+        assert_eq!(err, AuthError::InsecureWithFingerprint);
     }
 
     #[test]
@@ -187,6 +234,7 @@ mod tests {
         assert_eq!((t.addr.as_str(), t.fingerprint.as_deref()), ("10.0.0.1:7878", Some(fp.as_str())));
         assert_eq!(t.to_string(), text);
         let upper: Ticket = format!("isin://tok@h:1?fp={}", fp.to_uppercase()).parse().unwrap();
+        assert_eq!(upper.transport, "tcp");
         assert_eq!(upper.fingerprint.as_deref(), Some(fp.as_str()));
         assert!(!format!("{t:?}").contains("tok@"));
         for bad in [
@@ -203,9 +251,9 @@ mod tests {
             "",
             "127.0.0.1:7878",
             "http://a@b:1",
-            "isin://@h:1",
-            "isin://tok@",
-            "isin://tok@host",
+            "isin+tcp-insecure://@h:1",
+            "isin+tcp-insecure://tok@",
+            "isin+tcp-insecure://tok@host",
             "isin+://a@b:1",
         ] {
             assert!(text.parse::<Ticket>().is_err(), "{text}");

@@ -2,6 +2,7 @@
 //! answer the master's challenge, check the master's own proof.
 
 use crate::auth::{self, Ticket};
+use crate::codec::Codec;
 use crate::protocol::{
     self, DEFAULT_MAX_FRAME, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, Welcome,
 };
@@ -43,7 +44,11 @@ pub enum JoinError {
 impl JoinError {
     /// Whether trying again later could help.
     pub fn is_retryable(&self) -> bool {
-        matches!(self, JoinError::Transport(_) | JoinError::Timeout(_) | JoinError::Closed)
+        match self {
+            JoinError::Transport(TransportError::Untrusted { .. }) => false,
+            JoinError::Transport(_) | JoinError::Timeout(_) | JoinError::Closed => true,
+            _ => false,
+        }
     }
 }
 
@@ -67,7 +72,8 @@ pub fn send_message(conn: &Connection, msg: &Message) -> Result<(), JoinError> {
     Ok(())
 }
 
-/// Connects to the master of `ticket` and authenticates as `role`.
+/// Connects to the master of `ticket` and authenticates as `role`, offering
+/// the tile codecs `codecs` (the master's choice is in the [`Welcome`]).
 pub async fn handshake(
     transport: &dyn Transport,
     ticket: &Ticket,
@@ -75,6 +81,7 @@ pub async fn handshake(
     name: &str,
     threads: u32,
     cached_scene: Option<SceneHash>,
+    codecs: &[Codec],
 ) -> Result<(Connection, Welcome), JoinError> {
     let mut conn = tokio::time::timeout(HANDSHAKE_TIMEOUT, transport.connect(&ticket.addr))
         .await
@@ -86,7 +93,8 @@ pub async fn handshake(
     };
     let client_nonce = auth::random_bytes::<32>().map_err(|e| JoinError::Scene(e.to_string()))?;
     let proof = auth::client_proof(&ticket.token, role, &nonce, &client_nonce);
-    let hello = Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene };
+    let codecs = codecs.iter().map(|c| c.name().to_string()).collect();
+    let hello = Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene, codecs };
     send_message(&conn, &Message::Hello(hello))?;
     // The master's welcome is small, but what follows (the scene) is not.
     conn.sender.set_max_frame(DEFAULT_MAX_FRAME);

@@ -9,11 +9,14 @@
 //! Modules:
 //! - [`protocol`]: every message, the versioned wire encoding, scene hashes.
 //! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never sent),
-//!   join tickets (`isin://TOKEN@HOST:PORT`).
+//!   join tickets (`isin://TOKEN@HOST:PORT?fp=CERT-SHA256`).
+//! - [`codec`]: tile compression (QOI, LZ4, raw), negotiated at join; bounded,
+//!   panic-free decoding of untrusted tiles.
 //! - [`scheduler`]: the pure scheduling core (`handle_*` / `poll_*`, time as an argument).
 //! - [`transport`]: the interface a transport implements — a connection is a pair
 //!   of frame channels with byte counters — plus the length-delimited stream codec
-//!   and an in-memory transport for tests. TCP lives in `isin-transport-tcp`.
+//!   and an in-memory transport for tests. TCP (TLS or plaintext) lives in `isin-transport-tcp`,
+//!   QUIC in `isin-transport-quic`.
 //! - [`master`], [`slave`], [`viewer`]: the actors; [`client`]: the peer side of
 //!   the handshake that slaves and viewers share.
 //!
@@ -25,6 +28,7 @@
 
 pub mod auth;
 pub mod client;
+pub mod codec;
 pub mod master;
 pub mod protocol;
 pub mod scheduler;

@@ -7,6 +7,7 @@
 //! so a connection that sends garbage is closed without disturbing the others.
 
 use crate::auth;
+use crate::codec::{self, Codec, Compression};
 use crate::protocol::{
     self, DEFAULT_MAX_FRAME, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Message, Role, SceneHash,
     SceneInfo, TileAssignment, Welcome, WireBundle,
@@ -15,6 +16,7 @@ use crate::scheduler::{DeathCause, Output, ResultOutcome, Scheduler, SchedulerCo
 use crate::transport::{ConnStats, Connection, FrameSender, Listener};
 use actix::prelude::*;
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use serde_bytes::ByteBuf;
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -49,6 +51,8 @@ pub struct MasterConfig {
     pub handshake_timeout: Duration,
     /// Largest frame accepted from an authenticated peer.
     pub max_frame: usize,
+    /// Which tile codec to pick among those a peer offers.
+    pub compression: Compression,
 }
 
 impl MasterConfig {
@@ -64,6 +68,7 @@ impl MasterConfig {
             heartbeat_interval: Duration::from_millis(500),
             handshake_timeout: Duration::from_secs(10),
             max_frame: DEFAULT_MAX_FRAME,
+            compression: Compression::Auto,
         }
     }
 }
@@ -83,6 +88,11 @@ struct Peer {
     addr: String,
     state: PeerState,
     since: Duration,
+    /// The codec picked at join (the `Welcome` says it): slaves encode their
+    /// tiles with it. (Viewers get tiles in any codec they offered.)
+    codec: Codec,
+    /// Viewers: every codec they offered (tiles in another are sent raw).
+    decodes: Vec<Codec>,
 }
 
 struct FrameSpec {
@@ -308,6 +318,8 @@ impl Master {
                 let name: String = hello.name.chars().filter(|c| !c.is_control()).take(48).collect();
                 peer.name = format!("{name}#{id}");
                 peer.sender.set_max_frame(self.cfg.max_frame);
+                peer.codec = codec::negotiate(self.cfg.compression, &hello.codecs);
+                peer.decodes = hello.codecs.iter().filter_map(|n| Codec::from_name(n)).collect();
                 let welcome = Welcome {
                     id,
                     name: peer.name.clone(),
@@ -318,6 +330,7 @@ impl Master {
                         camera: self.cfg.camera,
                         settings: self.cfg.settings,
                     },
+                    codec: peer.codec,
                 };
                 match hello.role {
                     Role::Viewer => {
@@ -332,8 +345,10 @@ impl Master {
                             slave = %peer.name,
                             addr = %peer.addr,
                             threads = hello.threads,
-                            "slave {} authenticated{}",
+                            codec = %peer.codec,
+                            "slave {} authenticated, tiles in {}{}",
                             peer.name,
+                            peer.codec,
                             if cached { " (scene cached)" } else { "; sending scene" }
                         );
                         self.send(id, &Message::Welcome(welcome));
@@ -367,23 +382,30 @@ impl Master {
                     let got = r.tile;
                     return self.refuse(id, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
                 }
-                if r.pixels.len() != rect.pixel_count() * 3 {
-                    let n = r.pixels.len();
-                    return self.refuse(
-                        id,
-                        format!("tile {} has {n} bytes, expected {}", r.id, rect.pixel_count() * 3),
-                    );
-                }
+                // Untrusted: decoded (size checked before allocating) before it
+                // counts, even when it is forwarded still encoded.
+                let raw = match r.decoded_pixels() {
+                    Ok(raw) => raw,
+                    Err(e) => return self.refuse(id, format!("tile {}: {e}", r.id)),
+                };
                 match self.sched.handle_result(now, id, r.frame, r.id) {
                     ResultOutcome::Accepted { tile } => {
                         if let Some(spec) = self.frame.as_ref().filter(|f| f.id == r.frame) {
                             let slave_name = self.peers.get(&id).map(|p| p.name.clone()).unwrap_or_default();
+                            let viewer_decodes =
+                                self.peers.get(&spec.viewer).is_some_and(|v| v.decodes.contains(&r.codec));
+                            let (codec, pixels) = if viewer_decodes || r.codec == Codec::Raw {
+                                (r.codec, r.pixels)
+                            } else {
+                                (Codec::Raw, ByteBuf::from(raw))
+                            };
                             let msg = Message::FrameTile(FrameTile {
                                 request: spec.request,
                                 slave: id,
                                 slave_name,
                                 tile,
-                                pixels: r.pixels,
+                                codec,
+                                pixels,
                             });
                             self.send(spec.viewer, &msg);
                         }
@@ -534,6 +556,8 @@ impl Handler<Accepted> for Master {
                 addr,
                 state: PeerState::AwaitHello { nonce },
                 since: now,
+                codec: Codec::Raw,
+                decodes: Vec::new(),
             },
         );
         self.send(id, &Message::Challenge { nonce });

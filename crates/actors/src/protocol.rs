@@ -8,6 +8,7 @@
 //! maximum length before looking at them, and leaves allocation of variable
 //! fields to rmp-serde, which checks declared lengths against the bytes present.
 
+use crate::codec::{self, Codec, CodecError};
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
@@ -15,7 +16,8 @@ use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 
 /// Version of the protocol spoken by this build; peers must match exactly.
-pub const PROTOCOL_VERSION: u16 = 1;
+/// (2: tile codecs negotiated at join; tiles name their codec.)
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Default largest frame accepted from an authenticated peer (scene bundles
 /// with meshes and textures are the big ones).
@@ -58,6 +60,10 @@ pub struct Hello {
     pub proof: [u8; 32],
     /// The scene this peer already holds, if any: it is not sent again.
     pub cached_scene: Option<SceneHash>,
+    /// Tile codecs this peer can encode and decode, by [`Codec::name`]
+    /// (unknown names are ignored; absent or empty: raw only).
+    #[serde(default)]
+    pub codecs: Vec<String>,
 }
 
 /// What a viewer needs to know about the scene being served.
@@ -84,6 +90,8 @@ pub struct Welcome {
     pub proof: [u8; 32],
     /// The scene being served.
     pub scene: SceneInfo,
+    /// The codec a slave must encode its tiles with (one it offered, or raw).
+    pub codec: Codec,
 }
 
 /// A scene bundle as it travels: asset bytes as MessagePack binaries.
@@ -151,8 +159,17 @@ pub struct TileResult {
     pub tile: Tile,
     /// Wall time spent rendering it, in microseconds.
     pub render_micros: u64,
-    /// `w * h * 3` bytes of sRGB RGB8, row-major.
+    /// How `pixels` is encoded.
+    pub codec: Codec,
+    /// `w * h * 3` bytes of sRGB RGB8, row-major, encoded with `codec`.
     pub pixels: ByteBuf,
+}
+
+impl TileResult {
+    /// The tile's `w * h * 3` bytes of RGB8 (decoding checks the size; never panics).
+    pub fn decoded_pixels(&self) -> Result<Vec<u8>, CodecError> {
+        codec::decode(self.codec, self.tile.w, self.tile.h, &self.pixels)
+    }
 }
 
 /// Master → viewer: a finished tile of a requested frame.
@@ -166,8 +183,17 @@ pub struct FrameTile {
     pub slave_name: String,
     /// Where the pixels go.
     pub tile: Tile,
-    /// `w * h * 3` bytes of sRGB RGB8, row-major.
+    /// How `pixels` is encoded (one the viewer offered, or raw).
+    pub codec: Codec,
+    /// `w * h * 3` bytes of sRGB RGB8, row-major, encoded with `codec`.
     pub pixels: ByteBuf,
+}
+
+impl FrameTile {
+    /// The tile's `w * h * 3` bytes of RGB8 (decoding checks the size; never panics).
+    pub fn decoded_pixels(&self) -> Result<Vec<u8>, CodecError> {
+        codec::decode(self.codec, self.tile.w, self.tile.h, &self.pixels)
+    }
 }
 
 /// Summary of one completed frame.
@@ -184,7 +210,8 @@ pub struct FrameStats {
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
     /// Bytes the master received from all peers while the frame was open
-    /// (tiles, framing and heartbeats): the frame's cost on the slaves' links.
+    /// (tiles, framing and heartbeats, as the transport counts them — over TLS,
+    /// what crossed the socket): the frame's cost on the slaves' links.
     pub bytes_in: u64,
 }
 
@@ -380,6 +407,7 @@ mod tests {
                 client_nonce: [1; 32],
                 proof: [2; 32],
                 cached_scene: Some([3; 32]),
+                codecs: codec::offer(),
             }),
             Message::Welcome(Welcome {
                 id: 9,
@@ -391,6 +419,7 @@ mod tests {
                     camera: Camera::default(),
                     settings: RenderSettings::default(),
                 },
+                codec: Codec::Qoi,
             }),
             Message::Reject { reason: "no".into() },
             Message::SceneSync { hash: scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
@@ -412,6 +441,7 @@ mod tests {
                 id: 1,
                 tile: Tile { x: 0, y: 32, w: 4, h: 4 },
                 render_micros: 55,
+                codec: Codec::Raw,
                 pixels: ByteBuf::from(vec![200u8; 48]),
             }),
             Message::FrameTile(FrameTile {
@@ -419,7 +449,8 @@ mod tests {
                 slave: 12,
                 slave_name: "box#12".into(),
                 tile: Tile { x: 1, y: 2, w: 3, h: 4 },
-                pixels: ByteBuf::from(vec![9u8; 36]),
+                codec: Codec::Lz4,
+                pixels: ByteBuf::from(codec::encode(Codec::Lz4, 3, &[9u8; 36])),
             }),
             Message::FrameDone { request: 3, stats: FrameStats::default() },
             Message::Heartbeat,
@@ -442,6 +473,7 @@ mod tests {
             id: 1,
             tile: Tile { x: 0, y: 0, w: 32, h: 32 },
             render_micros: 1,
+            codec: Codec::Raw,
             pixels: ByteBuf::from(vec![255u8; 3072]),
         });
         let bytes = encode(&msg).unwrap();
@@ -462,6 +494,58 @@ mod tests {
         // Moving bytes between fields must change the hash.
         let d = SceneBundle { name: "ns".into(), source: "rc".into(), assets: b.assets.clone() };
         assert_ne!(scene_hash(&d), scene_hash(&b));
+    }
+
+    #[test]
+    fn a_hello_without_codecs_decodes_as_raw_only() {
+        // A Hello as a peer that knows nothing of codecs encodes it: six fields.
+        #[derive(Serialize)]
+        struct OldHello {
+            role: Role,
+            name: String,
+            threads: u32,
+            client_nonce: [u8; 32],
+            proof: [u8; 32],
+            cached_scene: Option<SceneHash>,
+        }
+        #[derive(Serialize)]
+        enum OldMessage {
+            #[allow(dead_code)]
+            Challenge {
+                nonce: [u8; 32],
+            },
+            Hello(OldHello),
+        }
+        let old = OldHello {
+            role: Role::Slave,
+            name: "old".into(),
+            threads: 1,
+            client_nonce: [1; 32],
+            proof: [2; 32],
+            cached_scene: None,
+        };
+        let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();
+        rmp_serde::encode::write(&mut bytes, &OldMessage::Hello(old)).unwrap();
+        match decode(&bytes, 4096).unwrap() {
+            Message::Hello(h) => assert!(h.codecs.is_empty() && h.name == "old"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn tiles_decode_their_pixels_and_refuse_wrong_sizes() {
+        let rgb: Vec<u8> = (0..48u8).collect();
+        let t = TileResult {
+            frame: 1,
+            id: 2,
+            tile: Tile { x: 0, y: 0, w: 4, h: 4 },
+            render_micros: 0,
+            codec: Codec::Qoi,
+            pixels: ByteBuf::from(codec::encode(Codec::Qoi, 4, &rgb)),
+        };
+        assert_eq!(t.decoded_pixels().unwrap(), rgb);
+        let lying = TileResult { tile: Tile { x: 0, y: 0, w: 4, h: 5 }, ..t };
+        assert!(lying.decoded_pixels().is_err());
     }
 
     #[test]
@@ -497,13 +581,21 @@ mod tests {
 
     #[test]
     fn huge_declared_lengths_do_not_allocate() {
-        // A TileResult whose pixel binary claims 4 GiB but holds 3 bytes.
-        let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();
-        // enum as map {variant: [fields]}: fixmap(1), fixstr "TileResult", fixarray(4)
-        bytes.push(0x81);
-        bytes.push(0xa0 | 10);
-        bytes.extend_from_slice(b"TileResult");
-        bytes.extend_from_slice(&[0x94, 1, 1, 1, 0xc6, 0xff, 0xff, 0xff, 0xff, 1, 2, 3]);
+        // A TileResult whose pixel binary claims 4 GiB but holds 3 bytes: a
+        // real one whose pixels (last: bin8 marker, length 3, bytes) are re-declared.
+        let mut bytes = encode(&Message::TileResult(TileResult {
+            frame: 1,
+            id: 1,
+            tile: Tile { x: 0, y: 0, w: 1, h: 1 },
+            render_micros: 1,
+            codec: Codec::Raw,
+            pixels: ByteBuf::from(vec![1, 2, 3]),
+        }))
+        .unwrap();
+        assert!(decode(&bytes, DEFAULT_MAX_FRAME).is_ok());
+        let at = bytes.len() - 5;
+        assert_eq!(&bytes[at..at + 2], &[0xc4, 3]);
+        bytes.splice(at..at + 2, [0xc6, 0xff, 0xff, 0xff, 0xff]);
         assert!(decode(&bytes, DEFAULT_MAX_FRAME).is_err());
         // And a Cancel whose tile array claims 2^32-1 entries.
         let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();

@@ -10,6 +10,7 @@
 
 use crate::auth::Ticket;
 use crate::client::{self, JoinError};
+use crate::codec::{self, Codec};
 use crate::protocol::{self, FrameId, Message, Role, SceneHash, TileAssignment, TileId, TileResult};
 use crate::transport::{FrameSender, Transport, TransportError};
 use actix::prelude::*;
@@ -36,6 +37,8 @@ pub struct SlaveOptions {
     pub max_backoff: Duration,
     /// Give up after this many failed attempts in a row (`None`: never).
     pub max_attempts: Option<u32>,
+    /// Tile codecs offered to the master, which picks one (raw if none suits).
+    pub codecs: Vec<Codec>,
 }
 
 impl Default for SlaveOptions {
@@ -47,6 +50,7 @@ impl Default for SlaveOptions {
             master_timeout: Duration::from_secs(10),
             max_backoff: Duration::from_secs(5),
             max_attempts: None,
+            codecs: Codec::ALL.to_vec(),
         }
     }
 }
@@ -191,6 +195,7 @@ pub struct Session<S> {
     conn: crate::transport::Connection,
     scene: Arc<S>,
     name: String,
+    codec: Codec,
 }
 
 /// Connects, authenticates, and makes sure the master's scene is loaded.
@@ -202,8 +207,23 @@ pub async fn join<R: Renderer>(
     cache: &mut Option<SceneCache<R::Scene>>,
 ) -> Result<Session<R::Scene>, JoinError> {
     let cached = cache.as_ref().map(|c| c.hash);
-    let (mut conn, welcome) =
-        client::handshake(transport, ticket, Role::Slave, &opts.name, opts.threads as u32, cached).await?;
+    let (mut conn, welcome) = client::handshake(
+        transport,
+        ticket,
+        Role::Slave,
+        &opts.name,
+        opts.threads as u32,
+        cached,
+        &opts.codecs,
+    )
+    .await?;
+    if welcome.codec != Codec::Raw && !opts.codecs.contains(&welcome.codec) {
+        conn.sender.close();
+        return Err(JoinError::Rejected(format!(
+            "master picked tile codec {}, which was not offered",
+            welcome.codec
+        )));
+    }
     if cached != Some(welcome.scene.hash) {
         let (hash, bundle) = loop {
             match client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120))
@@ -235,8 +255,14 @@ pub async fn join<R: Renderer>(
     }
     let scene = cache.as_ref().map(|c| c.scene.clone()).ok_or(JoinError::Closed)?;
     client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash })?;
-    tracing::info!(master = %ticket.addr, "joined master {} as {}", ticket.addr, welcome.name);
-    Ok(Session { conn, scene, name: welcome.name })
+    tracing::info!(
+        master = %ticket.addr,
+        "joined master {} as {} (tiles in {})",
+        ticket.addr,
+        welcome.name,
+        welcome.codec
+    );
+    Ok(Session { conn, scene, name: welcome.name, codec: welcome.codec })
 }
 
 /// Serves one session until the connection ends; returns why it ended.
@@ -262,6 +288,7 @@ pub async fn serve<R: Renderer>(
         master_timeout: opts.master_timeout,
         done: Some(done_tx),
         name: session.name,
+        codec: session.codec,
     };
     let addr = actor.start();
     tokio::spawn(async move {
@@ -287,6 +314,7 @@ pub struct SlaveActor<R: Renderer> {
     master_timeout: Duration,
     done: Option<oneshot::Sender<String>>,
     name: String,
+    codec: Codec,
 }
 
 impl<R: Renderer> SlaveActor<R> {
@@ -324,7 +352,7 @@ impl<R: Renderer> SlaveActor<R> {
                 self.cancelled.clone(),
                 self.counters.clone(),
             );
-            let (frame, camera, settings) = (a.frame, a.camera, a.settings);
+            let (frame, camera, settings, tile_codec) = (a.frame, a.camera, a.settings, self.codec);
             self.pool.spawn_fifo(move || {
                 // Skip tiles of superseded frames, cancelled tiles, and the
                 // leftovers of a session whose connection is gone.
@@ -355,12 +383,14 @@ impl<R: Renderer> SlaveActor<R> {
                     );
                     return;
                 }
+                let render_micros = t0.elapsed().as_micros() as u64;
                 let msg = Message::TileResult(TileResult {
                     frame,
                     id: job.id,
                     tile: t,
-                    render_micros: t0.elapsed().as_micros() as u64,
-                    pixels: ByteBuf::from(pixels),
+                    render_micros,
+                    codec: tile_codec,
+                    pixels: ByteBuf::from(codec::encode(tile_codec, t.w, &pixels)),
                 });
                 match protocol::encode(&msg) {
                     Ok(bytes) => {

@@ -58,6 +58,13 @@ pub enum TransportError {
     /// The connection was closed locally.
     #[error("connection closed")]
     Closed,
+    /// The peer is not the one we were told to trust (e.g. its certificate's
+    /// fingerprint is not the ticket's): retrying will not help.
+    #[error("refusing the peer: {reason}")]
+    Untrusted {
+        /// Why.
+        reason: String,
+    },
 }
 
 /// Opens connections. Implemented by TCP and QUIC.
@@ -113,6 +120,29 @@ impl ConnShared {
     /// Whether the connection was closed locally.
     pub fn is_closed(&self) -> bool {
         self.closed.load(Ordering::Acquire)
+    }
+
+    /// Adds bytes written to the socket without counting a frame: for
+    /// transports that count below their own framing (TLS records, handshakes),
+    /// together with [`count_frame_sent`](Self::count_frame_sent).
+    pub fn add_bytes_sent(&self, n: u64) {
+        self.bytes_sent.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// Adds bytes read from the socket without counting a frame (see
+    /// [`add_bytes_sent`](Self::add_bytes_sent)).
+    pub fn add_bytes_received(&self, n: u64) {
+        self.bytes_received.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// Counts one frame written, its bytes being counted elsewhere.
+    pub fn count_frame_sent(&self) {
+        self.frames_sent.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Counts one frame read, its bytes being counted elsewhere.
+    pub fn count_frame_received(&self) {
+        self.frames_received.fetch_add(1, Ordering::Relaxed);
     }
 
     /// Transports call this for every frame written (`wire` bytes incl. framing).

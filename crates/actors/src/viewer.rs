@@ -161,19 +161,16 @@ impl Handler<Inbound> for ViewerActor {
                 .map_err(|e| format!("bad frame from the master: {e}"))
         });
         let event = match msg {
-            Ok(Message::FrameTile(t)) => {
-                if t.pixels.len() != t.tile.pixel_count() * 3 {
-                    Some(ViewerEvent::Error(format!("tile {:?} with {} bytes", t.tile, t.pixels.len())))
-                } else {
-                    Some(ViewerEvent::Tile {
-                        request: t.request,
-                        slave: t.slave,
-                        slave_name: t.slave_name,
-                        tile: t.tile,
-                        pixels: t.pixels.into_vec(),
-                    })
-                }
-            }
+            Ok(Message::FrameTile(t)) => match t.decoded_pixels() {
+                Err(e) => Some(ViewerEvent::Error(format!("tile {:?}: {e}", t.tile))),
+                Ok(pixels) => Some(ViewerEvent::Tile {
+                    request: t.request,
+                    slave: t.slave,
+                    slave_name: t.slave_name,
+                    tile: t.tile,
+                    pixels,
+                }),
+            },
             Ok(Message::FrameDone { request, stats }) => Some(ViewerEvent::FrameDone { request, stats }),
             Ok(Message::Error { message }) => Some(ViewerEvent::Error(message)),
             Ok(Message::Reject { reason }) => Some(ViewerEvent::Closed(format!("master refused: {reason}"))),
@@ -198,7 +195,8 @@ pub async fn connect(
     ticket: &Ticket,
     name: &str,
 ) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
-    let (conn, welcome) = client::handshake(transport, ticket, Role::Viewer, name, 0, None).await?;
+    let (conn, welcome) =
+        client::handshake(transport, ticket, Role::Viewer, name, 0, None, &crate::codec::Codec::ALL).await?;
     let (sink, events) = mpsc::unbounded_channel();
     let crate::transport::Connection { sender, mut receiver, .. } = conn;
     let addr = ViewerActor { sender, sink, next_request: 0 }.start();

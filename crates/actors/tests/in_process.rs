@@ -4,6 +4,7 @@
 
 use isin_actors::auth::Ticket;
 use isin_actors::client::JoinError;
+use isin_actors::codec::{Codec, Compression};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, SlaveOptions};
 use isin_actors::transport::Transport;
@@ -32,7 +33,16 @@ fn settings(w: u32, h: u32) -> RenderSettings {
 }
 
 async fn start_master(t: &MemTransport, token: &str) -> (actix::Addr<Master>, Ticket) {
-    let cfg = MasterConfig::new(token.into(), bundle(), Camera::default(), settings(64, 48));
+    start_master_with(t, token, Compression::Auto).await
+}
+
+async fn start_master_with(
+    t: &MemTransport,
+    token: &str,
+    compression: Compression,
+) -> (actix::Addr<Master>, Ticket) {
+    let mut cfg = MasterConfig::new(token.into(), bundle(), Camera::default(), settings(64, 48));
+    cfg.compression = compression;
     let listener = t.listen("master").await.unwrap();
     let addr = Master::new(cfg).unwrap().serve(listener);
     (addr, Ticket { transport: "mem".into(), token: token.into(), addr: "master".into(), fingerprint: None })
@@ -166,7 +176,10 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
     let t = MemTransport::new();
     let (master, ticket) = start_master(&t, "tok").await;
     // A hand-driven slave that lies about a tile's size.
-    let (mut conn, welcome) = client::handshake(&t, &ticket, Role::Slave, "liar", 1, None).await.unwrap();
+    // It offers no codec, as a build without compression would: raw it is.
+    let (mut conn, welcome) =
+        client::handshake(&t, &ticket, Role::Slave, "liar", 1, None, &[]).await.unwrap();
+    assert_eq!(welcome.codec, Codec::Raw);
     let max = protocol::DEFAULT_MAX_FRAME;
     loop {
         match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
@@ -193,6 +206,7 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
         id: job.id,
         tile: job.tile,
         render_micros: 1,
+        codec: Codec::Raw,
         pixels: vec![0u8; 5].into(),
     };
     client::send_message(&conn, &Message::TileResult(lie)).unwrap();
@@ -302,5 +316,59 @@ async fn a_request_under_the_callers_number_comes_back_tagged_with_it_and_the_sl
     // The event stream ends after Disconnect (at most a Closed note first).
     while let Some(ev) = events.recv().await {
         assert!(matches!(ev, viewer::ViewerEvent::Closed(_)), "{ev:?} after Disconnect");
+    }
+}
+
+#[actix::test]
+async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
+    use isin_actors::client;
+    use isin_actors::protocol::Role;
+    let all = Codec::ALL;
+    for (compression, best) in [
+        (Compression::Auto, Codec::ALL[0]),
+        (Compression::Use(Codec::Raw), Codec::Raw),
+        (Compression::Use(Codec::Lz4), Codec::Lz4),
+        (Compression::Use(Codec::Qoi), Codec::Qoi),
+    ] {
+        let t = MemTransport::new();
+        let (master, ticket) = start_master_with(&t, "tok", compression).await;
+        // What the master picks for a peer offering everything, one offering
+        // only LZ4, and an old one offering nothing.
+        for (offer, want) in [
+            (&all[..], best),
+            (
+                &[Codec::Lz4][..],
+                if matches!(best, Codec::Lz4) || compression == Compression::Auto {
+                    Codec::Lz4
+                } else {
+                    Codec::Raw
+                },
+            ),
+            (&[][..], Codec::Raw),
+        ] {
+            let (conn, welcome) =
+                client::handshake(&t, &ticket, Role::Viewer, "probe", 0, None, offer).await.unwrap();
+            assert_eq!(welcome.codec, want, "{compression:?} offered {offer:?}");
+            conn.sender.close();
+        }
+        // A new and an old slave render together; the frame is exact.
+        spawn_slave(&t, &ticket, "new", Arc::new(Fake::default()));
+        let old =
+            SlaveOptions { name: "old".into(), threads: 1, codecs: Vec::new(), ..SlaveOptions::default() };
+        let (tt, tk) = (Arc::new(t.clone()) as Arc<dyn Transport>, ticket.clone());
+        actix::spawn(async move {
+            let _ = slave::run(tt, tk, old, Arc::new(Fake::default())).await;
+        });
+        wait_slaves(&master, 2).await;
+        let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
+        let cam = Camera::default();
+        let (frame, stats) = viewer::collect_frame(&v, &mut events, cam, settings(320, 240)).await.unwrap();
+        for y in 0..240 {
+            for x in 0..320 {
+                let i = ((y * 320 + x) * 3) as usize;
+                assert_eq!(frame.rgb[i..i + 3], pixel(&cam, x, y), "pixel {x},{y} with {compression:?}");
+            }
+        }
+        assert_eq!(stats.per_slave.len(), 2, "both slaves rendered: {:?}", stats.per_slave);
     }
 }

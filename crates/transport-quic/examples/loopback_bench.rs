@@ -1,5 +1,5 @@
 //! Loopback micro-benchmark: 12 KB tiles (64×64 RGB8 `TileResult` frames)
-//! from a "slave" to a "master" over QUIC and over plain TCP, both ends in this
+//! from a "slave" to a "master" over QUIC, TLS over TCP and plaintext TCP, both ends in this
 //! process. The master answers each tile with a `Heartbeat` frame as an
 //! acknowledgement; the slave keeps `WINDOW` tiles in flight.
 //!
@@ -42,6 +42,7 @@ fn tile(id: u32) -> Vec<u8> {
         id,
         tile: isin_tracer::Tile { x: 0, y: 0, w: 64, h: 64 },
         render_micros: 0,
+        codec: Default::default(),
         pixels: pixels.into(),
     }))
     .expect("encodable")
@@ -126,9 +127,9 @@ async fn drive(mut slave: Connection, tiles: u32, window: usize) -> Outcome {
 }
 
 /// Two-process mode, e.g. across network namespaces:
-/// `serve ADDR tcp|quic` prints the certificate fingerprint and echoes every
-/// connection; `send ADDR tcp|quic|quic1 FINGERPRINT TILES WINDOW` prints one
-/// table row (`quic1`: every frame on one stream).
+/// `serve ADDR tcp|tcp-insecure|quic` prints the certificate fingerprint and echoes every
+/// connection; `send ADDR tcp|tcp-insecure|quic|quic1 FINGERPRINT TILES WINDOW` prints one
+/// table row (`quic1`: every frame on one stream; `tcp` is TLS).
 fn two_process(args: &[String]) -> bool {
     let rt =
         || tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().expect("rt");
@@ -136,7 +137,8 @@ fn two_process(args: &[String]) -> bool {
         [mode, addr, kind] if mode == "serve" => {
             let id = Identity::generate().expect("identity");
             let t: Box<dyn Transport> = match kind.as_str() {
-                "tcp" => Box::new(TcpTransport::new()),
+                "tcp" => Box::new(TcpTransport::server(&id).expect("server")),
+                "tcp-insecure" => Box::new(TcpTransport::insecure()),
                 _ => Box::new(QuicTransport::server(&id).expect("server")),
             };
             println!("fp={}", id.fingerprint());
@@ -152,7 +154,8 @@ fn two_process(args: &[String]) -> bool {
         [mode, addr, kind, fp, tiles, window] if mode == "send" => {
             let fp = fp.parse().expect("fingerprint");
             let t: Box<dyn Transport> = match kind.as_str() {
-                "tcp" => Box::new(TcpTransport::new()),
+                "tcp" => Box::new(TcpTransport::client(fp).expect("client")),
+                "tcp-insecure" => Box::new(TcpTransport::insecure()),
                 "quic1" => Box::new(
                     QuicTransport::client(fp)
                         .expect("client")
@@ -188,7 +191,8 @@ fn main() {
         let id = Identity::generate().expect("identity");
         let quic_server = QuicTransport::server(&id).expect("server");
         let quic_client = QuicTransport::client(id.fingerprint()).expect("client");
-        let tcp = TcpTransport::new();
+        let tcp = TcpTransport::both(&id, id.fingerprint()).expect("TLS over TCP");
+        let plain = TcpTransport::insecure();
         // Same, but every frame on the control stream: the cost of a stream per tile.
         let one_server = quic_server.clone().with_classifier(isin_transport_quic::wire::all_ordered);
         let one_client = quic_client.clone().with_classifier(isin_transport_quic::wire::all_ordered);
@@ -203,17 +207,19 @@ fn main() {
         println!("|---|---|---|---|---|---|---|---|");
         // Warm up both, then measure.
         run(&tcp, &tcp, 500, window, 0).await;
+        run(&plain, &plain, 500, window, 0).await;
         run(&quic_server, &quic_client, 500, window, 0).await;
         for (name, s, c) in [
-            ("TCP", &tcp as &dyn Transport, &tcp as &dyn Transport),
+            ("TCP (TLS)", &tcp as &dyn Transport, &tcp as &dyn Transport),
+            ("TCP (plaintext)", &plain, &plain),
             ("QUIC", &quic_server, &quic_client),
             ("QUIC, one stream", &one_server, &one_client),
         ] {
-            if loss > 0 && name == "TCP" {
+            if loss > 0 && name.starts_with("TCP") {
                 continue;
             }
             let udp0 = quic_client.wire_stats().udp_tx_bytes;
-            let o = run(s, c, tiles, window, if name == "TCP" { 0 } else { loss }).await;
+            let o = run(s, c, tiles, window, if name.starts_with("TCP") { 0 } else { loss }).await;
             let udp = match name {
                 "QUIC" | "QUIC, one stream" => format!("{:.0}", (quic_client.wire_stats().udp_tx_bytes - udp0) as f64 / tiles as f64),
                 _ => "–".to_string(),

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Tiles from a "slave" to a "master" in two network namespaces joined by a veth
-# pair, over TCP, QUIC (a stream per tile) and QUIC with one stream ("quic1"),
+# pair, over TLS/TCP, plaintext TCP, QUIC (a stream per tile) and QUIC with one stream ("quic1"),
 # with the link shaped by tc tbf and random loss from nftables (this kernel has
 # no netem). Needs root, iproute2, nftables, ethtool. Creates and removes its
 # own namespaces (isq_m, isq_s; 10.231.0.0/24 exists only between them).
@@ -39,7 +39,7 @@ fi
 echo "link $RATE, loss $LOSS per mille each way, $TILES tiles, $WINDOW in flight (CPU: slave process only)"
 echo "| transport | tiles/s | CPU µs/tile | RTT p50 ms | RTT p99 ms | max ms | interface bytes/tile |"
 echo "|---|---|---|---|---|---|---|"
-for kind in tcp quic quic1; do
+for kind in tcp tcp-insecure quic quic1; do
   out=$(mktemp)
   ip netns exec isq_m "$BIN" serve 10.231.0.1:7900 "${kind%1}" >"$out" 2>&1 &
   server=$!

@@ -64,11 +64,12 @@
 pub mod config;
 mod conn;
 pub mod stats;
-pub mod tls;
 pub mod wire;
 
 pub use config::QuicOptions;
 pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
+/// The TLS identity and pinning shared with TCP (it lives in `isin-transport-tcp`).
+pub use isin_transport_tcp::tls;
 pub use stats::WireStats;
 
 use isin_actors::transport::{BoxFuture, Connection, Listener, Transport, TransportError};
@@ -212,15 +213,17 @@ fn endpoint(
     Endpoint::new(EndpointConfig::default(), server, socket, Arc::new(TokioRuntime))
 }
 
-/// Explains a failed QUIC connection attempt in words a user can act on.
-fn describe(e: &quinn::ConnectionError, verifier: &tls::PinnedServerVerifier) -> String {
-    if let Some(mismatch) = verifier.rejected() {
-        mismatch.to_string()
+/// Explains a failed QUIC connection attempt in words a user can act on; a
+/// certificate with the wrong fingerprint is [`TransportError::Untrusted`].
+fn describe(addr: &str, e: &quinn::ConnectionError, verifier: &tls::PinnedServerVerifier) -> TransportError {
+    let reason = if let Some(mismatch) = verifier.rejected() {
+        return TransportError::Untrusted { reason: mismatch.to_string() };
     } else if matches!(e, quinn::ConnectionError::TimedOut) {
         "no answer (is the master running, and UDP to it allowed?)".to_string()
     } else {
         e.to_string()
-    }
+    };
+    TransportError::Connect { addr: addr.to_string(), reason }
 }
 
 impl Transport for QuicTransport {
@@ -269,8 +272,8 @@ impl Transport for QuicTransport {
                 .connect_with(client, target, tls::SERVER_NAME)
                 .map_err(|e| err(e.to_string()))?
                 .await
-                .map_err(|e| err(describe(&e, &verifier)))?;
-            let (mut send, recv) = conn.open_bi().await.map_err(|e| err(describe(&e, &verifier)))?;
+                .map_err(|e| describe(addr, &e, &verifier))?;
+            let (mut send, recv) = conn.open_bi().await.map_err(|e| describe(addr, &e, &verifier))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
             Ok(conn::spawn(
                 conn,

@@ -84,6 +84,7 @@ fn tile_prefixes() -> &'static [Vec<u8>] {
                 id: 0,
                 tile: Tile { x: 0, y: 0, w: 1, h: 1 },
                 render_micros: 0,
+                codec: Default::default(),
                 pixels: Default::default(),
             })
         };
@@ -93,6 +94,7 @@ fn tile_prefixes() -> &'static [Vec<u8>] {
                 slave: 0,
                 slave_name: String::new(),
                 tile: Tile { x: 0, y: 0, w: 1, h: 1 },
+                codec: Default::default(),
                 pixels: Default::default(),
             })
         };
@@ -157,6 +159,7 @@ mod tests {
                 id: 123_456,
                 tile: Tile { x: 64, y: 0, w: 64, h: 64 },
                 render_micros: 9,
+                codec: isin_actors::codec::Codec::Qoi,
                 pixels: ByteBuf::from(vec![1u8; 12_288]),
             }),
             Message::FrameTile(FrameTile {
@@ -164,6 +167,7 @@ mod tests {
                 slave: u64::MAX,
                 slave_name: "TileResult#9".into(),
                 tile: Tile { x: 64, y: 128, w: 64, h: 64 },
+                codec: isin_actors::codec::Codec::Lz4,
                 pixels: ByteBuf::from(vec![2u8; 12_288]),
             }),
         ];
@@ -177,6 +181,7 @@ mod tests {
                 client_nonce: [0; 32],
                 proof: [0; 32],
                 cached_scene: None,
+                codecs: isin_actors::codec::offer(),
             }),
             Message::Ready { hash: [0; 32] },
             Message::Cancel { frame: 1, tiles: vec![1] },

@@ -47,7 +47,7 @@ async fn start_master() -> Setup {
     let listener = server.listen("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr();
     let master = Master::new(cfg).unwrap().serve(listener);
-    let ticket: Ticket = format!("isin+quic://tok@{addr}").parse().unwrap();
+    let ticket: Ticket = format!("isin+quic://tok@{addr}?fp={}", id.fingerprint()).parse().unwrap();
     Setup { master, ticket, client: QuicTransport::client(id.fingerprint()).unwrap() }
 }
 

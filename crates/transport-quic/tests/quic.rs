@@ -166,6 +166,7 @@ async fn the_protocol_classifier_sends_tiles_on_streams_and_the_rest_in_order() 
             id,
             tile: isin_tracer::Tile { x: 0, y: 0, w: 64, h: 64 },
             render_micros: 1,
+            codec: Default::default(),
             pixels: vec![id as u8; 12_288].into(),
         }))
         .unwrap()
@@ -227,7 +228,7 @@ async fn a_wrong_fingerprint_fails_clearly_and_delivers_nothing() {
     let wrong = QuicTransport::client(impostor.fingerprint()).unwrap().with_options(options());
     let err = timeout(BOUND, wrong.connect(&addr)).await.unwrap().unwrap_err();
     let text = err.to_string();
-    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    assert!(matches!(err, TransportError::Untrusted { .. }), "{err:?}");
     assert!(text.contains("fingerprint") && text.contains(&impostor.fingerprint().to_string()), "{text}");
     assert!(text.contains(&server.fingerprint().unwrap().to_string()), "{text}");
     // The listener never produced that connection: the next one accepted is a good one.

@@ -1,41 +1,166 @@
 //! # isin-transport-tcp — the cluster transport over TCP
 //!
 //! Length-delimited frames over tokio TCP streams, implementing the
-//! [`isin_actors::transport::Transport`] interface the actors use. Each
-//! connection sets `TCP_NODELAY` (tiles are latency-sensitive and the codec
+//! [`isin_actors::transport::Transport`] interface the actors use. By default
+//! the stream is TLS 1.3 ([`TcpTransport::server`] / [`TcpTransport::client`]):
+//! the master presents its self-signed [`tls::Identity`], the slave pins the
+//! certificate's SHA-256 from the join ticket (no "accept any certificate"),
+//! exactly as over QUIC — the [`tls`] module is shared by both transports
+//! (`isin-transport-quic` depends on this crate for it, so the actors crate
+//! stays free of cryptography and neither transport pulls in the other's
+//! network stack). Plaintext is [`TcpTransport::insecure`], a separate
+//! transport with its own name (`tcp-insecure`), so a ticket says which one a
+//! master speaks and a slave never falls back from one to the other.
+//!
+//! Each connection sets `TCP_NODELAY` (tiles are latency-sensitive and the codec
 //! already batches writes), starts with the small handshake frame limit (raised
 //! by the master once the peer has authenticated), and reports the peer closing
-//! as the end of its frame stream.
+//! as the end of its frame stream. A TLS listener runs each handshake in its
+//! own task under a timeout, so a peer that stalls it holds up no one.
+//!
+//! ## Counting
+//! Over TLS, [`ConnStats`](isin_actors::transport::ConnStats) bytes are what
+//! crossed the socket — handshake, record headers and authentication tags
+//! included — counted by a wrapper under the TLS layer ([`counted`]). Over
+//! plaintext they are the frames and their 4-byte length prefixes, which is
+//! the same thing.
 
+pub mod counted;
+pub mod tls;
+
+use counted::Counted;
 use isin_actors::protocol::HANDSHAKE_MAX_FRAME;
-use isin_actors::transport::{BoxFuture, Connection, Listener, Transport, TransportError, stream};
+use isin_actors::transport::stream::{self, Counting};
+use isin_actors::transport::{BoxFuture, ConnShared, Connection, Listener, Transport, TransportError};
+use std::sync::Arc;
+use std::time::Duration;
+use tls::{Fingerprint, Identity, PinnedServerVerifier, TlsError};
 use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::mpsc;
+use tokio_rustls::{TlsAcceptor, TlsConnector};
 
-/// TCP transport.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct TcpTransport;
+/// A TLS handshake taking longer than this is abandoned (the peer's
+/// connection is closed; the listener goes on).
+pub const TLS_HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
-impl TcpTransport {
-    /// The TCP transport.
-    pub fn new() -> Self {
-        Self
+/// Connections accepted (TLS done) but not yet taken by [`Listener::accept`].
+const ACCEPT_QUEUE: usize = 64;
+
+#[derive(Clone)]
+enum Security {
+    /// Plaintext.
+    Insecure,
+    /// TLS 1.3: may listen with `acceptor` and/or connect pinning `pinned`.
+    Tls { acceptor: Option<TlsAcceptor>, identity: Option<Fingerprint>, pinned: Option<Fingerprint> },
+}
+
+/// TCP transport: TLS with a pinned certificate, or plaintext (see the
+/// [crate docs](crate)).
+#[derive(Clone)]
+pub struct TcpTransport {
+    security: Security,
+}
+
+impl std::fmt::Debug for TcpTransport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.security {
+            Security::Insecure => write!(f, "TcpTransport(insecure)"),
+            Security::Tls { identity, pinned, .. } => f
+                .debug_struct("TcpTransport")
+                .field("identity", identity)
+                .field("pinned", pinned)
+                .finish_non_exhaustive(),
+        }
     }
 }
 
-fn wrap(sock: TcpStream, peer: String) -> Connection {
+impl Default for TcpTransport {
+    /// Plaintext, as [`TcpTransport::insecure`].
+    fn default() -> Self {
+        Self::insecure()
+    }
+}
+
+impl TcpTransport {
+    /// Plaintext TCP, as [`TcpTransport::insecure`] (kept for callers that
+    /// measure the bare transport; the cluster commands use TLS unless told
+    /// `--insecure`).
+    pub fn new() -> Self {
+        Self::insecure()
+    }
+
+    /// Plaintext TCP: anyone on the path can read and alter the frames (the
+    /// token handshake still keeps strangers out). Named `tcp-insecure`.
+    pub fn insecure() -> Self {
+        Self { security: Security::Insecure }
+    }
+
+    /// The master's side of TLS over TCP: listens presenting `identity` (its
+    /// [`fingerprint`](Self::fingerprint) is what tickets carry). Cannot connect.
+    pub fn server(identity: &Identity) -> Result<Self, TlsError> {
+        let cfg = tls::server_config(identity, &[tls::ALPN_TCP])?;
+        Ok(Self {
+            security: Security::Tls {
+                acceptor: Some(TlsAcceptor::from(Arc::new(cfg))),
+                identity: Some(identity.fingerprint()),
+                pinned: None,
+            },
+        })
+    }
+
+    /// A slave's or viewer's side: connects over TLS to a master whose
+    /// certificate has the fingerprint `pinned` (from the join ticket), and to
+    /// nothing else.
+    pub fn client(pinned: Fingerprint) -> Result<Self, TlsError> {
+        // Fail early if the configuration cannot be built; connect builds a fresh one.
+        tls::client_config(pinned, &[tls::ALPN_TCP])?;
+        Ok(Self { security: Security::Tls { acceptor: None, identity: None, pinned: Some(pinned) } })
+    }
+
+    /// Both sides at once: listens with `identity` and connects pinning
+    /// `pinned` (e.g. an embedded cluster in one process).
+    pub fn both(identity: &Identity, pinned: Fingerprint) -> Result<Self, TlsError> {
+        let mut t = Self::server(identity)?;
+        tls::client_config(pinned, &[tls::ALPN_TCP])?;
+        if let Security::Tls { pinned: p, .. } = &mut t.security {
+            *p = Some(pinned);
+        }
+        Ok(t)
+    }
+
+    /// Whether frames are encrypted.
+    pub fn is_tls(&self) -> bool {
+        matches!(self.security, Security::Tls { .. })
+    }
+
+    /// The fingerprint of the certificate this side presents when listening.
+    pub fn fingerprint(&self) -> Option<Fingerprint> {
+        match &self.security {
+            Security::Tls { identity, .. } => *identity,
+            Security::Insecure => None,
+        }
+    }
+}
+
+fn nodelay(sock: &TcpStream, peer: &str) {
     if let Err(e) = sock.set_nodelay(true) {
         tracing::warn!(%peer, "cannot set TCP_NODELAY: {e}");
     }
+}
+
+fn wrap_plain(sock: TcpStream, peer: String) -> Connection {
+    nodelay(&sock, &peer);
     let (r, w) = sock.into_split();
     stream::spawn(r, w, peer, HANDSHAKE_MAX_FRAME)
 }
 
-struct TcpListenerBox {
+/// Plaintext listener: connections are ready as soon as accepted.
+struct PlainListener {
     inner: TcpListener,
     addr: String,
 }
 
-impl Listener for TcpListenerBox {
+impl Listener for PlainListener {
     fn local_addr(&self) -> String {
         self.addr.clone()
     }
@@ -43,86 +168,159 @@ impl Listener for TcpListenerBox {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move {
             let (sock, peer) = self.inner.accept().await?;
-            Ok(wrap(sock, peer.to_string()))
+            Ok(wrap_plain(sock, peer.to_string()))
         })
     }
 }
 
+/// TLS listener: an accept loop hands each socket to its own handshake task;
+/// finished handshakes queue up for [`Listener::accept`].
+struct TlsListener {
+    addr: String,
+    rx: mpsc::Receiver<Connection>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Drop for TlsListener {
+    fn drop(&mut self) {
+        // Stops accepting (the socket closes with the task); established
+        // connections live on.
+        self.task.abort();
+    }
+}
+
+impl Listener for TlsListener {
+    fn local_addr(&self) -> String {
+        self.addr.clone()
+    }
+
+    fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
+        Box::pin(async move { self.rx.recv().await.ok_or(TransportError::Closed) })
+    }
+}
+
+async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc::Sender<Connection>) {
+    loop {
+        let (sock, peer) = match listener.accept().await {
+            Ok(s) => s,
+            Err(e) => {
+                // E.g. out of file descriptors: do not spin.
+                tracing::warn!("TCP accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let (acceptor, tx) = (acceptor.clone(), tx.clone());
+        tokio::spawn(async move {
+            let peer = peer.to_string();
+            match tokio::time::timeout(TLS_HANDSHAKE_TIMEOUT, tls_accept(sock, &peer, &acceptor)).await {
+                Ok(Ok(conn)) => {
+                    // If nobody accepts any more, dropping `conn` closes it.
+                    let _ = tx.send(conn).await;
+                }
+                Ok(Err(e)) => tracing::info!(%peer, "TLS connection refused: {e}"),
+                Err(_) => tracing::info!(%peer, "TLS handshake timed out"),
+            }
+        });
+    }
+}
+
+async fn tls_accept(sock: TcpStream, peer: &str, acceptor: &TlsAcceptor) -> Result<Connection, String> {
+    nodelay(&sock, peer);
+    let shared = ConnShared::new(HANDSHAKE_MAX_FRAME);
+    let tls = acceptor
+        .accept(Counted::new(sock, shared.clone()))
+        .await
+        .map_err(|e| format!("handshake failed: {e}"))?;
+    if tls.get_ref().1.alpn_protocol() != Some(tls::ALPN_TCP) {
+        return Err("the peer does not speak isin over TLS (no `isin-tcp/1` ALPN)".into());
+    }
+    let (r, w) = tokio::io::split(tls);
+    Ok(stream::spawn_with(r, w, peer.to_string(), shared, Counting::External))
+}
+
+/// Explains a failed TLS handshake in words a user can act on.
+fn describe(e: &std::io::Error, verifier: &PinnedServerVerifier) -> TransportError {
+    if let Some(mismatch) = verifier.rejected() {
+        return TransportError::Untrusted { reason: mismatch.to_string() };
+    }
+    let text = e.to_string();
+    let hint = if text.contains("corrupt message") || text.contains("InvalidContentType") {
+        " (is the master running with --insecure? Its ticket then starts with isin+tcp-insecure://)"
+    } else {
+        ""
+    };
+    TransportError::Io(std::io::Error::new(e.kind(), format!("TLS handshake failed: {text}{hint}")))
+}
+
 impl Transport for TcpTransport {
     fn name(&self) -> &'static str {
-        "tcp"
+        match self.security {
+            Security::Tls { .. } => "tcp",
+            Security::Insecure => "tcp-insecure",
+        }
     }
 
     fn listen<'a>(&'a self, addr: &'a str) -> BoxFuture<'a, Result<Box<dyn Listener>, TransportError>> {
         Box::pin(async move {
             let err =
                 |e: std::io::Error| TransportError::Listen { addr: addr.to_string(), reason: e.to_string() };
+            let acceptor = match &self.security {
+                Security::Insecure => None,
+                Security::Tls { acceptor: Some(a), .. } => Some(a.clone()),
+                Security::Tls { acceptor: None, .. } => {
+                    return Err(TransportError::Listen {
+                        addr: addr.to_string(),
+                        reason: "this TCP transport has no certificate to serve (use TcpTransport::server)"
+                            .into(),
+                    });
+                }
+            };
             let inner = TcpListener::bind(addr).await.map_err(err)?;
-            let addr = inner.local_addr().map_err(err)?.to_string();
-            Ok(Box::new(TcpListenerBox { inner, addr }) as Box<dyn Listener>)
+            let local = inner.local_addr().map_err(err)?.to_string();
+            Ok(match acceptor {
+                None => Box::new(PlainListener { inner, addr: local }) as Box<dyn Listener>,
+                Some(acceptor) => {
+                    let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
+                    let task = tokio::spawn(tls_accept_loop(inner, acceptor, tx));
+                    Box::new(TlsListener { addr: local, rx, task })
+                }
+            })
         })
     }
 
     fn connect<'a>(&'a self, addr: &'a str) -> BoxFuture<'a, Result<Connection, TransportError>> {
         Box::pin(async move {
-            let sock = TcpStream::connect(addr)
+            let err = |reason: String| TransportError::Connect { addr: addr.to_string(), reason };
+            let pinned = match &self.security {
+                Security::Insecure => None,
+                Security::Tls { pinned: Some(p), .. } => Some(*p),
+                Security::Tls { pinned: None, .. } => {
+                    return Err(err(
+                        "no certificate fingerprint to pin (TLS needs the one in the join ticket)".into(),
+                    ));
+                }
+            };
+            let sock = TcpStream::connect(addr).await.map_err(|e| err(e.to_string()))?;
+            let Some(pinned) = pinned else {
+                return Ok(wrap_plain(sock, addr.to_string()));
+            };
+            nodelay(&sock, addr);
+            let verifier = Arc::new(PinnedServerVerifier::new(pinned, &tls::provider()));
+            let cfg = tls::client_config_with(verifier.clone(), &[tls::ALPN_TCP])
+                .map_err(|e| err(e.to_string()))?;
+            let name = tokio_rustls::rustls::pki_types::ServerName::try_from(tls::SERVER_NAME)
+                .map_err(|e| err(e.to_string()))?;
+            let shared = ConnShared::new(HANDSHAKE_MAX_FRAME);
+            let tls = TlsConnector::from(Arc::new(cfg))
+                .connect(name, Counted::new(sock, shared.clone()))
                 .await
-                .map_err(|e| TransportError::Connect { addr: addr.to_string(), reason: e.to_string() })?;
-            Ok(wrap(sock, addr.to_string()))
+                .map_err(|e| describe(&e, &verifier))?;
+            let (r, w) = tokio::io::split(tls);
+            Ok(stream::spawn_with(r, w, addr.to_string(), shared, Counting::External))
         })
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-
-    #[tokio::test]
-    async fn frames_cross_a_real_socket_both_ways() {
-        let t = TcpTransport::new();
-        let mut l = t.listen("127.0.0.1:0").await.unwrap();
-        let addr = l.local_addr();
-        assert!(!addr.ends_with(":0"));
-        let mut client = t.connect(&addr).await.unwrap();
-        let mut server = l.accept().await.unwrap();
-        client.sender.send(b"hello".to_vec()).unwrap();
-        assert_eq!(server.receiver.recv().await.unwrap().unwrap(), b"hello");
-        server.sender.send(vec![9; 1000]).unwrap();
-        assert_eq!(client.receiver.recv().await.unwrap().unwrap(), vec![9; 1000]);
-        assert_eq!(server.sender.stats().bytes_sent, 1004);
-        drop(client);
-        // Dropping every handle of the client closes the socket: clean end.
-        assert!(server.receiver.recv().await.is_none());
-    }
-
-    #[tokio::test]
-    async fn oversized_prefix_closes_only_that_connection() {
-        let t = TcpTransport::new();
-        let mut l = t.listen("127.0.0.1:0").await.unwrap();
-        let addr = l.local_addr();
-        let mut raw = tokio::net::TcpStream::connect(&addr).await.unwrap();
-        let mut bad = l.accept().await.unwrap();
-        raw.write_all(&(HANDSHAKE_MAX_FRAME as u32 + 1).to_be_bytes()).await.unwrap();
-        assert!(matches!(bad.receiver.recv().await, Some(Err(TransportError::FrameTooLarge { .. }))));
-        bad.sender.close();
-        // The raw peer sees the close.
-        let mut buf = [0u8; 8];
-        assert_eq!(raw.read(&mut buf).await.unwrap(), 0);
-        // The listener still serves others.
-        let good = t.connect(&addr).await.unwrap();
-        let mut served = l.accept().await.unwrap();
-        good.sender.send(b"ok".to_vec()).unwrap();
-        assert_eq!(served.receiver.recv().await.unwrap().unwrap(), b"ok");
-    }
-
-    #[tokio::test]
-    async fn connect_to_nothing_is_a_clear_error() {
-        let t = TcpTransport::new();
-        let l = t.listen("127.0.0.1:0").await.unwrap();
-        let addr = l.local_addr();
-        drop(l);
-        let err = t.connect(&addr).await.unwrap_err();
-        assert!(err.to_string().contains(&addr), "{err}");
-    }
-}
+mod tests;

@@ -22,11 +22,37 @@ where
     R: AsyncRead + Unpin + Send + 'static,
     W: AsyncWrite + Unpin + Send + 'static,
 {
-    let shared = ConnShared::new(max_frame);
+    spawn_with(reader, writer, peer, ConnShared::new(max_frame), Counting::Frames)
+}
+
+/// Who counts a connection's bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Counting {
+    /// The codec: each frame counts its length prefix and body.
+    Frames,
+    /// The layer below the codec (e.g. a socket wrapper under TLS, which sees
+    /// records and handshakes the codec never does) adds bytes to the shared
+    /// counters itself; the codec counts frames only.
+    External,
+}
+
+/// [`spawn`] around counters the caller made (and may already have fed, e.g.
+/// during a TLS handshake), counting bytes as `counting` says.
+pub fn spawn_with<R, W>(
+    reader: R,
+    writer: W,
+    peer: String,
+    shared: Arc<ConnShared>,
+    counting: Counting,
+) -> Connection
+where
+    R: AsyncRead + Unpin + Send + 'static,
+    W: AsyncWrite + Unpin + Send + 'static,
+{
     let (out_tx, out_rx) = mpsc::unbounded_channel();
     let (in_tx, in_rx) = mpsc::channel(INBOUND_QUEUE);
-    tokio::spawn(write_loop(writer, out_rx, shared.clone()));
-    tokio::spawn(read_loop(reader, in_tx, shared.clone()));
+    tokio::spawn(write_loop(writer, out_rx, shared.clone(), counting));
+    tokio::spawn(read_loop(reader, in_tx, shared.clone(), counting));
     Connection { peer, sender: FrameSender::new(out_tx, shared), receiver: FrameReceiver::new(in_rx) }
 }
 
@@ -34,6 +60,7 @@ async fn write_loop<W: AsyncWrite + Unpin>(
     writer: W,
     mut rx: mpsc::UnboundedReceiver<Outgoing>,
     shared: Arc<ConnShared>,
+    counting: Counting,
 ) {
     let mut w = BufWriter::with_capacity(64 << 10, writer);
     'outer: while let Some(first) = rx.recv().await {
@@ -48,7 +75,10 @@ async fn write_loop<W: AsyncWrite + Unpin>(
                     if w.write_all(&len.to_be_bytes()).await.is_err() || w.write_all(&frame).await.is_err() {
                         break 'outer;
                     }
-                    shared.count_sent(4 + frame.len() as u64);
+                    match counting {
+                        Counting::Frames => shared.count_sent(4 + frame.len() as u64),
+                        Counting::External => shared.count_frame_sent(),
+                    }
                 }
                 Outgoing::Close => break 'outer,
             }
@@ -66,6 +96,7 @@ async fn read_loop<R: AsyncRead + Unpin>(
     mut reader: R,
     tx: mpsc::Sender<Result<Vec<u8>, TransportError>>,
     shared: Arc<ConnShared>,
+    counting: Counting,
 ) {
     loop {
         if shared.is_closed() {
@@ -74,7 +105,7 @@ async fn read_loop<R: AsyncRead + Unpin>(
         let frame = tokio::select! {
             biased;
             _ = shared.close_notify.notified() => return,
-            r = read_frame(&mut reader, &shared) => r,
+            r = read_frame(&mut reader, &shared, counting) => r,
         };
         match frame {
             Ok(Some(f)) => {
@@ -95,11 +126,19 @@ async fn read_loop<R: AsyncRead + Unpin>(
 async fn read_frame<R: AsyncRead + Unpin>(
     reader: &mut R,
     shared: &ConnShared,
+    counting: Counting,
 ) -> Result<Option<Vec<u8>>, TransportError> {
     let mut len = [0u8; 4];
     let mut got = 0;
     while got < 4 {
-        let n = reader.read(&mut len[got..]).await?;
+        let n = match reader.read(&mut len[got..]).await {
+            Ok(n) => n,
+            // A peer that vanished between frames (killed, or a TLS peer whose
+            // socket closed without close_notify) ends the stream as a FIN
+            // does: frames are self-delimiting, so nothing was cut short.
+            Err(e) if got == 0 && e.kind() == std::io::ErrorKind::UnexpectedEof => 0,
+            Err(e) => return Err(e.into()),
+        };
         if n == 0 {
             if got == 0 {
                 return Ok(None);
@@ -115,7 +154,10 @@ async fn read_frame<R: AsyncRead + Unpin>(
     }
     let mut buf = vec![0u8; len as usize];
     reader.read_exact(&mut buf).await?;
-    shared.count_received(4 + len);
+    match counting {
+        Counting::Frames => shared.count_received(4 + len),
+        Counting::External => shared.count_frame_received(),
+    }
     Ok(Some(buf))
 }
 

@@ -1,5 +1,5 @@
-//! The master's TLS identity and certificate pinning, for QUIC and (later) TLS
-//! over TCP alike.
+//! The master's TLS identity and certificate pinning, for TLS over TCP and
+//! QUIC alike (`isin-transport-quic` re-exports this module).
 //!
 //! The master generates a self-signed certificate ([`Identity::generate`]); the
 //! SHA-256 of its DER encoding, the [`Fingerprint`], travels in the join
@@ -12,8 +12,8 @@
 //! precisely than any host name could).
 //!
 //! [`server_config`] and [`client_config`] build plain rustls configurations
-//! (TLS 1.3 only, ring provider) with the ALPN protocol chosen by the caller,
-//! so the TCP transport can wrap them in `tokio-rustls` unchanged.
+//! (TLS 1.3 only, ring provider) with the ALPN protocol chosen by the caller:
+//! the TCP transport wraps them in `tokio-rustls`, QUIC hands them to quinn.
 
 use rustls::client::danger::{HandshakeSignatureValid, ServerCertVerified, ServerCertVerifier};
 use rustls::crypto::{CryptoProvider, WebPkiSupportedAlgorithms};
@@ -167,6 +167,10 @@ pub fn server_config(identity: &Identity, alpn: &[&[u8]]) -> Result<rustls::Serv
         .with_no_client_auth()
         .with_single_cert(vec![identity.cert.clone()], PrivateKeyDer::Pkcs8(identity.key.clone_key()))?;
     cfg.alpn_protocols = alpn.iter().map(|p| p.to_vec()).collect();
+    // No session resumption (every peer does the full handshake and the token
+    // challenge anyway): no tickets to send, and none left unread in a peer's
+    // socket to turn its close into a reset.
+    cfg.send_tls13_tickets = 0;
     Ok(cfg)
 }
 
