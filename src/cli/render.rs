@@ -33,7 +33,7 @@ pub struct RenderArgs {
     /// Do not draw a progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// Render through the cluster of this join ticket (`isin://TOKEN@HOST:PORT`)
+    /// Render through the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`)
     /// instead of locally; the master's scene, camera and settings are used.
     #[arg(long)]
     pub cluster: Option<String>,

@@ -112,8 +112,9 @@ pub struct ViewArgs {
     /// Scene file (TOML); not needed with --connect, where the master's scene is shown.
     #[arg(required_unless_present = "connect")]
     pub scene: Option<PathBuf>,
-    /// Show what a cluster renders: the master's join ticket
-    /// (`isin://TOKEN@HOST:PORT`), or `HOST:PORT` with `--token`.
+    /// Show what a cluster renders: the join ticket the master printed
+    /// (`isin://TOKEN@HOST:PORT?fp=…`), or `HOST:PORT` with `--token` for a
+    /// plaintext (`--insecure`) master.
     #[arg(long, value_name = "TICKET")]
     pub connect: Option<String>,
     /// The shared secret, when `--connect` is a bare address.
