@@ -18,8 +18,8 @@
 //! in the precomputed Möller–Trumbore form `(v0, e1, e2)` ([`PreTriangle`]); a
 //! leaf owns a contiguous range of them, and `prim_ids` maps that order back to
 //! the index in the slice the BVH was built from ([`Hit::prim`]). The binary
-//! nodes are kept for inspection and validation; traversal uses the 4-wide
-//! nodes (128 bytes each, see `wide`).
+//! nodes are dropped once they are collapsed into the 4-wide nodes traversal
+//! uses (128 bytes each, see `wide`).
 
 mod build;
 mod wide;
@@ -39,7 +39,7 @@ pub const MAX_DEPTH: usize = 64;
 /// within [`MAX_DEPTH`].
 pub const MAX_TRIANGLES: usize = 1 << 30;
 
-/// One node of the tree: 32 bytes, aligned so a node never straddles a cache line.
+/// One node of the binary tree the builder makes: 32 bytes, aligned so a node never straddles a cache line.
 ///
 /// | bytes  | field    | interior node                 | leaf                                   |
 /// |--------|----------|-------------------------------|----------------------------------------|
@@ -49,17 +49,19 @@ pub const MAX_TRIANGLES: usize = 1 << 30;
 /// | 28..32 | `count`  | 0                             | number of triangles, 1..=[`MAX_LEAF_SIZE`] |
 ///
 /// The first child of interior node `i` is node `i + 1` (depth-first order).
+///
+/// Only the builder makes these; they are collapsed into the 4-wide tree and dropped.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(32))]
-pub struct Node {
+struct Node {
     /// Lower corner of the box.
-    pub min: [f32; 3],
+    min: [f32; 3],
     /// Interior: index of the second child. Leaf: first triangle in leaf order.
-    pub offset: u32,
+    offset: u32,
     /// Upper corner of the box.
-    pub max: [f32; 3],
+    max: [f32; 3],
     /// 0 for an interior node, else the number of triangles in the leaf.
-    pub count: u32,
+    count: u32,
 }
 
 const _: () = assert!(std::mem::size_of::<Node>() == 32);
@@ -68,12 +70,12 @@ const _: () = assert!(std::mem::align_of::<Node>() == 32);
 impl Node {
     /// True for a leaf.
     #[inline(always)]
-    pub fn is_leaf(&self) -> bool {
+    fn is_leaf(&self) -> bool {
         self.count != 0
     }
 
     /// The node's box.
-    pub fn bounds(&self) -> Aabb {
+    fn bounds(&self) -> Aabb {
         Aabb { min: Vec3::from_array(self.min), max: Vec3::from_array(self.max) }
     }
 
@@ -118,8 +120,8 @@ impl PreTriangle {
 /// The default value is the empty BVH: every query misses.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Bvh {
-    /// Nodes in depth-first order; empty when there are no triangles.
-    nodes: Vec<Node>,
+    /// Box around every triangle (the empty box when there are none).
+    bounds: Aabb,
     /// Triangles in leaf order.
     tris: Vec<PreTriangle>,
     /// `prim_ids[i]` is the input index of `tris[i]`.
@@ -174,12 +176,12 @@ impl Bvh {
         wide::SIMD_AVAILABLE && !self.scalar_only
     }
 
-    /// Bytes the tree and its triangle data occupy (binary and 4-wide nodes,
-    /// precomputed triangles, primitive ids).
+    /// Bytes the tree and its triangle data occupy (4-wide nodes, precomputed
+    /// triangles, primitive ids). The binary tree the builder makes is dropped
+    /// once it has been collapsed.
     pub fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
-        self.nodes.len() * size_of::<Node>()
-            + self.wide.len() * size_of::<wide::Node4>()
+        self.wide.len() * size_of::<wide::Node4>()
             + self.tris.len() * size_of::<PreTriangle>()
             + self.prim_ids.len() * size_of::<u32>()
     }
@@ -189,21 +191,21 @@ impl Bvh {
         self.tris.len()
     }
 
-    /// The nodes, depth-first (see [`Node`] for the layout).
-    pub fn nodes(&self) -> &[Node] {
-        &self.nodes
+    /// Number of nodes of the tree rays traverse (4-wide nodes).
+    pub fn node_count(&self) -> usize {
+        self.wide.len()
     }
 
     /// Bounding box of everything (empty box for the empty BVH).
     pub fn bounds(&self) -> Aabb {
-        self.nodes.first().map_or(Aabb::EMPTY, Node::bounds)
+        self.bounds
     }
 
     /// Checks the tree's invariants:
-    /// * the empty BVH has no nodes, triangles or ids; otherwise node 0 is the root;
-    /// * every node is reached exactly once from the root, within [`MAX_DEPTH`];
-    /// * an interior node's first child is the next node and its second child comes
-    ///   after the first child's subtree; both children's boxes lie inside the parent's;
+    /// * the empty BVH has no nodes, triangles or ids;
+    /// * every wide node is reached exactly once from the root (node 0), within
+    ///   [`MAX_DEPTH`] levels, and comes after its parent;
+    /// * every interior child's box contains the boxes of its own children;
     /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles, their ranges cover the triangle
     ///   array exactly once, and each leaf's box contains its triangles' vertices
     ///   (NaN coordinates, which can never be hit, are not checked);
@@ -214,7 +216,7 @@ impl Bvh {
         if self.prim_ids.len() != n {
             return fail(0, format!("{} triangles but {} primitive ids", n, self.prim_ids.len()));
         }
-        if self.nodes.is_empty() {
+        if self.wide.is_empty() {
             return if n == 0 { Ok(()) } else { fail(0, format!("{n} triangles but no nodes")) };
         }
         let mut seen_prim = vec![false; n];
@@ -224,68 +226,7 @@ impl Bvh {
                 _ => return fail(0, format!("primitive id {p} out of range or repeated")),
             }
         }
-        let mut visited = vec![false; self.nodes.len()];
-        let mut covered = vec![false; n];
-        // (node, depth, end of the index range its subtree may use)
-        let mut stack = vec![(0usize, 0usize, self.nodes.len())];
-        while let Some((i, depth, end)) = stack.pop() {
-            if i >= end || visited[i] {
-                return fail(i, "node out of its subtree's range or reached twice".into());
-            }
-            visited[i] = true;
-            if depth > MAX_DEPTH {
-                return fail(i, format!("depth {depth} exceeds {MAX_DEPTH}"));
-            }
-            let node = &self.nodes[i];
-            let bounds = node.bounds();
-            if node.is_leaf() {
-                self.validate_leaf(i, node, &bounds, &mut covered)?;
-                continue;
-            }
-            let second = node.offset as usize;
-            if second <= i + 1 || second >= end {
-                return fail(i, format!("second child {second} outside ({}, {end})", i + 1));
-            }
-            for child in [i + 1, second] {
-                if !contains_box(&bounds, &self.nodes[child].bounds()) {
-                    return fail(i, format!("child {child}'s box is not inside its parent's"));
-                }
-            }
-            stack.push((second, depth + 1, end));
-            stack.push((i + 1, depth + 1, second));
-        }
-        if let Some(i) = visited.iter().position(|v| !v) {
-            return fail(i, "unreachable node".into());
-        }
-        if let Some(t) = covered.iter().position(|c| !c) {
-            return fail(0, format!("triangle {t} is in no leaf"));
-        }
-        Ok(())
-    }
-
-    fn validate_leaf(
-        &self,
-        i: usize,
-        node: &Node,
-        bounds: &Aabb,
-        covered: &mut [bool],
-    ) -> Result<(), InvalidBvh> {
-        let fail = |problem: String| Err(InvalidBvh { node: i, problem });
-        let (first, count) = (node.offset as usize, node.count as usize);
-        if count > MAX_LEAF_SIZE || first + count > self.tris.len() {
-            return fail(format!("leaf range {first}+{count} invalid"));
-        }
-        let slots = covered[first..first + count].iter_mut();
-        for (t, (slot, tri)) in slots.zip(&self.tris[first..first + count]).enumerate() {
-            let t = first + t;
-            if std::mem::replace(slot, true) {
-                return fail(format!("triangle {t} is in two leaves"));
-            }
-            if !tri.vertices().iter().all(|&p| contains_point(bounds, p)) {
-                return fail(format!("triangle {t} sticks out of its leaf's box"));
-            }
-        }
-        Ok(())
+        wide::validate(self)
     }
 }
 
@@ -318,23 +259,23 @@ mod tests {
     fn validate_accepts_built_trees_and_catches_corruption() {
         let bvh = Bvh::build(&grid(20));
         bvh.validate().expect("freshly built tree is valid");
-        assert!(bvh.nodes.len() > 1 && bvh.nodes.iter().all(|n| n.count as usize <= MAX_LEAF_SIZE));
+        assert!(bvh.wide.len() > 1);
 
         let mut shrunk = bvh.clone();
-        let leaf = shrunk.nodes.iter().position(Node::is_leaf).expect("a leaf");
-        shrunk.nodes[leaf].max[0] -= 0.5;
+        let (node, slot) = wide::first_leaf_slot(&shrunk.wide).expect("a leaf");
+        wide::shrink_slot(&mut shrunk.wide[node], slot, 0.5);
         assert!(shrunk.validate().is_err(), "a leaf box that no longer holds its triangle");
 
         let mut dup = bvh.clone();
         dup.prim_ids[1] = dup.prim_ids[0];
         assert!(dup.validate().is_err(), "a primitive listed twice");
 
-        let mut child = bvh.clone();
-        child.nodes[1].min[1] = child.nodes[0].min[1] - 1.0;
-        assert!(child.validate().is_err(), "a child box sticking out of its parent");
+        let mut root = bvh.clone();
+        root.bounds.max.y -= 1.0;
+        assert!(root.validate().is_err(), "a child box sticking out of the whole tree's box");
 
         let mut cut = bvh;
-        cut.nodes.pop();
+        cut.wide.pop();
         assert!(cut.validate().is_err(), "a dangling child index");
     }
 

@@ -21,8 +21,8 @@
 //! rendered bytes. SSE2 is part of the x86_64 baseline, so no runtime detection
 //! is needed there; other architectures use the scalar path.
 
-use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle};
-use crate::geometry::Ray;
+use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
+use crate::geometry::{Aabb, Ray};
 use crate::shapes::{Hit, moller_trumbore, moller_trumbore_any};
 use std::mem::MaybeUninit;
 
@@ -69,6 +69,85 @@ impl Node4 {
             self.bounds[a + 3][k] = n.max[a];
         }
     }
+
+    /// Child `k`'s box.
+    fn child_bounds(&self, k: usize) -> Aabb {
+        let b = &self.bounds;
+        Aabb {
+            min: glam::Vec3::new(b[0][k], b[1][k], b[2][k]),
+            max: glam::Vec3::new(b[3][k], b[4][k], b[5][k]),
+        }
+    }
+}
+
+/// Checks the wide tree's invariants (see [`Bvh::validate`]; the primitive map is checked there).
+pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
+    let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
+    let wide = &bvh.wide[..];
+    let mut visited = vec![false; wide.len()];
+    let mut covered = vec![false; bvh.tris.len()];
+    // (node, depth, the box its children must lie in)
+    let mut stack = vec![(0usize, 0usize, bvh.bounds)];
+    while let Some((i, depth, outer)) = stack.pop() {
+        if i >= wide.len() || visited[i] {
+            return fail(i, "child index out of range or reached twice".into());
+        }
+        visited[i] = true;
+        if depth > MAX_DEPTH {
+            return fail(i, format!("depth {depth} exceeds {MAX_DEPTH}"));
+        }
+        let node = &wide[i];
+        for k in 0..4 {
+            let (meta, child) = (node.meta[k], node.child[k] as usize);
+            if meta == LEAF {
+                continue; // unused slot
+            }
+            let b = node.child_bounds(k);
+            if !contains_box(&outer, &b) {
+                return fail(i, format!("child {k}'s box is not inside its parent's"));
+            }
+            if meta & LEAF == 0 {
+                if child <= i {
+                    return fail(i, format!("child {k} ({child}) does not come after its parent"));
+                }
+                stack.push((child, depth + 1, b));
+                continue;
+            }
+            let count = (meta & !LEAF) as usize;
+            if count > MAX_LEAF_SIZE || child + count > bvh.tris.len() {
+                return fail(i, format!("leaf range {child}+{count} invalid"));
+            }
+            let slots = covered[child..child + count].iter_mut();
+            for (t, (slot, tri)) in slots.zip(&bvh.tris[child..child + count]).enumerate() {
+                let t = child + t;
+                if std::mem::replace(slot, true) {
+                    return fail(i, format!("triangle {t} is in two leaves"));
+                }
+                if !tri.vertices().iter().all(|&p| contains_point(&b, p)) {
+                    return fail(i, format!("triangle {t} sticks out of its leaf's box"));
+                }
+            }
+        }
+    }
+    if let Some(i) = visited.iter().position(|v| !v) {
+        return fail(i, "unreachable node".into());
+    }
+    if let Some(t) = covered.iter().position(|c| !c) {
+        return fail(0, format!("triangle {t} is in no leaf"));
+    }
+    Ok(())
+}
+
+/// The first (node, slot) holding a leaf (for tests that corrupt a tree).
+#[cfg(test)]
+pub(super) fn first_leaf_slot(wide: &[Node4]) -> Option<(usize, usize)> {
+    wide.iter().enumerate().find_map(|(i, n)| (0..4).find(|&k| n.meta[k] > LEAF).map(|k| (i, k)))
+}
+
+/// Moves the upper x plane of slot `k` down by `by` (for tests that corrupt a tree).
+#[cfg(test)]
+pub(super) fn shrink_slot(node: &mut Node4, k: usize, by: f32) {
+    node.bounds[3][k] -= by;
 }
 
 /// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 4-wide nodes.
@@ -478,7 +557,8 @@ mod tests {
             }
         }
         let bvh = Bvh::build(&tris);
-        let interior = bvh.nodes.iter().filter(|n| !n.is_leaf()).count();
+        let (nodes, _, _) = super::super::build::binary(&tris);
+        let interior = nodes.iter().filter(|n| !n.is_leaf()).count();
         let (mut wide_leaves, mut used) = (0, 0);
         let mut seen = vec![0u32; bvh.tris.len()];
         for n in &bvh.wide {
