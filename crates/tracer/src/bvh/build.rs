@@ -81,10 +81,12 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     if triangles.is_empty() {
         return Bvh::default();
     }
-    let (nodes, tris, prim_ids) = binary(triangles);
-    let wide = super::wide::collapse(&nodes);
+    let (nodes, tris, ids) = binary(triangles);
+    let mut wide = super::wide::collapse(&nodes);
     let bounds = nodes[0].bounds();
-    Bvh { bounds, tris, prim_ids, wide, scalar_only: false }
+    drop(nodes);
+    let (blocks, prim_ids) = super::wide::place_leaves(&mut wide, &tris, &ids);
+    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false }
 }
 
 /// The binary tree over `triangles` (not empty), the triangles in leaf order and

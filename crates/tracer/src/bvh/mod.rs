@@ -12,15 +12,16 @@
 //!
 //! # Memory layout
 //!
-//! The tree is an array of 32-byte [`Node`]s in depth-first order: the root is
+//! The builder makes a binary tree of 32-byte nodes in depth-first order: the root is
 //! node 0, an interior node's first child directly follows it and its second
-//! child's index is stored in the node. Triangles are stored once, in leaf order,
-//! in the precomputed Möller–Trumbore form `(v0, e1, e2)` ([`PreTriangle`]); a
-//! leaf owns a contiguous range of them, and `prim_ids` maps that order back to
-//! the index in the slice the BVH was built from ([`Hit::prim`]). The binary
-//! nodes are dropped once they are collapsed into the 4-wide nodes traversal
-//! uses (128 bytes each, see `wide`).
+//! child's index is stored in the node. Traversal uses the 4-wide nodes it is
+//! collapsed into (128 bytes each, see `wide`); the binary nodes are then
+//! dropped. Triangles are stored once, in the precomputed Möller–Trumbore form
+//! `(v0, e1, e2)` ([`PreTriangle`]), four to a structure-of-arrays block (see
+//! `blocks`); a leaf owns a run of lanes in one block, and `prim_ids` maps each
+//! lane back to the index in the slice the BVH was built from ([`Hit::prim`]).
 
+mod blocks;
 mod build;
 mod wide;
 
@@ -122,10 +123,13 @@ impl PreTriangle {
 pub struct Bvh {
     /// Box around every triangle (the empty box when there are none).
     bounds: Aabb,
-    /// Triangles in leaf order.
-    tris: Vec<PreTriangle>,
-    /// `prim_ids[i]` is the input index of `tris[i]`.
+    /// Leaf triangles, four to a block (see `blocks`).
+    blocks: Vec<blocks::TriBlock>,
+    /// `prim_ids[4 * b + k]` is the input index of lane `k` of block `b`
+    /// (`u32::MAX` for an empty lane).
     prim_ids: Vec<u32>,
+    /// Number of triangles.
+    count: usize,
     /// The 4-wide tree traversal uses, collapsed from `nodes`.
     wide: Vec<wide::Node4>,
     /// Use the scalar box test even where a SIMD one exists.
@@ -182,13 +186,13 @@ impl Bvh {
     pub fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
         self.wide.len() * size_of::<wide::Node4>()
-            + self.tris.len() * size_of::<PreTriangle>()
+            + self.blocks.len() * size_of::<blocks::TriBlock>()
             + self.prim_ids.len() * size_of::<u32>()
     }
 
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
-        self.tris.len()
+        self.count
     }
 
     /// Number of nodes of the tree rays traverse (4-wide nodes).
@@ -206,25 +210,32 @@ impl Bvh {
     /// * every wide node is reached exactly once from the root (node 0), within
     ///   [`MAX_DEPTH`] levels, and comes after its parent;
     /// * every interior child's box contains the boxes of its own children;
-    /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles, their ranges cover the triangle
-    ///   array exactly once, and each leaf's box contains its triangles' vertices
-    ///   (NaN coordinates, which can never be hit, are not checked);
-    /// * the triangle-to-input map is a permutation (every primitive exactly once).
+    /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles within one block, every
+    ///   non-empty lane is in exactly one leaf, and each leaf's box contains its
+    ///   triangles' vertices (NaN coordinates, which can never be hit, are not checked);
+    /// * the lane-to-input map covers every primitive exactly once.
     pub fn validate(&self) -> Result<(), InvalidBvh> {
         let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
-        let n = self.tris.len();
-        if self.prim_ids.len() != n {
-            return fail(0, format!("{} triangles but {} primitive ids", n, self.prim_ids.len()));
+        let n = self.count;
+        if self.prim_ids.len() != 4 * self.blocks.len() {
+            return fail(0, format!("{} blocks but {} lane ids", self.blocks.len(), self.prim_ids.len()));
         }
         if self.wide.is_empty() {
-            return if n == 0 { Ok(()) } else { fail(0, format!("{n} triangles but no nodes")) };
+            return if n == 0 && self.blocks.is_empty() {
+                Ok(())
+            } else {
+                fail(0, format!("{n} triangles but no nodes"))
+            };
         }
         let mut seen_prim = vec![false; n];
-        for &p in &self.prim_ids {
+        for &p in self.prim_ids.iter().filter(|&&p| p != u32::MAX) {
             match seen_prim.get_mut(p as usize) {
                 Some(seen) if !*seen => *seen = true,
                 _ => return fail(0, format!("primitive id {p} out of range or repeated")),
             }
+        }
+        if let Some(p) = seen_prim.iter().position(|s| !s) {
+            return fail(0, format!("primitive {p} is in no lane"));
         }
         wide::validate(self)
     }
@@ -267,7 +278,8 @@ mod tests {
         assert!(shrunk.validate().is_err(), "a leaf box that no longer holds its triangle");
 
         let mut dup = bvh.clone();
-        dup.prim_ids[1] = dup.prim_ids[0];
+        let used: Vec<usize> = (0..dup.prim_ids.len()).filter(|&i| dup.prim_ids[i] != u32::MAX).collect();
+        dup.prim_ids[used[1]] = dup.prim_ids[used[0]];
         assert!(dup.validate().is_err(), "a primitive listed twice");
 
         let mut root = bvh.clone();
@@ -283,11 +295,14 @@ mod tests {
     fn leaves_are_small_and_cover_every_triangle_once() {
         let tris = grid(30);
         let bvh = Bvh::build(&tris);
-        let mut ids = bvh.prim_ids.clone();
+        let mut ids: Vec<u32> = bvh.prim_ids.iter().copied().filter(|&i| i != u32::MAX).collect();
         ids.sort_unstable();
         assert_eq!(ids, (0..tris.len() as u32).collect::<Vec<_>>());
-        for (k, pre) in bvh.tris.iter().enumerate() {
-            assert_eq!(*pre, PreTriangle::new(&tris[bvh.prim_ids[k] as usize]));
+        assert!(bvh.blocks.len() * 4 < tris.len() * 11 / 10, "blocks are nearly full");
+        for (k, &id) in bvh.prim_ids.iter().enumerate() {
+            if id != u32::MAX {
+                assert_eq!(bvh.blocks[k / 4].get(k % 4), PreTriangle::new(&tris[id as usize]));
+            }
         }
     }
 }

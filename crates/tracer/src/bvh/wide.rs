@@ -21,9 +21,10 @@
 //! rendered bytes. SSE2 is part of the x86_64 baseline, so no runtime detection
 //! is needed there; other architectures use the scalar path.
 
+use super::blocks::{self, Hits4, TriBlock};
 use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
 use crate::geometry::{Aabb, Ray};
-use crate::shapes::{Hit, moller_trumbore, moller_trumbore_any};
+use crate::shapes::Hit;
 use std::mem::MaybeUninit;
 
 /// Slab-test exits are scaled by this factor (1 + 2γ₃ rounded up, after Ize,
@@ -41,7 +42,8 @@ pub(super) struct Node4 {
     /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
     /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
     bounds: [[f32; 4]; 6],
-    /// Interior child: index of its `Node4`. Leaf: its first triangle.
+    /// Interior child: index of its `Node4`. Leaf: its first lane (`4 · block + lane`,
+    /// see `blocks`; during the build, its first triangle in leaf order).
     child: [u32; 4],
     /// 0 for an interior child, `LEAF | count` for a leaf (count 0: unused slot).
     meta: [u32; 4],
@@ -85,7 +87,7 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
     let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
     let wide = &bvh.wide[..];
     let mut visited = vec![false; wide.len()];
-    let mut covered = vec![false; bvh.tris.len()];
+    let mut covered = vec![false; bvh.prim_ids.len()];
     // (node, depth, the box its children must lie in)
     let mut stack = vec![(0usize, 0usize, bvh.bounds)];
     while let Some((i, depth, outer)) = stack.pop() {
@@ -114,17 +116,19 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
                 continue;
             }
             let count = (meta & !LEAF) as usize;
-            if count > MAX_LEAF_SIZE || child + count > bvh.tris.len() {
-                return fail(i, format!("leaf range {child}+{count} invalid"));
+            if count == 0 || count > MAX_LEAF_SIZE || child % 4 + count > 4 || child / 4 >= bvh.blocks.len() {
+                return fail(i, format!("leaf lanes {child}+{count} invalid"));
             }
-            let slots = covered[child..child + count].iter_mut();
-            for (t, (slot, tri)) in slots.zip(&bvh.tris[child..child + count]).enumerate() {
-                let t = child + t;
+            for (lane, slot) in covered.iter_mut().enumerate().skip(child).take(count) {
                 if std::mem::replace(slot, true) {
-                    return fail(i, format!("triangle {t} is in two leaves"));
+                    return fail(i, format!("lane {lane} is in two leaves"));
                 }
+                if bvh.prim_ids[lane] == u32::MAX {
+                    return fail(i, format!("lane {lane} is empty but in a leaf"));
+                }
+                let tri = bvh.blocks[lane / 4].get(lane % 4);
                 if !tri.vertices().iter().all(|&p| contains_point(&b, p)) {
-                    return fail(i, format!("triangle {t} sticks out of its leaf's box"));
+                    return fail(i, format!("lane {lane}'s triangle sticks out of its leaf's box"));
                 }
             }
         }
@@ -132,8 +136,8 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
     if let Some(i) = visited.iter().position(|v| !v) {
         return fail(i, "unreachable node".into());
     }
-    if let Some(t) = covered.iter().position(|c| !c) {
-        return fail(0, format!("triangle {t} is in no leaf"));
+    if let Some(lane) = (0..covered.len()).find(|&l| !covered[l] && bvh.prim_ids[l] != u32::MAX) {
+        return fail(0, format!("lane {lane} holds a triangle but is in no leaf"));
     }
     Ok(())
 }
@@ -189,6 +193,27 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
         }
     }
     out
+}
+
+/// Moves the leaves' triangles (`tris`, input ids `ids`, in leaf order) into
+/// blocks, leaves in node order, and points every leaf slot at its lanes.
+/// Returns the blocks and the input id of every lane.
+pub(super) fn place_leaves(
+    wide: &mut [Node4],
+    tris: &[PreTriangle],
+    ids: &[u32],
+) -> (Vec<TriBlock>, Vec<u32>) {
+    let slots: Vec<(usize, usize)> = (0..wide.len())
+        .flat_map(|i| (0..4).map(move |k| (i, k)))
+        .filter(|&(i, k)| wide[i].meta[k] > LEAF)
+        .collect();
+    let leaves: Vec<(u32, u32)> =
+        slots.iter().map(|&(i, k)| (wide[i].child[k], wide[i].meta[k] & !LEAF)).collect();
+    let (blocks, lane_ids, starts) = blocks::pack(&leaves, tris, ids);
+    for (&(i, k), start) in slots.iter().zip(starts) {
+        wide[i].child[k] = start;
+    }
+    (blocks, lane_ids)
 }
 
 /// SAH cost of visiting a wide node's box, relative to one triangle test, when
@@ -384,12 +409,47 @@ impl<T: Copy> Stack<T> {
     }
 }
 
+/// A ray prepared for the triangle tests of leaves.
+struct LeafRay<'a> {
+    ray: &'a Ray,
+    #[cfg(target_arch = "x86_64")]
+    sse: blocks::RaySse,
+    simd: bool,
+}
+
+impl<'a> LeafRay<'a> {
+    #[inline(always)]
+    fn new(ray: &'a Ray, simd: bool) -> Self {
+        LeafRay {
+            ray,
+            #[cfg(target_arch = "x86_64")]
+            sse: blocks::RaySse::new(ray),
+            simd,
+        }
+    }
+
+    /// Hits on leaf `(first lane, count)`.
+    #[inline(always)]
+    fn hits(&self, blocks: &[TriBlock], first: u32, count: u32, t_min: f32, t_max: f32) -> Hits4 {
+        let block = &blocks[(first / 4) as usize];
+        let lanes = ((1u32 << count) - 1) << (first % 4);
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            return blocks::hits_sse(block, &self.sse, t_min, t_max, lanes);
+        }
+        let _ = self.simd;
+        blocks::hits_scalar(block, self.ray, t_min, t_max, lanes)
+    }
+}
+
 /// Nearest hit (see [`Bvh::intersect`]).
 ///
 /// At each node the hit leaves are tested at once (in lane order: the order
 /// only decides between hits at bit-identical `t`, and it is the same on every
 /// machine); of the hit interior children still in front of the best hit, the
-/// nearest is visited next and the others are pushed, farthest first.
+/// nearest is visited next and the others are pushed, farthest first. Within a
+/// leaf, the nearest lane wins, the lowest lane on ties — what testing the
+/// lanes one after another with a shrinking `t_max` would give.
 pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
     let wide = &bvh.wide[..];
     if wide.is_empty() {
@@ -397,9 +457,10 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
     }
     let simd = !bvh.scalar_only;
     let r = WideRay::new(ray);
-    let tris = &bvh.tris[..];
+    let lr = LeafRay::new(ray, simd);
+    let blocks = &bvh.blocks[..];
     let mut best_t = t_max;
-    let mut best: Option<(usize, f32, f32)> = None;
+    let mut best: Option<(u32, f32, f32)> = None;
     let mut stack = Stack::<(u32, f32)>::new();
     let mut current = 0u32;
     loop {
@@ -413,11 +474,15 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
             if meta == 0 {
                 inner |= 1 << k;
             } else if e[k] <= best_t * ROBUST_EXIT {
-                let first = node.child[k] as usize;
-                for (i, tri) in tris[first..first + (meta & !LEAF) as usize].iter().enumerate() {
-                    if let Some((t, u, v)) = test(tri, ray, t_min, best_t) {
-                        best_t = t;
-                        best = Some((first + i, u, v));
+                let first = node.child[k];
+                let h = lr.hits(blocks, first, meta & !LEAF, t_min, best_t);
+                let mut m = h.mask;
+                while m != 0 {
+                    let lane = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if h.t[lane] < best_t {
+                        best_t = h.t[lane];
+                        best = Some(((first & !3) + lane as u32, h.u[lane], h.v[lane]));
                     }
                 }
             }
@@ -451,17 +516,19 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
         }
         current = loop {
             match stack.pop() {
-                None => return best.map(|(k, u, v)| Hit { t: best_t, u, v, prim: bvh.prim_ids[k] }),
+                None => {
+                    return best.map(|(lane, u, v)| Hit {
+                        t: best_t,
+                        u,
+                        v,
+                        prim: bvh.prim_ids[lane as usize],
+                    });
+                }
                 Some((c, t)) if t <= best_t * ROBUST_EXIT => break c,
                 Some(_) => {}
             }
         };
     }
-}
-
-#[inline(always)]
-fn test(tri: &PreTriangle, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
-    moller_trumbore(tri.v0, tri.e1, tri.e2, ray, t_min, t_max)
 }
 
 /// Any hit (see [`Bvh::occluded`]).
@@ -472,7 +539,8 @@ pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     }
     let simd = !bvh.scalar_only;
     let r = WideRay::new(ray);
-    let tris = &bvh.tris[..];
+    let lr = LeafRay::new(ray, simd);
+    let blocks = &bvh.blocks[..];
     let mut stack = Stack::<u32>::new();
     let mut current = 0u32;
     loop {
@@ -484,12 +552,8 @@ pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
             mask &= mask - 1;
             let (meta, child) = (node.meta[k], node.child[k]);
             if meta != 0 {
-                let first = child as usize;
-                let leaf = &tris[first..first + (meta & !LEAF) as usize];
-                for tri in leaf {
-                    if moller_trumbore_any(tri.v0, tri.e1, tri.e2, ray, t_min, t_max) {
-                        return true;
-                    }
+                if lr.hits(blocks, child, meta & !LEAF, t_min, t_max).mask != 0 {
+                    return true;
                 }
             } else if next.is_none() {
                 next = Some(child);
@@ -560,7 +624,7 @@ mod tests {
         let (nodes, _, _) = super::super::build::binary(&tris);
         let interior = nodes.iter().filter(|n| !n.is_leaf()).count();
         let (mut wide_leaves, mut used) = (0, 0);
-        let mut seen = vec![0u32; bvh.tris.len()];
+        let mut seen = vec![0u32; bvh.prim_ids.len()];
         for n in &bvh.wide {
             used += n.meta.iter().filter(|&&m| m != LEAF).count();
             for k in 0..4 {
@@ -571,7 +635,9 @@ mod tests {
                 }
             }
         }
-        assert!(seen.iter().all(|&s| s == 1), "every triangle in exactly one wide leaf");
+        for (lane, &s) in seen.iter().enumerate() {
+            assert_eq!(s, (bvh.prim_ids[lane] != u32::MAX) as u32, "every triangle in exactly one wide leaf");
+        }
         // Every wide node but the root fills one slot of its parent.
         assert_eq!(used, bvh.wide.len() - 1 + wide_leaves);
         // Each wide node absorbs more than 1.5 binary interior nodes on average
