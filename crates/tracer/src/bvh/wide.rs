@@ -158,8 +158,9 @@ pub(super) fn shrink_slot(node: &mut Node4, k: usize, by: f32) {
 ///
 /// A binary subtree with at most [`MAX_LEAF_SIZE`] triangles (contiguous in
 /// leaf order) becomes one leaf when the surface-area heuristic prefers it —
-/// `count · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
-/// wide node's box test is shared by four children.
+/// `LEAF_COST · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
+/// leaf's triangles are tested together and a wide node's box test is shared by
+/// four children.
 pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
     // Triangle range (first, count), SAH cost and "make it a leaf" of every
     // binary subtree; children follow their parent, so a reverse sweep sees them first.
@@ -168,12 +169,12 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
         let n = &nodes[i];
         let area = n.bounds().area();
         info[i] = if n.is_leaf() {
-            Sub { first: n.offset, count: n.count, cost: n.count as f32 * area, leaf: true }
+            Sub { first: n.offset, count: n.count, cost: LEAF_COST * area, leaf: true }
         } else {
             let (l, r) = (info[i + 1], info[n.offset as usize]);
             let count = l.count + r.count;
             let split = MERGE_TRAVERSAL_COST * area + l.cost + r.cost;
-            let merged = count as f32 * area;
+            let merged = LEAF_COST * area;
             let leaf = count as usize <= MAX_LEAF_SIZE && merged <= split;
             Sub { first: l.first, count, cost: if leaf { merged } else { split }, leaf }
         };
@@ -219,6 +220,10 @@ pub(super) fn place_leaves(
 /// SAH cost of visiting a wide node's box, relative to one triangle test, when
 /// deciding whether to merge a small binary subtree into one leaf.
 const MERGE_TRAVERSAL_COST: f32 = 1.0;
+
+/// SAH cost of testing one leaf, in the same unit: its 1..=4 triangles are
+/// tested at once (see `blocks`), so the cost does not depend on how many.
+const LEAF_COST: f32 = 1.5;
 
 /// What [`collapse`] knows about one binary subtree.
 #[derive(Clone, Copy, Debug)]

@@ -1,0 +1,195 @@
+//! The traversal kernel on real meshes: the SIMD and the scalar paths give the
+//! same bits for every query, and the packet query equals the single-ray one.
+//! Also a fixed ray workload (`kernel_workload`, ignored by default) to count
+//! instructions with callgrind:
+//!
+//! `KERNEL_RAYS=shadow valgrind --tool=callgrind target/debug/deps/kernel-… kernel_workload --ignored`
+
+use isin_tracer::bvh::Bvh;
+use isin_tracer::geometry::{Aabb, Ray};
+use isin_tracer::shapes::Triangle;
+use isin_tracer::{Vec3, math};
+use std::path::PathBuf;
+
+/// xorshift64* — a tiny deterministic generator for test rays.
+struct Rng(u64);
+
+impl Rng {
+    fn next_f32(&mut self) -> f32 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.next_f32()
+    }
+    fn in_box(&mut self, b: &Aabb) -> Vec3 {
+        Vec3::new(self.range(b.min.x, b.max.x), self.range(b.min.y, b.max.y), self.range(b.min.z, b.max.z))
+    }
+    fn unit_vector(&mut self) -> Vec3 {
+        loop {
+            let v = Vec3::new(self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0));
+            let l = v.length_squared();
+            if l > 1e-3 && l <= 1.0 {
+                return v / l.sqrt();
+            }
+        }
+    }
+}
+
+/// Loads an OBJ from `../shared/meshes`, or `None` (with a printed reason) when it is absent.
+fn load_mesh(rel: &str) -> Option<Vec<Triangle>> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/meshes").join(rel);
+    if !path.exists() {
+        println!("skipping: {} not found", path.display());
+        return None;
+    }
+    let opts = tobj::LoadOptions { triangulate: true, ..Default::default() };
+    let (models, _) = tobj::load_obj(&path, &opts).expect("mesh parses");
+    let mut tris = Vec::new();
+    for m in &models {
+        let p = &m.mesh.positions;
+        let vert = |i: u32| Vec3::new(p[3 * i as usize], p[3 * i as usize + 1], p[3 * i as usize + 2]);
+        for f in m.mesh.indices.chunks_exact(3) {
+            tris.push(Triangle { v: [vert(f[0]), vert(f[1]), vert(f[2])] });
+        }
+    }
+    Some(tris)
+}
+
+fn bounds_of(tris: &[Triangle]) -> Aabb {
+    tris.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()))
+}
+
+/// A `width × height` pinhole camera looking at the box (rows top to bottom).
+fn camera_rays(b: &Aabb, width: usize, height: usize) -> Vec<Ray> {
+    let (c, d) = (b.center(), b.diagonal());
+    let eye = c + Vec3::new(0.2, 0.25, 0.75) * d;
+    let w = (c - eye).normalize();
+    let u = w.cross(Vec3::Y).normalize();
+    let v = u.cross(w);
+    let th = math::tan(22.5f32.to_radians());
+    let mut rays = Vec::with_capacity(width * height);
+    for py in 0..height {
+        for px in 0..width {
+            let x = ((px as f32 + 0.5) / width as f32 * 2.0 - 1.0) * th * width as f32 / height as f32;
+            let y = (1.0 - (py as f32 + 0.5) / height as f32 * 2.0) * th;
+            rays.push(Ray::new(eye, (w + u * x + v * y).normalize()));
+        }
+    }
+    rays
+}
+
+fn incoherent_rays(b: &Aabb, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng(seed);
+    let (c, d) = (b.center(), b.diagonal());
+    (0..n)
+        .map(|_| {
+            let o = c + rng.unit_vector() * d;
+            Ray::new(o, (rng.in_box(b) - o).normalize())
+        })
+        .collect()
+}
+
+/// Shadow rays from the camera rays' hits to points on a square light above the
+/// box: `(ray, t_min, t_max)`.
+fn shadow_rays(b: &Aabb, bvh: &Bvh, camera: &[Ray], seed: u64) -> Vec<(Ray, f32, f32)> {
+    let mut rng = Rng(seed);
+    let (c, d) = (b.center(), b.diagonal());
+    let light = Vec3::new(c.x + 0.3 * d, b.max.y + 0.5 * d, c.z + 0.3 * d);
+    camera
+        .iter()
+        .filter_map(|r| bvh.intersect(r, 0.0, f32::INFINITY).map(|h| r.at(h.t)))
+        .map(|p| {
+            let lp = light + Vec3::new(rng.range(-0.125, 0.125), 0.0, rng.range(-0.125, 0.125)) * d;
+            let to = lp - p;
+            let len = to.length();
+            (Ray::new(p, to / len), 1e-4 * d, len * 0.999)
+        })
+        .collect()
+}
+
+/// Every query on `bvh` with SIMD on equals the one with SIMD off, bit for bit.
+fn assert_simd_matches_scalar(name: &str, tris: &[Triangle]) {
+    let simd = Bvh::build(tris);
+    let mut scalar = simd.clone();
+    scalar.set_simd(false);
+    assert!(!scalar.simd_active());
+    let b = bounds_of(tris);
+    let camera = camera_rays(&b, 160, 120);
+    let mut rays: Vec<(Ray, f32, f32)> = camera.iter().map(|r| (*r, 0.0, f32::INFINITY)).collect();
+    rays.extend(incoherent_rays(&b, 20_000, 3).into_iter().map(|r| (r, 0.0, f32::INFINITY)));
+    rays.extend(shadow_rays(&b, &simd, &camera, 4));
+    let bits = |h: Option<isin_tracer::shapes::Hit>| {
+        h.map(|h| (h.t.to_bits(), h.u.to_bits(), h.v.to_bits(), h.prim))
+    };
+    let (mut hits, mut blocked) = (0, 0);
+    for (i, (ray, t_min, t_max)) in rays.iter().enumerate() {
+        let a = simd.intersect(ray, *t_min, *t_max);
+        assert_eq!(bits(a), bits(scalar.intersect(ray, *t_min, *t_max)), "{name} ray {i}");
+        let o = simd.occluded(ray, *t_min, *t_max);
+        assert_eq!(o, scalar.occluded(ray, *t_min, *t_max), "{name} ray {i}");
+        assert_eq!(o, a.is_some(), "{name} ray {i}: any hit iff nearest hit");
+        hits += a.is_some() as usize;
+        blocked += (*t_max != f32::INFINITY && o) as usize;
+    }
+    assert!(hits > rays.len() / 4, "{name}: {hits} of {} rays hit", rays.len());
+    assert!(blocked > 100, "{name}: {blocked} shadow rays blocked");
+}
+
+#[test]
+fn simd_and_scalar_queries_agree_on_the_bunny() {
+    let Some(tris) = load_mesh("bunny/stanford-bunny.obj") else { return };
+    assert_simd_matches_scalar("bunny", &tris);
+}
+
+#[test]
+fn simd_and_scalar_queries_agree_on_the_dragon() {
+    let Some(tris) = load_mesh("dragon/dragon_100k.obj") else { return };
+    assert_simd_matches_scalar("dragon", &tris);
+}
+
+/// Nanoseconds this thread has run on a CPU (Linux `/proc/thread-self/schedstat`), if known:
+/// a throughput measure that does not count time other processes take the CPU away.
+fn thread_cpu_ns() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    s.split_whitespace().next()?.parse().ok()
+}
+
+/// A fixed workload for instruction counts (see the module docs); `KERNEL_RAYS`
+/// picks `primary`, `incoherent` or `shadow` (default: all three), `KERNEL_REPS`
+/// repeats each set and prints Mrays per CPU second.
+#[test]
+#[ignore]
+fn kernel_workload() {
+    let Some(tris) = load_mesh("bunny/stanford-bunny.obj") else { return };
+    let bvh = Bvh::build(&tris);
+    let b = bounds_of(&tris);
+    let camera = camera_rays(&b, 320, 240);
+    let shadow = shadow_rays(&b, &bvh, &camera, 5);
+    let incoherent = incoherent_rays(&b, 50_000, 6);
+    let kind = std::env::var("KERNEL_RAYS").unwrap_or_default();
+    let reps: usize = std::env::var("KERNEL_REPS").ok().and_then(|r| r.parse().ok()).unwrap_or(1);
+    let mut n = 0usize;
+    let mut run = |name: &str, rays: usize, f: &dyn Fn() -> usize| {
+        if !(kind.is_empty() || kind == name) {
+            return;
+        }
+        let start = thread_cpu_ns();
+        for _ in 0..reps {
+            n += f();
+        }
+        if let (Some(a), Some(b)) = (start, thread_cpu_ns()) {
+            println!("{name}: {:.2} Mrays/CPU-s", (rays * reps) as f64 / ((b - a) as f64 * 1e-9) / 1e6);
+        }
+    };
+    run("primary", camera.len(), &|| {
+        camera.iter().filter(|r| bvh.intersect(r, 0.0, f32::INFINITY).is_some()).count()
+    });
+    run("incoherent", incoherent.len(), &|| {
+        incoherent.iter().filter(|r| bvh.intersect(r, 0.0, f32::INFINITY).is_some()).count()
+    });
+    run("shadow", shadow.len(), &|| shadow.iter().filter(|(r, a, b)| bvh.occluded(r, *a, *b)).count());
+    assert!(n > 0);
+}
