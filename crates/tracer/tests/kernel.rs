@@ -150,6 +150,64 @@ fn simd_and_scalar_queries_agree_on_the_dragon() {
     assert_simd_matches_scalar("dragon", &tris);
 }
 
+/// Packets of four shadow rays from each camera hit to the corners of a square
+/// light above the box: `(rays, t_min, t_max)`.
+fn corner_packets(b: &Aabb, bvh: &Bvh, camera: &[Ray]) -> Vec<([Ray; 4], [f32; 4], [f32; 4])> {
+    let (c, d) = (b.center(), b.diagonal());
+    let light = Vec3::new(c.x + 0.3 * d, b.max.y + 0.5 * d, c.z + 0.3 * d);
+    let h = 0.125 * d;
+    let corners = [(-h, -h), (h, -h), (-h, h), (h, h)].map(|(x, z)| light + Vec3::new(x, 0.0, z));
+    camera
+        .iter()
+        .filter_map(|r| bvh.intersect(r, 0.0, f32::INFINITY).map(|hit| r.at(hit.t)))
+        .map(|p| {
+            let to = corners.map(|q| q - p);
+            let rays = to.map(|v| Ray::new(p, v.normalize()));
+            (rays, [1e-4 * d; 4], to.map(|v| v.length() * 0.999))
+        })
+        .collect()
+}
+
+/// `occluded4` answers exactly `occluded` for every active ray, on coherent
+/// corner packets and on packets of unrelated rays, with SIMD on and off.
+#[test]
+fn packet_any_hit_equals_single_rays_on_the_bunny() {
+    let Some(tris) = load_mesh("bunny/stanford-bunny.obj") else { return };
+    let simd = Bvh::build(&tris);
+    let mut scalar = simd.clone();
+    scalar.set_simd(false);
+    let b = bounds_of(&tris);
+    let mut packets = corner_packets(&b, &simd, &camera_rays(&b, 160, 120));
+    let mut rng = Rng(21);
+    let inc = incoherent_rays(&b, 8000, 22);
+    for q in inc.chunks_exact(4) {
+        let t_max = [0, 1, 2, 3]
+            .map(|_| if rng.next_f32() < 0.5 { f32::INFINITY } else { rng.range(0.0, 1.0) * b.diagonal() });
+        packets.push(([q[0], q[1], q[2], q[3]], [0.0; 4], t_max));
+    }
+    let (mut some, mut all, mut mixed) = (0, 0, 0);
+    for (i, (rays, t_min, t_max)) in packets.iter().enumerate() {
+        for active in [0b1111, 0b1010, 0b0111, 0b0001, 0] {
+            let expected = (0..4)
+                .filter(|&j| active & (1 << j) != 0 && simd.occluded(&rays[j], t_min[j], t_max[j]))
+                .fold(0u32, |m, j| m | 1 << j);
+            for bvh in [&simd, &scalar] {
+                assert_eq!(
+                    bvh.occluded4(rays, *t_min, *t_max, active),
+                    expected,
+                    "packet {i} active {active:b}"
+                );
+            }
+            if active == 0b1111 {
+                some += (expected != 0) as usize;
+                all += (expected == 0b1111) as usize;
+                mixed += (expected != 0 && expected != 0b1111) as usize;
+            }
+        }
+    }
+    assert!(some > 500 && all > 100 && mixed > 50, "{some} packets blocked, {all} fully, {mixed} partly");
+}
+
 /// Nanoseconds this thread has run on a CPU (Linux `/proc/thread-self/schedstat`), if known:
 /// a throughput measure that does not count time other processes take the CPU away.
 fn thread_cpu_ns() -> Option<u64> {
@@ -158,7 +216,8 @@ fn thread_cpu_ns() -> Option<u64> {
 }
 
 /// A fixed workload for instruction counts (see the module docs); `KERNEL_RAYS`
-/// picks `primary`, `incoherent` or `shadow` (default: all three), `KERNEL_REPS`
+/// picks `primary`, `incoherent`, `shadow`, `corners` (four rays from each camera
+/// hit to a light's corners, one by one) or `corners4` (the same as packets), `KERNEL_REPS`
 /// repeats each set and prints Mrays per CPU second.
 #[test]
 #[ignore]
@@ -169,6 +228,7 @@ fn kernel_workload() {
     let camera = camera_rays(&b, 320, 240);
     let shadow = shadow_rays(&b, &bvh, &camera, 5);
     let incoherent = incoherent_rays(&b, 50_000, 6);
+    let packets = corner_packets(&b, &bvh, &camera);
     let kind = std::env::var("KERNEL_RAYS").unwrap_or_default();
     let reps: usize = std::env::var("KERNEL_REPS").ok().and_then(|r| r.parse().ok()).unwrap_or(1);
     let mut n = 0usize;
@@ -191,5 +251,14 @@ fn kernel_workload() {
         incoherent.iter().filter(|r| bvh.intersect(r, 0.0, f32::INFINITY).is_some()).count()
     });
     run("shadow", shadow.len(), &|| shadow.iter().filter(|(r, a, b)| bvh.occluded(r, *a, *b)).count());
+    run("corners", packets.len() * 4, &|| {
+        let one = |(rays, t_min, t_max): &([Ray; 4], [f32; 4], [f32; 4])| {
+            (0..4).filter(|&j| bvh.occluded(&rays[j], t_min[j], t_max[j])).count()
+        };
+        packets.iter().map(one).sum()
+    });
+    run("corners4", packets.len() * 4, &|| {
+        packets.iter().map(|(r, a, b)| bvh.occluded4(r, *a, *b, 0b1111).count_ones() as usize).sum()
+    });
     assert!(n > 0);
 }

@@ -23,6 +23,7 @@
 
 mod blocks;
 mod build;
+mod packet;
 mod wide;
 
 use crate::geometry::{Aabb, Ray};
@@ -167,6 +168,16 @@ impl Bvh {
     /// Stops at the first hit found.
     pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
         wide::occluded(self, ray, t_min, t_max)
+    }
+
+    /// Any-hit for up to four rays at once (e.g. the shadow rays from one point
+    /// to an area light's corners): bit `j` of the result is set when ray `j`,
+    /// selected by bit `j` of `active`, hits something with
+    /// `t_min[j] < t < t_max[j]`. Exactly `occluded(&rays[j], t_min[j], t_max[j])`
+    /// for every active ray; the rays share node visits, which pays when they
+    /// are coherent.
+    pub fn occluded4(&self, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
+        packet::occluded4(self, rays, t_min, t_max, active)
     }
 
     /// Chooses the SIMD box test (the default, where the machine has one) or

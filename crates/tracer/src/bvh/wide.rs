@@ -33,7 +33,7 @@ use std::mem::MaybeUninit;
 pub(super) const ROBUST_EXIT: f32 = 1.0 + 4.0 * f32::EPSILON;
 
 /// Marks a leaf in [`Node4::meta`]; the low bits hold its triangle count.
-const LEAF: u32 = 1 << 31;
+pub(super) const LEAF: u32 = 1 << 31;
 
 /// A node of the 4-wide BVH (128 bytes, two cache lines).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -44,9 +44,9 @@ pub(super) struct Node4 {
     bounds: [[f32; 4]; 6],
     /// Interior child: index of its `Node4`. Leaf: its first lane (`4 · block + lane`,
     /// see `blocks`; during the build, its first triangle in leaf order).
-    child: [u32; 4],
+    pub(super) child: [u32; 4],
     /// 0 for an interior child, `LEAF | count` for a leaf (count 0: unused slot).
-    meta: [u32; 4],
+    pub(super) meta: [u32; 4],
 }
 
 const _: () = assert!(std::mem::size_of::<Node4>() == 128);
@@ -275,7 +275,7 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -
 /// A ray prepared for wide box tests: per axis, which row of [`Node4::bounds`]
 /// holds the entry plane (the max plane when the direction is negative).
 #[derive(Clone, Copy, Debug)]
-struct WideRay {
+pub(super) struct WideRay {
     origin: [f32; 3],
     inv_dir: [f32; 3],
     near: [usize; 3],
@@ -285,7 +285,7 @@ struct WideRay {
 impl WideRay {
     /// `1 / ±0` gives `±inf`, so axis-parallel rays need no special case.
     #[inline(always)]
-    fn new(ray: &Ray) -> Self {
+    pub(super) fn new(ray: &Ray) -> Self {
         let inv = ray.dir.recip().to_array();
         // Sign bit, not `< 0`: -0 gives -inf, whose near plane is the max.
         let neg = |a: usize| inv[a].is_sign_negative() as usize;
@@ -371,7 +371,7 @@ fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], 
 /// Box entries, and a mask with bit `k` set where child `k` is hit, with the
 /// SIMD path when `simd` is set and available.
 #[inline(always)]
-fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f32; 4], u32) {
+pub(super) fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f32; 4], u32) {
     #[cfg(target_arch = "x86_64")]
     if simd {
         return entries_sse(node, r, t_min, t_max);
@@ -389,25 +389,25 @@ const STACK: usize = 3 * MAX_DEPTH + 4;
 
 /// Fixed-size, uninitialised traversal stack (of wide node indices, with
 /// their entry distances for nearest-hit queries): no per-ray memset.
-struct Stack<T: Copy> {
+pub(super) struct Stack<T: Copy> {
     items: [MaybeUninit<T>; STACK],
     len: usize,
 }
 
 impl<T: Copy> Stack<T> {
     #[inline(always)]
-    fn new() -> Self {
+    pub(super) fn new() -> Self {
         Stack { items: [const { MaybeUninit::uninit() }; STACK], len: 0 }
     }
 
     #[inline(always)]
-    fn push(&mut self, item: T) {
+    pub(super) fn push(&mut self, item: T) {
         self.items[self.len] = MaybeUninit::new(item);
         self.len += 1;
     }
 
     #[inline(always)]
-    fn pop(&mut self) -> Option<T> {
+    pub(super) fn pop(&mut self) -> Option<T> {
         self.len = self.len.checked_sub(1)?;
         // SAFETY: every slot below the length was written by `push`.
         Some(unsafe { self.items[self.len].assume_init() })
@@ -415,7 +415,7 @@ impl<T: Copy> Stack<T> {
 }
 
 /// A ray prepared for the triangle tests of leaves.
-struct LeafRay<'a> {
+pub(super) struct LeafRay<'a> {
     ray: &'a Ray,
     #[cfg(target_arch = "x86_64")]
     sse: blocks::RaySse,
@@ -424,7 +424,7 @@ struct LeafRay<'a> {
 
 impl<'a> LeafRay<'a> {
     #[inline(always)]
-    fn new(ray: &'a Ray, simd: bool) -> Self {
+    pub(super) fn new(ray: &'a Ray, simd: bool) -> Self {
         LeafRay {
             ray,
             #[cfg(target_arch = "x86_64")]
@@ -435,7 +435,7 @@ impl<'a> LeafRay<'a> {
 
     /// Hits on leaf `(first lane, count)`.
     #[inline(always)]
-    fn hits(&self, blocks: &[TriBlock], first: u32, count: u32, t_min: f32, t_max: f32) -> Hits4 {
+    pub(super) fn hits(&self, blocks: &[TriBlock], first: u32, count: u32, t_min: f32, t_max: f32) -> Hits4 {
         let block = &blocks[(first / 4) as usize];
         let lanes = ((1u32 << count) - 1) << (first % 4);
         #[cfg(target_arch = "x86_64")]
