@@ -43,9 +43,9 @@ pub(super) fn occluded4(bvh: &Bvh, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32
             }
         }
         let mut next: Option<(u32, u32)> = None;
-        for k in 0..4 {
+        for (k, &rays_k) in child_rays.iter().enumerate() {
             let (meta, child) = (node.meta[k], node.child[k]);
-            let mut todo = child_rays[k] & !done;
+            let mut todo = rays_k & !done;
             if todo == 0 {
                 continue;
             }
