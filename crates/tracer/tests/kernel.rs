@@ -115,7 +115,11 @@ fn assert_simd_matches_scalar(name: &str, tris: &[Triangle]) {
     let simd = Bvh::build(tris);
     let mut scalar = simd.clone();
     scalar.set_simd(false);
-    assert!(!scalar.simd_active());
+    assert!(!scalar.simd_active() && !scalar.avx_active());
+    let mut sse = simd.clone();
+    sse.set_avx(false);
+    assert!(!sse.avx_active());
+    println!("{name}: AVX box test {}", if simd.avx_active() { "on" } else { "not available" });
     let b = bounds_of(tris);
     let camera = camera_rays(&b, 160, 120);
     let mut rays: Vec<(Ray, f32, f32)> = camera.iter().map(|r| (*r, 0.0, f32::INFINITY)).collect();
@@ -128,8 +132,10 @@ fn assert_simd_matches_scalar(name: &str, tris: &[Triangle]) {
     for (i, (ray, t_min, t_max)) in rays.iter().enumerate() {
         let a = simd.intersect(ray, *t_min, *t_max);
         assert_eq!(bits(a), bits(scalar.intersect(ray, *t_min, *t_max)), "{name} ray {i}");
+        assert_eq!(bits(a), bits(sse.intersect(ray, *t_min, *t_max)), "{name} ray {i} (SSE)");
         let o = simd.occluded(ray, *t_min, *t_max);
         assert_eq!(o, scalar.occluded(ray, *t_min, *t_max), "{name} ray {i}");
+        assert_eq!(o, sse.occluded(ray, *t_min, *t_max), "{name} ray {i} (SSE)");
         assert_eq!(o, a.is_some(), "{name} ray {i}: any hit iff nearest hit");
         hits += a.is_some() as usize;
         blocked += (*t_max != f32::INFINITY && o) as usize;

@@ -86,7 +86,7 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     let bounds = nodes[0].bounds();
     drop(nodes);
     let (blocks, prim_ids) = super::wide::place_leaves(&mut wide, &tris, &ids);
-    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false }
+    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false, no_avx: false }
 }
 
 /// The binary tree over `triangles` (not empty), the triangles in leaf order and

@@ -4,7 +4,7 @@
 //! * `build` — top-down binned SAH builder (parallel with rayon, yet the tree
 //!   is a pure function of the input triangles: any thread count, any machine,
 //!   the same bytes).
-//! * `wide` — the tree rays traverse: the binary tree collapsed into 4-wide
+//! * `wide` — the tree rays traverse: the binary tree collapsed into 8-wide
 //!   nodes whose four boxes one SSE instruction sequence tests at once (with a
 //!   bit-identical scalar fallback); nearest-hit traversal visits children
 //!   nearest first with early-out against the best hit so far, any-hit
@@ -14,7 +14,7 @@
 //!
 //! The builder makes a binary tree of 32-byte nodes in depth-first order: the root is
 //! node 0, an interior node's first child directly follows it and its second
-//! child's index is stored in the node. Traversal uses the 4-wide nodes it is
+//! child's index is stored in the node. Traversal uses the 8-wide nodes it is
 //! collapsed into (128 bytes each, see `wide`); the binary nodes are then
 //! dropped. Triangles are stored once, in the precomputed Möller–Trumbore form
 //! `(v0, e1, e2)` ([`PreTriangle`]), four to a structure-of-arrays block (see
@@ -52,7 +52,7 @@ pub const MAX_TRIANGLES: usize = 1 << 30;
 ///
 /// The first child of interior node `i` is node `i + 1` (depth-first order).
 ///
-/// Only the builder makes these; they are collapsed into the 4-wide tree and dropped.
+/// Only the builder makes these; they are collapsed into the 8-wide tree and dropped.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(32))]
 struct Node {
@@ -131,10 +131,12 @@ pub struct Bvh {
     prim_ids: Vec<u32>,
     /// Number of triangles.
     count: usize,
-    /// The 4-wide tree traversal uses, collapsed from `nodes`.
-    wide: Vec<wide::Node4>,
-    /// Use the scalar box test even where a SIMD one exists.
+    /// The 8-wide tree traversal uses, collapsed from `nodes`.
+    wide: Vec<wide::WideNode>,
+    /// Use the scalar box and triangle tests even where SIMD ones exist.
     scalar_only: bool,
+    /// Use the SSE box test even where the CPU has AVX.
+    no_avx: bool,
 }
 
 /// A violated BVH invariant, found by [`Bvh::validate`].
@@ -191,12 +193,28 @@ impl Bvh {
         wide::SIMD_AVAILABLE && !self.scalar_only
     }
 
-    /// Bytes the tree and its triangle data occupy (4-wide nodes, precomputed
+    /// Allows (the default) or forbids the AVX box test, which is used where the
+    /// CPU has AVX and SIMD is on; without it the SSE one is. All give the same
+    /// bits; this exists so tests can prove it.
+    pub fn set_avx(&mut self, on: bool) {
+        self.no_avx = !on;
+    }
+
+    /// True when queries use the AVX box test (checked at run time).
+    pub fn avx_active(&self) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if !self.scalar_only && !self.no_avx {
+            return std::arch::is_x86_feature_detected!("avx");
+        }
+        false
+    }
+
+    /// Bytes the tree and its triangle data occupy (8-wide nodes, precomputed
     /// triangles, primitive ids). The binary tree the builder makes is dropped
     /// once it has been collapsed.
     pub fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
-        self.wide.len() * size_of::<wide::Node4>()
+        self.wide.len() * size_of::<wide::WideNode>()
             + self.blocks.len() * size_of::<blocks::TriBlock>()
             + self.prim_ids.len() * size_of::<u32>()
     }
@@ -206,7 +224,7 @@ impl Bvh {
         self.count
     }
 
-    /// Number of nodes of the tree rays traverse (4-wide nodes).
+    /// Number of nodes of the tree rays traverse (8-wide nodes).
     pub fn node_count(&self) -> usize {
         self.wide.len()
     }

@@ -10,7 +10,7 @@
 //! tests reach is hit): only the node visits are shared.
 
 use super::Bvh;
-use super::wide::{LEAF, LeafRay, Stack, WideRay, entries};
+use super::wide::{LEAF, LeafRay, Stack, W, WideRay, entries};
 use crate::geometry::Ray;
 
 /// See [`Bvh::occluded4`].
@@ -30,12 +30,12 @@ pub(super) fn occluded4(bvh: &Bvh, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32
     loop {
         let node = &wide[current as usize];
         // child_rays[k]: the open rays whose box test hits child k.
-        let mut child_rays = [0u32; 4];
+        let mut child_rays = [0u32; W];
         let mut todo = open;
         while todo != 0 {
             let j = todo.trailing_zeros() as usize;
             todo &= todo - 1;
-            let (_, mut mask) = entries(node, &wr[j], t_min[j], t_max[j], simd);
+            let (_, mut mask) = entries::<false>(node, &wr[j], t_min[j], t_max[j], simd);
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;

@@ -1,8 +1,8 @@
 //! The 4-wide BVH that rays actually traverse, collapsed from the binary tree.
 //!
-//! Each [`Node4`] holds the boxes of up to four children in structure-of-arrays
+//! Each [`WideNode`] holds the boxes of up to four children in structure-of-arrays
 //! form (all four `min.x`, then all four `min.y`, …), so one SSE instruction
-//! slab-tests all four against a ray. A child is either another `Node4` or a
+//! slab-tests all four against a ray. A child is either another `WideNode` or a
 //! leaf (a range of triangles in leaf order); unused slots are empty leaves with
 //! inverted (`+inf..-inf`) boxes.
 //!
@@ -32,37 +32,40 @@ use std::mem::MaybeUninit;
 /// culls a box the exact ray passes through. It only ever visits slightly more.
 pub(super) const ROBUST_EXIT: f32 = 1.0 + 4.0 * f32::EPSILON;
 
-/// Marks a leaf in [`Node4::meta`]; the low bits hold its triangle count.
+/// Marks a leaf in [`WideNode::meta`]; the low bits hold its triangle count.
 pub(super) const LEAF: u32 = 1 << 31;
 
-/// A node of the 4-wide BVH (128 bytes, two cache lines).
+/// Children per wide node.
+pub(super) const W: usize = 8;
+
+/// A node of the 8-wide BVH (256 bytes, four cache lines).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(64))]
-pub(super) struct Node4 {
+pub(super) struct WideNode {
     /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
     /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
-    bounds: [[f32; 4]; 6],
-    /// Interior child: index of its `Node4`. Leaf: its first lane (`4 · block + lane`,
+    bounds: [[f32; W]; 6],
+    /// Interior child: index of its `WideNode`. Leaf: its first lane (`4 · block + lane`,
     /// see `blocks`; during the build, its first triangle in leaf order).
-    pub(super) child: [u32; 4],
+    pub(super) child: [u32; W],
     /// 0 for an interior child, `LEAF | count` for a leaf (count 0: unused slot).
-    pub(super) meta: [u32; 4],
+    pub(super) meta: [u32; W],
 }
 
-const _: () = assert!(std::mem::size_of::<Node4>() == 128);
+const _: () = assert!(std::mem::size_of::<WideNode>() == 256);
 
-impl Node4 {
-    const EMPTY: Node4 = Node4 {
+impl WideNode {
+    const EMPTY: WideNode = WideNode {
         bounds: [
-            [f32::INFINITY; 4],
-            [f32::INFINITY; 4],
-            [f32::INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
+            [f32::INFINITY; W],
+            [f32::INFINITY; W],
+            [f32::INFINITY; W],
+            [f32::NEG_INFINITY; W],
+            [f32::NEG_INFINITY; W],
+            [f32::NEG_INFINITY; W],
         ],
-        child: [0; 4],
-        meta: [LEAF; 4],
+        child: [0; W],
+        meta: [LEAF; W],
     };
 
     fn set(&mut self, k: usize, n: &Node) {
@@ -99,7 +102,7 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
             return fail(i, format!("depth {depth} exceeds {MAX_DEPTH}"));
         }
         let node = &wide[i];
-        for k in 0..4 {
+        for k in 0..W {
             let (meta, child) = (node.meta[k], node.child[k] as usize);
             if meta == LEAF {
                 continue; // unused slot
@@ -144,13 +147,13 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
 
 /// The first (node, slot) holding a leaf (for tests that corrupt a tree).
 #[cfg(test)]
-pub(super) fn first_leaf_slot(wide: &[Node4]) -> Option<(usize, usize)> {
-    wide.iter().enumerate().find_map(|(i, n)| (0..4).find(|&k| n.meta[k] > LEAF).map(|k| (i, k)))
+pub(super) fn first_leaf_slot(wide: &[WideNode]) -> Option<(usize, usize)> {
+    wide.iter().enumerate().find_map(|(i, n)| (0..W).find(|&k| n.meta[k] > LEAF).map(|k| (i, k)))
 }
 
 /// Moves the upper x plane of slot `k` down by `by` (for tests that corrupt a tree).
 #[cfg(test)]
-pub(super) fn shrink_slot(node: &mut Node4, k: usize, by: f32) {
+pub(super) fn shrink_slot(node: &mut WideNode, k: usize, by: f32) {
     node.bounds[3][k] -= by;
 }
 
@@ -161,7 +164,7 @@ pub(super) fn shrink_slot(node: &mut Node4, k: usize, by: f32) {
 /// `LEAF_COST · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
 /// leaf's triangles are tested together and a wide node's box test is shared by
 /// four children.
-pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
+pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
     // Triangle range (first, count), SAH cost and "make it a leaf" of every
     // binary subtree; children follow their parent, so a reverse sweep sees them first.
     let mut info = vec![Sub { first: 0, count: 0, cost: 0.0, leaf: true }; nodes.len()];
@@ -183,7 +186,7 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
     match nodes.first() {
         None => {}
         Some(root) if info[0].leaf => {
-            let mut n = Node4::EMPTY;
+            let mut n = WideNode::EMPTY;
             n.set(0, root);
             n.child[0] = info[0].first;
             n.meta[0] = LEAF | info[0].count;
@@ -200,12 +203,12 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
 /// blocks, leaves in node order, and points every leaf slot at its lanes.
 /// Returns the blocks and the input id of every lane.
 pub(super) fn place_leaves(
-    wide: &mut [Node4],
+    wide: &mut [WideNode],
     tris: &[PreTriangle],
     ids: &[u32],
 ) -> (Vec<TriBlock>, Vec<u32>) {
     let slots: Vec<(usize, usize)> = (0..wide.len())
-        .flat_map(|i| (0..4).map(move |k| (i, k)))
+        .flat_map(|i| (0..W).map(move |k| (i, k)))
         .filter(|&(i, k)| wide[i].meta[k] > LEAF)
         .collect();
     let leaves: Vec<(u32, u32)> =
@@ -235,13 +238,14 @@ struct Sub {
 }
 
 /// Appends the wide node for binary interior node `i` (and its subtree); returns its index.
-fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -> u32 {
+fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>) -> u32 {
     let is_leaf = |k: usize| info[k].leaf;
     let at = out.len();
-    out.push(Node4::EMPTY);
-    let mut kids = [i + 1, nodes[i].offset as usize, 0, 0];
+    out.push(WideNode::EMPTY);
+    let mut kids = [0usize; W];
+    (kids[0], kids[1]) = (i + 1, nodes[i].offset as usize);
     let mut len = 2;
-    while len < 4 {
+    while len < W {
         let mut pick: Option<(usize, f32)> = None;
         for (slot, &k) in kids[..len].iter().enumerate() {
             let area = nodes[k].bounds().area();
@@ -256,7 +260,7 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -
         kids[slot + 1] = nodes[k].offset as usize;
         len += 1;
     }
-    let mut node = Node4::EMPTY;
+    let mut node = WideNode::EMPTY;
     for (slot, &k) in kids[..len].iter().enumerate() {
         let n = &nodes[k];
         node.set(slot, n);
@@ -272,7 +276,7 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -
     at as u32
 }
 
-/// A ray prepared for wide box tests: per axis, which row of [`Node4::bounds`]
+/// A ray prepared for wide box tests: per axis, which row of [`WideNode::bounds`]
 /// holds the entry plane (the max plane when the direction is negative).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct WideRay {
@@ -317,8 +321,8 @@ fn min_keep(x: f32, acc: f32) -> f32 {
 /// plane of an axis the ray is parallel to; `max_keep`/`min_keep` then keep the
 /// running value, treating that slab as no constraint, which is conservative.
 #[inline(always)]
-fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
-    let mut out = [f32::INFINITY; 4];
+fn entries_scalar(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+    let mut out = [f32::INFINITY; W];
     let mut mask = 0;
     for (k, e) in out.iter_mut().enumerate() {
         let mut near = t_min;
@@ -337,18 +341,19 @@ fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4
     (out, mask)
 }
 
-/// [`entries_scalar`] for all four children at once with SSE (see the module
-/// docs for why the bits are the same).
+/// [`entries_scalar`] for four children at once (`at..at + 4`) with SSE (see
+/// the module docs for why the bits are the same); writes their entries to `out`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
+fn entries_sse4(node: &WideNode, at: usize, r: &WideRay, t_min: f32, t_max: f32, out: &mut [f32; 4]) -> u32 {
     use std::arch::x86_64::*;
     // SAFETY: SSE and SSE2 are part of the x86_64 baseline, so these
     // instructions exist on every machine this code is compiled for; the loads
-    // and the store read/write exactly the 16 bytes of a `[f32; 4]` they are
-    // given a reference to (unaligned access is allowed).
+    // read 16 bytes at `at` of a `[f32; W]` row (`at + 4 <= W`, checked by the
+    // slice index) and the store writes the 16 bytes of `out` (unaligned access
+    // is allowed).
     unsafe {
-        let load = |a: &[f32; 4]| _mm_loadu_ps(a.as_ptr());
+        let load = |a: &[f32; W]| _mm_loadu_ps(a[at..at + 4].as_ptr());
         let mut near = _mm_set1_ps(t_min);
         let mut far = _mm_set1_ps(t_max);
         for a in 0..3 {
@@ -362,19 +367,76 @@ fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], 
         }
         let hit = _mm_cmple_ps(near, _mm_mul_ps(far, _mm_set1_ps(ROBUST_EXIT)));
         let e = _mm_or_ps(_mm_and_ps(hit, near), _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)));
-        let mut out = [0.0f32; 4];
         _mm_storeu_ps(out.as_mut_ptr(), e);
-        (out, _mm_movemask_ps(hit) as u32)
+        _mm_movemask_ps(hit) as u32
     }
 }
 
-/// Box entries, and a mask with bit `k` set where child `k` is hit, with the
-/// SIMD path when `simd` is set and available.
+/// [`entries_scalar`] for all eight children with two SSE halves.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
-pub(super) fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f32; 4], u32) {
+fn entries_sse(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+    let (mut lo, mut hi) = ([0.0f32; 4], [0.0f32; 4]);
+    let m = entries_sse4(node, 0, r, t_min, t_max, &mut lo)
+        | entries_sse4(node, 4, r, t_min, t_max, &mut hi) << 4;
+    let mut out = [0.0f32; W];
+    out[..4].copy_from_slice(&lo);
+    out[4..].copy_from_slice(&hi);
+    (out, m)
+}
+
+/// [`entries_scalar`] for all eight children at once with AVX: the 256-bit
+/// forms of the SSE instructions, which compute the same on every lane
+/// (`vmaxps`/`vminps` return the second operand on NaN like `maxps`/`minps`).
+///
+/// # Safety
+/// The CPU must support AVX; only call it from a function compiled with
+/// `#[target_feature(enable = "avx")]` after checking that.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn entries_avx(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees AVX; the loads read the 32 bytes of a
+    // `[f32; 8]` row and the store writes the 32 bytes of `out`.
+    unsafe {
+        let load = |a: &[f32; W]| _mm256_loadu_ps(a.as_ptr());
+        let mut near = _mm256_set1_ps(t_min);
+        let mut far = _mm256_set1_ps(t_max);
+        for a in 0..3 {
+            let o = _mm256_set1_ps(r.origin[a]);
+            let inv = _mm256_set1_ps(r.inv_dir[a]);
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(load(&node.bounds[r.near[a]]), o), inv);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(load(&node.bounds[r.far[a]]), o), inv);
+            near = _mm256_max_ps(t0, near);
+            far = _mm256_min_ps(t1, far);
+        }
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_EXIT)));
+        let e = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), near, hit);
+        let mut out = [0.0f32; W];
+        _mm256_storeu_ps(out.as_mut_ptr(), e);
+        (out, _mm256_movemask_ps(hit) as u32)
+    }
+}
+
+/// Box entries, and a mask with bit `k` set where child `k` is hit. `AVX` may
+/// only be set inside a function compiled for AVX on a machine that has it.
+#[inline(always)]
+pub(super) fn entries<const AVX: bool>(
+    node: &WideNode,
+    r: &WideRay,
+    t_min: f32,
+    t_max: f32,
+    simd: bool,
+) -> ([f32; W], u32) {
     #[cfg(target_arch = "x86_64")]
-    if simd {
-        return entries_sse(node, r, t_min, t_max);
+    {
+        if AVX {
+            // SAFETY: `AVX` is only set by the AVX entry points, which check the CPU.
+            return unsafe { entries_avx(node, r, t_min, t_max) };
+        }
+        if simd {
+            return entries_sse(node, r, t_min, t_max);
+        }
     }
     let _ = simd;
     entries_scalar(node, r, t_min, t_max)
@@ -383,9 +445,9 @@ pub(super) fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: b
 /// True when this build has a SIMD box test (x86_64: SSE2, always present).
 pub(super) const SIMD_AVAILABLE: bool = cfg!(target_arch = "x86_64");
 
-/// Most entries a traversal stack holds: a wide node pushes at most three of
-/// its children and descends into the fourth, at most [`MAX_DEPTH`] levels deep.
-const STACK: usize = 3 * MAX_DEPTH + 4;
+/// Most entries a traversal stack holds: a wide node pushes at most `W - 1` of
+/// its children and descends into another, at most [`MAX_DEPTH`] levels deep.
+const STACK: usize = (W - 1) * MAX_DEPTH + W;
 
 /// Fixed-size, uninitialised traversal stack (of wide node indices, with
 /// their entry distances for nearest-hit queries): no per-ray memset.
@@ -456,6 +518,27 @@ impl<'a> LeafRay<'a> {
 /// leaf, the nearest lane wins, the lowest lane on ties — what testing the
 /// lanes one after another with a shrinking `t_max` would give.
 pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+    #[cfg(target_arch = "x86_64")]
+    if bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        return unsafe { intersect_avx(bvh, ray, t_min, t_max) };
+    }
+    intersect_with::<false>(bvh, ray, t_min, t_max)
+}
+
+/// [`intersect`] compiled for AVX.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn intersect_avx(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+    intersect_with::<true>(bvh, ray, t_min, t_max)
+}
+
+/// [`intersect`] with the AVX box test when `AVX` is set (see [`entries`]).
+#[inline(always)]
+fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
     let wide = &bvh.wide[..];
     if wide.is_empty() {
         return None;
@@ -470,7 +553,7 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
-        let (e, mut mask) = entries(node, &r, t_min, best_t, simd);
+        let (e, mut mask) = entries::<AVX>(node, &r, t_min, best_t, simd);
         let mut inner = 0u32;
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
@@ -495,7 +578,7 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
         // Interior children still in front of the best hit, nearest first
         // (stable on ties, so deterministic).
         let limit = best_t * ROBUST_EXIT;
-        let mut order = [(0.0f32, 0u32); 4];
+        let mut order = [(0.0f32, 0u32); W];
         let mut n = 0;
         while inner != 0 {
             let k = inner.trailing_zeros() as usize;
@@ -538,6 +621,27 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
 
 /// Any hit (see [`Bvh::occluded`]).
 pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        return unsafe { occluded_avx(bvh, ray, t_min, t_max) };
+    }
+    occluded_with::<false>(bvh, ray, t_min, t_max)
+}
+
+/// [`occluded`] compiled for AVX.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn occluded_avx(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    occluded_with::<true>(bvh, ray, t_min, t_max)
+}
+
+/// [`occluded`] with the AVX box test when `AVX` is set (see [`entries`]).
+#[inline(always)]
+fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     let wide = &bvh.wide[..];
     if wide.is_empty() {
         return false;
@@ -550,7 +654,7 @@ pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
-        let (_, mut mask) = entries(node, &r, t_min, t_max, simd);
+        let (_, mut mask) = entries::<AVX>(node, &r, t_min, t_max, simd);
         let mut next = None;
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
@@ -579,8 +683,19 @@ mod tests {
     use crate::sampling::Sampler;
     use glam::Vec3;
 
+    /// [`entries_avx`] compiled for AVX.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    unsafe fn avx_entries_for_test(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+        // SAFETY: this function is compiled for AVX and the caller checked the CPU.
+        unsafe { entries_avx(node, r, t_min, t_max) }
+    }
+
     #[test]
-    fn sse_and_scalar_box_tests_agree_bit_for_bit() {
+    fn avx_sse_and_scalar_box_tests_agree_bit_for_bit() {
         // Random boxes and rays, including axis-parallel directions, origins on
         // box planes and empty slots.
         let s = Sampler::new(1, 2, 3, 4);
@@ -590,8 +705,8 @@ mod tests {
             s.get(d) * 8.0 - 4.0
         };
         for i in 0..20_000 {
-            let mut node = Node4::EMPTY;
-            for k in 0..(1 + i % 4) {
+            let mut node = WideNode::EMPTY;
+            for k in 0..(1 + i % W) {
                 let (a, b) = (Vec3::new(next(), next(), next()), Vec3::new(next(), next(), next()));
                 let n = Node { min: a.min(b).to_array(), offset: 0, max: a.max(b).to_array(), count: 1 };
                 node.set(k, &n);
@@ -606,10 +721,17 @@ mod tests {
             }
             let r = WideRay::new(&Ray::new(origin, dir));
             let (t_min, t_max) = (0.0, if i % 3 == 0 { f32::INFINITY } else { next().abs() * 2.0 });
-            let (a, ma) = entries(&node, &r, t_min, t_max, true);
+            let (a, ma) = entries::<false>(&node, &r, t_min, t_max, true);
             let (b, mb) = entries_scalar(&node, &r, t_min, t_max);
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "case {i}");
             assert_eq!(ma, mb, "case {i}");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx") {
+                // SAFETY: the CPU has AVX (checked just above).
+                let (c, mc) = unsafe { avx_entries_for_test(&node, &r, t_min, t_max) };
+                assert_eq!(c.map(f32::to_bits), b.map(f32::to_bits), "case {i} (AVX)");
+                assert_eq!(mc, mb, "case {i} (AVX)");
+            }
             for (k, t) in a.iter().enumerate() {
                 assert_eq!(ma & (1 << k) != 0, *t != f32::INFINITY, "case {i}: mask matches entries");
             }
@@ -632,7 +754,7 @@ mod tests {
         let mut seen = vec![0u32; bvh.prim_ids.len()];
         for n in &bvh.wide {
             used += n.meta.iter().filter(|&&m| m != LEAF).count();
-            for k in 0..4 {
+            for k in 0..W {
                 if n.meta[k] != 0 && n.meta[k] != LEAF {
                     wide_leaves += 1;
                     let first = n.child[k] as usize;
@@ -645,10 +767,10 @@ mod tests {
         }
         // Every wide node but the root fills one slot of its parent.
         assert_eq!(used, bvh.wide.len() - 1 + wide_leaves);
-        // Each wide node absorbs more than 1.5 binary interior nodes on average
-        // (3 when the tree is full; a subtree ending in two leaves absorbs 1).
+        // Each wide node absorbs more than 3 binary interior nodes on average
+        // (7 when the tree is full; a subtree ending in two leaves absorbs 1).
         assert!(
-            bvh.wide.len() * 3 < interior * 2,
+            bvh.wide.len() * 3 < interior,
             "{} wide for {interior} binary interior nodes",
             bvh.wide.len()
         );
