@@ -176,8 +176,8 @@ impl Bvh {
     /// to an area light's corners): bit `j` of the result is set when ray `j`,
     /// selected by bit `j` of `active`, hits something with
     /// `t_min[j] < t < t_max[j]`. Exactly `occluded(&rays[j], t_min[j], t_max[j])`
-    /// for every active ray; the rays share node visits, which pays when they
-    /// are coherent.
+    /// for every active ray; the rays share node visits. Measured on the bunny's
+    /// corner packets it is still slower than four single queries (0.8×).
     pub fn occluded4(&self, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
         packet::occluded4(self, rays, t_min, t_max, active)
     }

@@ -15,6 +15,33 @@ use crate::geometry::Ray;
 
 /// See [`Bvh::occluded4`].
 pub(super) fn occluded4(bvh: &Bvh, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        return unsafe { occluded4_avx(bvh, rays, t_min, t_max, active) };
+    }
+    occluded4_with::<false>(bvh, rays, t_min, t_max, active)
+}
+
+/// [`occluded4`] compiled for AVX.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn occluded4_avx(bvh: &Bvh, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
+    occluded4_with::<true>(bvh, rays, t_min, t_max, active)
+}
+
+/// [`occluded4`] with the AVX box test when `AVX` is set (see [`entries`]).
+#[inline(always)]
+fn occluded4_with<const AVX: bool>(
+    bvh: &Bvh,
+    rays: &[Ray; 4],
+    t_min: [f32; 4],
+    t_max: [f32; 4],
+    active: u32,
+) -> u32 {
     let active = active & 0xf;
     let wide = &bvh.wide[..];
     if wide.is_empty() || active == 0 {
@@ -35,7 +62,7 @@ pub(super) fn occluded4(bvh: &Bvh, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32
         while todo != 0 {
             let j = todo.trailing_zeros() as usize;
             todo &= todo - 1;
-            let (_, mut mask) = entries::<false>(node, &wr[j], t_min[j], t_max[j], simd);
+            let (_, mut mask) = entries::<AVX>(node, &wr[j], t_min[j], t_max[j], simd);
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
