@@ -4,9 +4,12 @@
 //! * `build` — top-down binned SAH builder (parallel with rayon, yet the tree
 //!   is a pure function of the input triangles: any thread count, any machine,
 //!   the same bytes).
+//! * `blocks` — leaf triangles in structure-of-arrays blocks of four, tested
+//!   with one SSE Möller–Trumbore (bit-identical to the scalar test).
+//! * `packet` — any-hit for up to four rays at once.
 //! * `wide` — the tree rays traverse: the binary tree collapsed into 8-wide
-//!   nodes whose four boxes one SSE instruction sequence tests at once (with a
-//!   bit-identical scalar fallback); nearest-hit traversal visits children
+//!   nodes whose eight boxes one AVX (or two SSE) instruction sequences test
+//!   at once (with a bit-identical scalar fallback); nearest-hit traversal visits children
 //!   nearest first with early-out against the best hit so far, any-hit
 //!   traversal stops at the first hit.
 //!
@@ -15,7 +18,7 @@
 //! The builder makes a binary tree of 32-byte nodes in depth-first order: the root is
 //! node 0, an interior node's first child directly follows it and its second
 //! child's index is stored in the node. Traversal uses the 8-wide nodes it is
-//! collapsed into (128 bytes each, see `wide`); the binary nodes are then
+//! collapsed into (256 bytes each, see `wide`); the binary nodes are then
 //! dropped. Triangles are stored once, in the precomputed Möller–Trumbore form
 //! `(v0, e1, e2)` ([`PreTriangle`]), four to a structure-of-arrays block (see
 //! `blocks`); a leaf owns a run of lanes in one block, and `prim_ids` maps each

@@ -1,25 +1,29 @@
-//! The 4-wide BVH that rays actually traverse, collapsed from the binary tree.
+//! The 8-wide BVH that rays actually traverse, collapsed from the binary tree.
 //!
-//! Each [`WideNode`] holds the boxes of up to four children in structure-of-arrays
-//! form (all four `min.x`, then all four `min.y`, …), so one SSE instruction
-//! slab-tests all four against a ray. A child is either another `WideNode` or a
-//! leaf (a range of triangles in leaf order); unused slots are empty leaves with
-//! inverted (`+inf..-inf`) boxes.
+//! Each [`WideNode`] holds the boxes of up to eight children in structure-of-arrays
+//! form (all eight `min.x`, then all eight `min.y`, …), so one AVX instruction
+//! sequence (or two SSE ones) slab-tests all eight against a ray. A child is
+//! either another `WideNode` or a leaf (a run of 1..=4 lanes of one triangle
+//! block, see `blocks`); unused slots are empty leaves with inverted
+//! (`+inf..-inf`) boxes.
 //!
 //! **Collapsing.** Starting from the binary root, a wide node takes the binary
 //! node's two children and keeps replacing the child with the largest box
-//! surface (ties: the first) by its own two children until it has four or only
+//! surface (ties: the first) by its own two children until it has eight or only
 //! leaves remain. The result is a pure function of the binary tree.
 //!
-//! **Same bits with and without SIMD.** The SSE path ([`entries_sse`]) and the
-//! scalar path ([`entries_scalar`]) perform the same IEEE operations in the same
-//! order on every lane: `(plane − origin) · inv_dir`, then `maxps(t, acc)` /
-//! `minps(t, acc)`, which are exactly `if t > acc { t } else { acc }` and
-//! `if t < acc { t } else { acc }` — including for NaN and signed zeros — and no
-//! fused multiply-add. So the entry distances, hence the traversal order and
-//! every hit, are identical; tests compare both paths on random rays and
-//! rendered bytes. SSE2 is part of the x86_64 baseline, so no runtime detection
-//! is needed there; other architectures use the scalar path.
+//! **Same bits with and without SIMD.** The AVX path ([`entries_avx`]), the SSE
+//! path ([`entries_sse`]) and the scalar path ([`entries_scalar`]) perform the
+//! same IEEE operations in the same order on every lane: `(plane − origin) ·
+//! inv_dir`, then `maxps(t, acc)` / `minps(t, acc)`, which are exactly
+//! `if t > acc { t } else { acc }` and `if t < acc { t } else { acc }` —
+//! including for NaN and signed zeros — and no fused multiply-add. So the entry
+//! distances, hence the traversal order and every hit, are identical; tests
+//! compare the paths on random boxes, on random rays through real meshes and on
+//! rendered bytes. SSE2 is part of the x86_64 baseline; AVX is detected at run
+//! time (`is_x86_feature_detected!`), and the traversal loops are then compiled
+//! for AVX as a whole (`#[target_feature]`) so the box test inlines. Other
+//! architectures use the scalar path.
 
 use super::blocks::{self, Hits4, TriBlock};
 use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
@@ -157,13 +161,13 @@ pub(super) fn shrink_slot(node: &mut WideNode, k: usize, by: f32) {
     node.bounds[3][k] -= by;
 }
 
-/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 4-wide nodes.
+/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 8-wide nodes.
 ///
 /// A binary subtree with at most [`MAX_LEAF_SIZE`] triangles (contiguous in
 /// leaf order) becomes one leaf when the surface-area heuristic prefers it —
 /// `LEAF_COST · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
 /// leaf's triangles are tested together and a wide node's box test is shared by
-/// four children.
+/// eight children.
 pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
     // Triangle range (first, count), SAH cost and "make it a leaf" of every
     // binary subtree; children follow their parent, so a reverse sweep sees them first.
