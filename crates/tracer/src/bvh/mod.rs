@@ -18,7 +18,7 @@
 //! The builder makes a binary tree of 32-byte nodes in depth-first order: the root is
 //! node 0, an interior node's first child directly follows it and its second
 //! child's index is stored in the node. Traversal uses the 8-wide nodes it is
-//! collapsed into (256 bytes each, see `wide`); the binary nodes are then
+//! collapsed into (224 bytes each, see `wide`); the binary nodes are then
 //! dropped. Triangles are stored once, in the precomputed Möller–Trumbore form
 //! `(v0, e1, e2)` ([`PreTriangle`]), four to a structure-of-arrays block (see
 //! `blocks`); a leaf owns a run of lanes in one block, and `prim_ids` maps each
@@ -40,9 +40,10 @@ pub const MAX_LEAF_SIZE: usize = 4;
 /// median splits well before this, and traversal stacks are sized from it.
 pub const MAX_DEPTH: usize = 64;
 
-/// Most triangles a BVH can hold (2^30), which keeps the median-split fallback
-/// within [`MAX_DEPTH`].
-pub const MAX_TRIANGLES: usize = 1 << 30;
+/// Most triangles a BVH can hold (2^27): the median-split fallback then stays
+/// within [`MAX_DEPTH`], and every triangle lane (at most four per triangle)
+/// fits the 29 bits a wide node's child word has for it.
+pub const MAX_TRIANGLES: usize = 1 << 27;
 
 /// One node of the binary tree the builder makes: 32 bytes, aligned so a node never straddles a cache line.
 ///

@@ -10,7 +10,7 @@
 //! tests reach is hit): only the node visits are shared.
 
 use super::Bvh;
-use super::wide::{LEAF, LeafRay, Stack, W, WideRay, entries};
+use super::wide::{LEAF, LeafRay, Stack, W, WideRay, entries, leaf_range};
 use crate::geometry::Ray;
 
 /// See [`Bvh::occluded4`].
@@ -71,12 +71,12 @@ fn occluded4_with<const AVX: bool>(
         }
         let mut next: Option<(u32, u32)> = None;
         for (k, &rays_k) in child_rays.iter().enumerate() {
-            let (meta, child) = (node.meta[k], node.child[k]);
+            let child = node.child[k];
             let mut todo = rays_k & !done;
             if todo == 0 {
                 continue;
             }
-            if meta == 0 {
+            if child & LEAF == 0 {
                 if next.is_none() {
                     next = Some((child, todo));
                 } else {
@@ -87,7 +87,8 @@ fn occluded4_with<const AVX: bool>(
             while todo != 0 {
                 let j = todo.trailing_zeros() as usize;
                 todo &= todo - 1;
-                if lr[j].hits(blocks, child, meta & !LEAF, t_min[j], t_max[j]).mask != 0 {
+                let (first, count) = leaf_range(child);
+                if lr[j].hits(blocks, first, count, t_min[j], t_max[j]).mask != 0 {
                     done |= 1 << j;
                 }
             }

@@ -36,27 +36,51 @@ use std::mem::MaybeUninit;
 /// culls a box the exact ray passes through. It only ever visits slightly more.
 pub(super) const ROBUST_EXIT: f32 = 1.0 + 4.0 * f32::EPSILON;
 
-/// Marks a leaf in [`WideNode::meta`]; the low bits hold its triangle count.
+/// Marks a leaf in [`WideNode::child`].
 pub(super) const LEAF: u32 = 1 << 31;
+/// A leaf's triangle count minus one sits at this bit of its child word.
+const COUNT_SHIFT: u32 = 29;
+/// A leaf's first lane (or, during the build, first triangle) in the low bits.
+const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
+
+/// The child word of a leaf of `count` (1..=4) triangles starting at `first`.
+#[inline(always)]
+pub(super) fn leaf_word(first: u32, count: u32) -> u32 {
+    debug_assert!((1..=4).contains(&count) && first <= FIRST_MASK);
+    LEAF | (count - 1) << COUNT_SHIFT | first
+}
+
+/// `(first, count)` of a leaf's child word.
+#[inline(always)]
+pub(super) fn leaf_range(word: u32) -> (u32, u32) {
+    (word & FIRST_MASK, ((word >> COUNT_SHIFT) & 3) + 1)
+}
+
+/// The word of an unused slot: a one-triangle leaf at lane 0, behind an empty
+/// box. A ray only enters an empty box when its origin or direction is not
+/// finite, and such a ray never hits a triangle, so this is harmless.
+const UNUSED: u32 = LEAF;
+
+// Every lane index (at most four lanes per triangle) fits the child word.
+const _: () = assert!(4 * super::MAX_TRIANGLES <= FIRST_MASK as usize + 1);
 
 /// Children per wide node.
 pub(super) const W: usize = 8;
 
-/// A node of the 8-wide BVH (256 bytes, four cache lines).
+/// A node of the 8-wide BVH (224 bytes).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[repr(C, align(64))]
+#[repr(C, align(32))]
 pub(super) struct WideNode {
     /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
     /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
     bounds: [[f32; W]; 6],
-    /// Interior child: index of its `WideNode`. Leaf: its first lane (`4 · block + lane`,
-    /// see `blocks`; during the build, its first triangle in leaf order).
+    /// Interior child: index of its `WideNode` (bit 31 clear). Leaf: [`leaf_word`]
+    /// of its first lane (`4 · block + lane`, see `blocks`; during the build, its
+    /// first triangle in leaf order) and triangle count. Unused: [`UNUSED`].
     pub(super) child: [u32; W],
-    /// 0 for an interior child, `LEAF | count` for a leaf (count 0: unused slot).
-    pub(super) meta: [u32; W],
 }
 
-const _: () = assert!(std::mem::size_of::<WideNode>() == 256);
+const _: () = assert!(std::mem::size_of::<WideNode>() == 224);
 
 impl WideNode {
     const EMPTY: WideNode = WideNode {
@@ -68,8 +92,7 @@ impl WideNode {
             [f32::NEG_INFINITY; W],
             [f32::NEG_INFINITY; W],
         ],
-        child: [0; W],
-        meta: [LEAF; W],
+        child: [UNUSED; W],
     };
 
     fn set(&mut self, k: usize, n: &Node) {
@@ -77,6 +100,11 @@ impl WideNode {
             self.bounds[a][k] = n.min[a];
             self.bounds[a + 3][k] = n.max[a];
         }
+    }
+
+    /// True when slot `k` holds nothing (its box is empty; real boxes, NaN-free, never are).
+    fn is_unused(&self, k: usize) -> bool {
+        self.child[k] == UNUSED && self.bounds[0][k] > self.bounds[3][k]
     }
 
     /// Child `k`'s box.
@@ -107,22 +135,24 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
         }
         let node = &wide[i];
         for k in 0..W {
-            let (meta, child) = (node.meta[k], node.child[k] as usize);
-            if meta == LEAF {
-                continue; // unused slot
+            let word = node.child[k];
+            if node.is_unused(k) {
+                continue;
             }
             let b = node.child_bounds(k);
             if !contains_box(&outer, &b) {
                 return fail(i, format!("child {k}'s box is not inside its parent's"));
             }
-            if meta & LEAF == 0 {
+            if word & LEAF == 0 {
+                let child = word as usize;
                 if child <= i {
                     return fail(i, format!("child {k} ({child}) does not come after its parent"));
                 }
                 stack.push((child, depth + 1, b));
                 continue;
             }
-            let count = (meta & !LEAF) as usize;
+            let (child, count) = leaf_range(word);
+            let (child, count) = (child as usize, count as usize);
             if count == 0 || count > MAX_LEAF_SIZE || child % 4 + count > 4 || child / 4 >= bvh.blocks.len() {
                 return fail(i, format!("leaf lanes {child}+{count} invalid"));
             }
@@ -152,7 +182,9 @@ pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
 /// The first (node, slot) holding a leaf (for tests that corrupt a tree).
 #[cfg(test)]
 pub(super) fn first_leaf_slot(wide: &[WideNode]) -> Option<(usize, usize)> {
-    wide.iter().enumerate().find_map(|(i, n)| (0..W).find(|&k| n.meta[k] > LEAF).map(|k| (i, k)))
+    wide.iter()
+        .enumerate()
+        .find_map(|(i, n)| (0..W).find(|&k| n.child[k] & LEAF != 0 && !n.is_unused(k)).map(|k| (i, k)))
 }
 
 /// Moves the upper x plane of slot `k` down by `by` (for tests that corrupt a tree).
@@ -192,8 +224,7 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
         Some(root) if info[0].leaf => {
             let mut n = WideNode::EMPTY;
             n.set(0, root);
-            n.child[0] = info[0].first;
-            n.meta[0] = LEAF | info[0].count;
+            n.child[0] = leaf_word(info[0].first, info[0].count);
             out.push(n);
         }
         Some(_) => {
@@ -213,13 +244,12 @@ pub(super) fn place_leaves(
 ) -> (Vec<TriBlock>, Vec<u32>) {
     let slots: Vec<(usize, usize)> = (0..wide.len())
         .flat_map(|i| (0..W).map(move |k| (i, k)))
-        .filter(|&(i, k)| wide[i].meta[k] > LEAF)
+        .filter(|&(i, k)| wide[i].child[k] & LEAF != 0 && !wide[i].is_unused(k))
         .collect();
-    let leaves: Vec<(u32, u32)> =
-        slots.iter().map(|&(i, k)| (wide[i].child[k], wide[i].meta[k] & !LEAF)).collect();
+    let leaves: Vec<(u32, u32)> = slots.iter().map(|&(i, k)| leaf_range(wide[i].child[k])).collect();
     let (blocks, lane_ids, starts) = blocks::pack(&leaves, tris, ids);
-    for (&(i, k), start) in slots.iter().zip(starts) {
-        wide[i].child[k] = start;
+    for ((&(i, k), start), &(_, count)) in slots.iter().zip(starts).zip(&leaves) {
+        wide[i].child[k] = leaf_word(start, count);
     }
     (blocks, lane_ids)
 }
@@ -269,11 +299,9 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>
         let n = &nodes[k];
         node.set(slot, n);
         if is_leaf(k) {
-            node.child[slot] = info[k].first;
-            node.meta[slot] = LEAF | info[k].count;
+            node.child[slot] = leaf_word(info[k].first, info[k].count);
         } else {
             node.child[slot] = collapse_node(nodes, info, k, out);
-            node.meta[slot] = 0;
         }
     }
     out[at] = node;
@@ -562,12 +590,12 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let meta = node.meta[k];
-            if meta == 0 {
+            let word = node.child[k];
+            if word & LEAF == 0 {
                 inner |= 1 << k;
             } else if e[k] <= best_t * ROBUST_EXIT {
-                let first = node.child[k];
-                let h = lr.hits(blocks, first, meta & !LEAF, t_min, best_t);
+                let (first, count) = leaf_range(word);
+                let h = lr.hits(blocks, first, count, t_min, best_t);
                 let mut m = h.mask;
                 while m != 0 {
                     let lane = m.trailing_zeros() as usize;
@@ -663,9 +691,10 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let (meta, child) = (node.meta[k], node.child[k]);
-            if meta != 0 {
-                if lr.hits(blocks, child, meta & !LEAF, t_min, t_max).mask != 0 {
+            let child = node.child[k];
+            if child & LEAF != 0 {
+                let (first, count) = leaf_range(child);
+                if lr.hits(blocks, first, count, t_min, t_max).mask != 0 {
                     return true;
                 }
             } else if next.is_none() {
@@ -757,12 +786,12 @@ mod tests {
         let (mut wide_leaves, mut used) = (0, 0);
         let mut seen = vec![0u32; bvh.prim_ids.len()];
         for n in &bvh.wide {
-            used += n.meta.iter().filter(|&&m| m != LEAF).count();
+            used += (0..W).filter(|&k| !n.is_unused(k)).count();
             for k in 0..W {
-                if n.meta[k] != 0 && n.meta[k] != LEAF {
+                if n.child[k] & LEAF != 0 && !n.is_unused(k) {
                     wide_leaves += 1;
-                    let first = n.child[k] as usize;
-                    seen[first..first + (n.meta[k] & !LEAF) as usize].iter_mut().for_each(|s| *s += 1);
+                    let (first, count) = leaf_range(n.child[k]);
+                    seen[first as usize..(first + count) as usize].iter_mut().for_each(|s| *s += 1);
                 }
             }
         }
