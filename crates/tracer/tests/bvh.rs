@@ -332,11 +332,15 @@ fn non_finite_vertices_are_tolerated() {
     assert!(hits > 100, "{hits}");
 }
 
+/// Issue 6 aims at <= 64 bytes per triangle (BVH + triangle data): met on the
+/// bunny; the dragon (emptier triangle blocks, more nodes) is held at <= 72.
 #[test]
-fn bunny_memory_per_triangle() {
-    let Some(tris) = load_mesh("bunny/stanford-bunny.obj") else { return };
-    let bvh = Bvh::build(&tris);
-    let per_tri = bvh.memory_bytes() as f64 / tris.len() as f64;
-    println!("bunny: {} triangles, {per_tri:.1} bytes/triangle, {} nodes", tris.len(), bvh.node_count());
-    assert!(per_tri <= 80.0, "{per_tri:.1} bytes per triangle");
+fn memory_per_triangle_is_bounded() {
+    for (rel, bound) in [("bunny/stanford-bunny.obj", 64.0), ("dragon/dragon_100k.obj", 72.0)] {
+        let Some(tris) = load_mesh(rel) else { continue };
+        let bvh = Bvh::build(&tris);
+        let per_tri = bvh.memory_bytes() as f64 / tris.len() as f64;
+        println!("{rel}: {} triangles, {per_tri:.1} bytes/triangle, {} nodes", tris.len(), bvh.node_count());
+        assert!(per_tri <= bound, "{rel}: {per_tri:.1} bytes per triangle");
+    }
 }
