@@ -81,14 +81,24 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     if triangles.is_empty() {
         return Bvh::default();
     }
+    let (nodes, tris, ids) = binary(triangles);
+    let mut wide = super::wide::collapse(&nodes);
+    let bounds = nodes[0].bounds();
+    drop(nodes);
+    let (blocks, prim_ids) = super::wide::place_leaves(&mut wide, &tris, &ids);
+    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false, no_avx: false }
+}
+
+/// The binary tree over `triangles` (not empty), the triangles in leaf order and
+/// their input indices.
+pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Node>, Vec<PreTriangle>, Vec<u32>) {
     let pre: Vec<PreTriangle> = triangles.par_iter().map(PreTriangle::new).collect();
     let prims: Vec<PrimInfo> = pre.par_iter().zip(triangles).map(|(p, t)| prim_info(p, t)).collect();
     let mut refs: Vec<u32> = (0..triangles.len() as u32).collect();
     let mut nodes = Vec::with_capacity(2 * triangles.len() / MAX_LEAF_SIZE.max(2) + 1);
     build_node(&prims, &mut refs, 0, 0, &mut nodes);
     let tris = refs.iter().map(|&r| pre[r as usize]).collect();
-    let wide = super::wide::collapse(&nodes);
-    Bvh { nodes, tris, prim_ids: refs, wide, scalar_only: false }
+    (nodes, tris, refs)
 }
 
 /// Bounds over both the input vertices and the ones the intersection test

@@ -1,29 +1,34 @@
-//! The 4-wide BVH that rays actually traverse, collapsed from the binary tree.
+//! The 8-wide BVH that rays actually traverse, collapsed from the binary tree.
 //!
-//! Each [`Node4`] holds the boxes of up to four children in structure-of-arrays
-//! form (all four `min.x`, then all four `min.y`, …), so one SSE instruction
-//! slab-tests all four against a ray. A child is either another `Node4` or a
-//! leaf (a range of triangles in leaf order); unused slots are empty leaves with
-//! inverted (`+inf..-inf`) boxes.
+//! Each [`WideNode`] holds the boxes of up to eight children in structure-of-arrays
+//! form (all eight `min.x`, then all eight `min.y`, …), so one AVX instruction
+//! sequence (or two SSE ones) slab-tests all eight against a ray. A child is
+//! either another `WideNode` or a leaf (a run of 1..=4 lanes of one triangle
+//! block, see `blocks`); unused slots are empty leaves with inverted
+//! (`+inf..-inf`) boxes.
 //!
 //! **Collapsing.** Starting from the binary root, a wide node takes the binary
 //! node's two children and keeps replacing the child with the largest box
-//! surface (ties: the first) by its own two children until it has four or only
+//! surface (ties: the first) by its own two children until it has eight or only
 //! leaves remain. The result is a pure function of the binary tree.
 //!
-//! **Same bits with and without SIMD.** The SSE path ([`entries_sse`]) and the
-//! scalar path ([`entries_scalar`]) perform the same IEEE operations in the same
-//! order on every lane: `(plane − origin) · inv_dir`, then `maxps(t, acc)` /
-//! `minps(t, acc)`, which are exactly `if t > acc { t } else { acc }` and
-//! `if t < acc { t } else { acc }` — including for NaN and signed zeros — and no
-//! fused multiply-add. So the entry distances, hence the traversal order and
-//! every hit, are identical; tests compare both paths on random rays and
-//! rendered bytes. SSE2 is part of the x86_64 baseline, so no runtime detection
-//! is needed there; other architectures use the scalar path.
+//! **Same bits with and without SIMD.** The AVX path ([`entries_avx`]), the SSE
+//! path ([`entries_sse`]) and the scalar path ([`entries_scalar`]) perform the
+//! same IEEE operations in the same order on every lane: `(plane − origin) ·
+//! inv_dir`, then `maxps(t, acc)` / `minps(t, acc)`, which are exactly
+//! `if t > acc { t } else { acc }` and `if t < acc { t } else { acc }` —
+//! including for NaN and signed zeros — and no fused multiply-add. So the entry
+//! distances, hence the traversal order and every hit, are identical; tests
+//! compare the paths on random boxes, on random rays through real meshes and on
+//! rendered bytes. SSE2 is part of the x86_64 baseline; AVX is detected at run
+//! time (`is_x86_feature_detected!`), and the traversal loops are then compiled
+//! for AVX as a whole (`#[target_feature]`) so the box test inlines. Other
+//! architectures use the scalar path.
 
-use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle};
-use crate::geometry::Ray;
-use crate::shapes::{Hit, moller_trumbore, moller_trumbore_any};
+use super::blocks::{self, Hits4, TriBlock};
+use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
+use crate::geometry::{Aabb, Ray};
+use crate::shapes::Hit;
 use std::mem::MaybeUninit;
 
 /// Slab-test exits are scaled by this factor (1 + 2γ₃ rounded up, after Ize,
@@ -31,36 +36,63 @@ use std::mem::MaybeUninit;
 /// culls a box the exact ray passes through. It only ever visits slightly more.
 pub(super) const ROBUST_EXIT: f32 = 1.0 + 4.0 * f32::EPSILON;
 
-/// Marks a leaf in [`Node4::meta`]; the low bits hold its triangle count.
-const LEAF: u32 = 1 << 31;
+/// Marks a leaf in [`WideNode::child`].
+pub(super) const LEAF: u32 = 1 << 31;
+/// A leaf's triangle count minus one sits at this bit of its child word.
+const COUNT_SHIFT: u32 = 29;
+/// A leaf's first lane (or, during the build, first triangle) in the low bits.
+const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 
-/// A node of the 4-wide BVH (128 bytes, two cache lines).
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[repr(C, align(64))]
-pub(super) struct Node4 {
-    /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
-    /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
-    bounds: [[f32; 4]; 6],
-    /// Interior child: index of its `Node4`. Leaf: its first triangle.
-    child: [u32; 4],
-    /// 0 for an interior child, `LEAF | count` for a leaf (count 0: unused slot).
-    meta: [u32; 4],
+/// The child word of a leaf of `count` (1..=4) triangles starting at `first`.
+#[inline(always)]
+pub(super) fn leaf_word(first: u32, count: u32) -> u32 {
+    debug_assert!((1..=4).contains(&count) && first <= FIRST_MASK);
+    LEAF | (count - 1) << COUNT_SHIFT | first
 }
 
-const _: () = assert!(std::mem::size_of::<Node4>() == 128);
+/// `(first, count)` of a leaf's child word.
+#[inline(always)]
+pub(super) fn leaf_range(word: u32) -> (u32, u32) {
+    (word & FIRST_MASK, ((word >> COUNT_SHIFT) & 3) + 1)
+}
 
-impl Node4 {
-    const EMPTY: Node4 = Node4 {
+/// The word of an unused slot: a one-triangle leaf at lane 0, behind an empty
+/// box. A ray only enters an empty box when its origin or direction is not
+/// finite, and such a ray never hits a triangle, so this is harmless.
+const UNUSED: u32 = LEAF;
+
+// Every lane index (at most four lanes per triangle) fits the child word.
+const _: () = assert!(4 * super::MAX_TRIANGLES <= FIRST_MASK as usize + 1);
+
+/// Children per wide node.
+pub(super) const W: usize = 8;
+
+/// A node of the 8-wide BVH (224 bytes).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+pub(super) struct WideNode {
+    /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
+    /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
+    bounds: [[f32; W]; 6],
+    /// Interior child: index of its `WideNode` (bit 31 clear). Leaf: [`leaf_word`]
+    /// of its first lane (`4 · block + lane`, see `blocks`; during the build, its
+    /// first triangle in leaf order) and triangle count. Unused: [`UNUSED`].
+    pub(super) child: [u32; W],
+}
+
+const _: () = assert!(std::mem::size_of::<WideNode>() == 224);
+
+impl WideNode {
+    const EMPTY: WideNode = WideNode {
         bounds: [
-            [f32::INFINITY; 4],
-            [f32::INFINITY; 4],
-            [f32::INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
+            [f32::INFINITY; W],
+            [f32::INFINITY; W],
+            [f32::INFINITY; W],
+            [f32::NEG_INFINITY; W],
+            [f32::NEG_INFINITY; W],
+            [f32::NEG_INFINITY; W],
         ],
-        child: [0; 4],
-        meta: [LEAF; 4],
+        child: [UNUSED; W],
     };
 
     fn set(&mut self, k: usize, n: &Node) {
@@ -69,15 +101,106 @@ impl Node4 {
             self.bounds[a + 3][k] = n.max[a];
         }
     }
+
+    /// True when slot `k` holds nothing (its box is empty; real boxes, NaN-free, never are).
+    fn is_unused(&self, k: usize) -> bool {
+        self.child[k] == UNUSED && self.bounds[0][k] > self.bounds[3][k]
+    }
+
+    /// Child `k`'s box.
+    fn child_bounds(&self, k: usize) -> Aabb {
+        let b = &self.bounds;
+        Aabb {
+            min: glam::Vec3::new(b[0][k], b[1][k], b[2][k]),
+            max: glam::Vec3::new(b[3][k], b[4][k], b[5][k]),
+        }
+    }
 }
 
-/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 4-wide nodes.
+/// Checks the wide tree's invariants (see [`Bvh::validate`]; the primitive map is checked there).
+pub(super) fn validate(bvh: &Bvh) -> Result<(), InvalidBvh> {
+    let fail = |node: usize, problem: String| Err(InvalidBvh { node, problem });
+    let wide = &bvh.wide[..];
+    let mut visited = vec![false; wide.len()];
+    let mut covered = vec![false; bvh.prim_ids.len()];
+    // (node, depth, the box its children must lie in)
+    let mut stack = vec![(0usize, 0usize, bvh.bounds)];
+    while let Some((i, depth, outer)) = stack.pop() {
+        if i >= wide.len() || visited[i] {
+            return fail(i, "child index out of range or reached twice".into());
+        }
+        visited[i] = true;
+        if depth > MAX_DEPTH {
+            return fail(i, format!("depth {depth} exceeds {MAX_DEPTH}"));
+        }
+        let node = &wide[i];
+        for k in 0..W {
+            let word = node.child[k];
+            if node.is_unused(k) {
+                continue;
+            }
+            let b = node.child_bounds(k);
+            if !contains_box(&outer, &b) {
+                return fail(i, format!("child {k}'s box is not inside its parent's"));
+            }
+            if word & LEAF == 0 {
+                let child = word as usize;
+                if child <= i {
+                    return fail(i, format!("child {k} ({child}) does not come after its parent"));
+                }
+                stack.push((child, depth + 1, b));
+                continue;
+            }
+            let (child, count) = leaf_range(word);
+            let (child, count) = (child as usize, count as usize);
+            if count == 0 || count > MAX_LEAF_SIZE || child % 4 + count > 4 || child / 4 >= bvh.blocks.len() {
+                return fail(i, format!("leaf lanes {child}+{count} invalid"));
+            }
+            for (lane, slot) in covered.iter_mut().enumerate().skip(child).take(count) {
+                if std::mem::replace(slot, true) {
+                    return fail(i, format!("lane {lane} is in two leaves"));
+                }
+                if bvh.prim_ids[lane] == u32::MAX {
+                    return fail(i, format!("lane {lane} is empty but in a leaf"));
+                }
+                let tri = bvh.blocks[lane / 4].get(lane % 4);
+                if !tri.vertices().iter().all(|&p| contains_point(&b, p)) {
+                    return fail(i, format!("lane {lane}'s triangle sticks out of its leaf's box"));
+                }
+            }
+        }
+    }
+    if let Some(i) = visited.iter().position(|v| !v) {
+        return fail(i, "unreachable node".into());
+    }
+    if let Some(lane) = (0..covered.len()).find(|&l| !covered[l] && bvh.prim_ids[l] != u32::MAX) {
+        return fail(0, format!("lane {lane} holds a triangle but is in no leaf"));
+    }
+    Ok(())
+}
+
+/// The first (node, slot) holding a leaf (for tests that corrupt a tree).
+#[cfg(test)]
+pub(super) fn first_leaf_slot(wide: &[WideNode]) -> Option<(usize, usize)> {
+    wide.iter()
+        .enumerate()
+        .find_map(|(i, n)| (0..W).find(|&k| n.child[k] & LEAF != 0 && !n.is_unused(k)).map(|k| (i, k)))
+}
+
+/// Moves the upper x plane of slot `k` down by `by` (for tests that corrupt a tree).
+#[cfg(test)]
+pub(super) fn shrink_slot(node: &mut WideNode, k: usize, by: f32) {
+    node.bounds[3][k] -= by;
+}
+
+/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 8-wide nodes.
 ///
 /// A binary subtree with at most [`MAX_LEAF_SIZE`] triangles (contiguous in
 /// leaf order) becomes one leaf when the surface-area heuristic prefers it —
-/// `count · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
-/// wide node's box test is shared by four children.
-pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
+/// `LEAF_COST · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
+/// leaf's triangles are tested together and a wide node's box test is shared by
+/// eight children.
+pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
     // Triangle range (first, count), SAH cost and "make it a leaf" of every
     // binary subtree; children follow their parent, so a reverse sweep sees them first.
     let mut info = vec![Sub { first: 0, count: 0, cost: 0.0, leaf: true }; nodes.len()];
@@ -85,12 +208,12 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
         let n = &nodes[i];
         let area = n.bounds().area();
         info[i] = if n.is_leaf() {
-            Sub { first: n.offset, count: n.count, cost: n.count as f32 * area, leaf: true }
+            Sub { first: n.offset, count: n.count, cost: LEAF_COST * area, leaf: true }
         } else {
             let (l, r) = (info[i + 1], info[n.offset as usize]);
             let count = l.count + r.count;
             let split = MERGE_TRAVERSAL_COST * area + l.cost + r.cost;
-            let merged = count as f32 * area;
+            let merged = LEAF_COST * area;
             let leaf = count as usize <= MAX_LEAF_SIZE && merged <= split;
             Sub { first: l.first, count, cost: if leaf { merged } else { split }, leaf }
         };
@@ -99,10 +222,9 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
     match nodes.first() {
         None => {}
         Some(root) if info[0].leaf => {
-            let mut n = Node4::EMPTY;
+            let mut n = WideNode::EMPTY;
             n.set(0, root);
-            n.child[0] = info[0].first;
-            n.meta[0] = LEAF | info[0].count;
+            n.child[0] = leaf_word(info[0].first, info[0].count);
             out.push(n);
         }
         Some(_) => {
@@ -112,9 +234,33 @@ pub(super) fn collapse(nodes: &[Node]) -> Vec<Node4> {
     out
 }
 
+/// Moves the leaves' triangles (`tris`, input ids `ids`, in leaf order) into
+/// blocks, leaves in node order, and points every leaf slot at its lanes.
+/// Returns the blocks and the input id of every lane.
+pub(super) fn place_leaves(
+    wide: &mut [WideNode],
+    tris: &[PreTriangle],
+    ids: &[u32],
+) -> (Vec<TriBlock>, Vec<u32>) {
+    let slots: Vec<(usize, usize)> = (0..wide.len())
+        .flat_map(|i| (0..W).map(move |k| (i, k)))
+        .filter(|&(i, k)| wide[i].child[k] & LEAF != 0 && !wide[i].is_unused(k))
+        .collect();
+    let leaves: Vec<(u32, u32)> = slots.iter().map(|&(i, k)| leaf_range(wide[i].child[k])).collect();
+    let (blocks, lane_ids, starts) = blocks::pack(&leaves, tris, ids);
+    for ((&(i, k), start), &(_, count)) in slots.iter().zip(starts).zip(&leaves) {
+        wide[i].child[k] = leaf_word(start, count);
+    }
+    (blocks, lane_ids)
+}
+
 /// SAH cost of visiting a wide node's box, relative to one triangle test, when
 /// deciding whether to merge a small binary subtree into one leaf.
 const MERGE_TRAVERSAL_COST: f32 = 1.0;
+
+/// SAH cost of testing one leaf, in the same unit: its 1..=4 triangles are
+/// tested at once (see `blocks`), so the cost does not depend on how many.
+const LEAF_COST: f32 = 1.5;
 
 /// What [`collapse`] knows about one binary subtree.
 #[derive(Clone, Copy, Debug)]
@@ -126,13 +272,14 @@ struct Sub {
 }
 
 /// Appends the wide node for binary interior node `i` (and its subtree); returns its index.
-fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -> u32 {
+fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>) -> u32 {
     let is_leaf = |k: usize| info[k].leaf;
     let at = out.len();
-    out.push(Node4::EMPTY);
-    let mut kids = [i + 1, nodes[i].offset as usize, 0, 0];
+    out.push(WideNode::EMPTY);
+    let mut kids = [0usize; W];
+    (kids[0], kids[1]) = (i + 1, nodes[i].offset as usize);
     let mut len = 2;
-    while len < 4 {
+    while len < W {
         let mut pick: Option<(usize, f32)> = None;
         for (slot, &k) in kids[..len].iter().enumerate() {
             let area = nodes[k].bounds().area();
@@ -147,26 +294,24 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<Node4>) -
         kids[slot + 1] = nodes[k].offset as usize;
         len += 1;
     }
-    let mut node = Node4::EMPTY;
+    let mut node = WideNode::EMPTY;
     for (slot, &k) in kids[..len].iter().enumerate() {
         let n = &nodes[k];
         node.set(slot, n);
         if is_leaf(k) {
-            node.child[slot] = info[k].first;
-            node.meta[slot] = LEAF | info[k].count;
+            node.child[slot] = leaf_word(info[k].first, info[k].count);
         } else {
             node.child[slot] = collapse_node(nodes, info, k, out);
-            node.meta[slot] = 0;
         }
     }
     out[at] = node;
     at as u32
 }
 
-/// A ray prepared for wide box tests: per axis, which row of [`Node4::bounds`]
+/// A ray prepared for wide box tests: per axis, which row of [`WideNode::bounds`]
 /// holds the entry plane (the max plane when the direction is negative).
 #[derive(Clone, Copy, Debug)]
-struct WideRay {
+pub(super) struct WideRay {
     origin: [f32; 3],
     inv_dir: [f32; 3],
     near: [usize; 3],
@@ -176,7 +321,7 @@ struct WideRay {
 impl WideRay {
     /// `1 / ±0` gives `±inf`, so axis-parallel rays need no special case.
     #[inline(always)]
-    fn new(ray: &Ray) -> Self {
+    pub(super) fn new(ray: &Ray) -> Self {
         let inv = ray.dir.recip().to_array();
         // Sign bit, not `< 0`: -0 gives -inf, whose near plane is the max.
         let neg = |a: usize| inv[a].is_sign_negative() as usize;
@@ -208,8 +353,8 @@ fn min_keep(x: f32, acc: f32) -> f32 {
 /// plane of an axis the ray is parallel to; `max_keep`/`min_keep` then keep the
 /// running value, treating that slab as no constraint, which is conservative.
 #[inline(always)]
-fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
-    let mut out = [f32::INFINITY; 4];
+fn entries_scalar(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+    let mut out = [f32::INFINITY; W];
     let mut mask = 0;
     for (k, e) in out.iter_mut().enumerate() {
         let mut near = t_min;
@@ -228,18 +373,19 @@ fn entries_scalar(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4
     (out, mask)
 }
 
-/// [`entries_scalar`] for all four children at once with SSE (see the module
-/// docs for why the bits are the same).
+/// [`entries_scalar`] for four children at once (`at..at + 4`) with SSE (see
+/// the module docs for why the bits are the same); writes their entries to `out`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], u32) {
+fn entries_sse4(node: &WideNode, at: usize, r: &WideRay, t_min: f32, t_max: f32, out: &mut [f32; 4]) -> u32 {
     use std::arch::x86_64::*;
     // SAFETY: SSE and SSE2 are part of the x86_64 baseline, so these
     // instructions exist on every machine this code is compiled for; the loads
-    // and the store read/write exactly the 16 bytes of a `[f32; 4]` they are
-    // given a reference to (unaligned access is allowed).
+    // read 16 bytes at `at` of a `[f32; W]` row (`at + 4 <= W`, checked by the
+    // slice index) and the store writes the 16 bytes of `out` (unaligned access
+    // is allowed).
     unsafe {
-        let load = |a: &[f32; 4]| _mm_loadu_ps(a.as_ptr());
+        let load = |a: &[f32; W]| _mm_loadu_ps(a[at..at + 4].as_ptr());
         let mut near = _mm_set1_ps(t_min);
         let mut far = _mm_set1_ps(t_max);
         for a in 0..3 {
@@ -253,19 +399,76 @@ fn entries_sse(node: &Node4, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; 4], 
         }
         let hit = _mm_cmple_ps(near, _mm_mul_ps(far, _mm_set1_ps(ROBUST_EXIT)));
         let e = _mm_or_ps(_mm_and_ps(hit, near), _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)));
-        let mut out = [0.0f32; 4];
         _mm_storeu_ps(out.as_mut_ptr(), e);
-        (out, _mm_movemask_ps(hit) as u32)
+        _mm_movemask_ps(hit) as u32
     }
 }
 
-/// Box entries, and a mask with bit `k` set where child `k` is hit, with the
-/// SIMD path when `simd` is set and available.
+/// [`entries_scalar`] for all eight children with two SSE halves.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f32; 4], u32) {
+fn entries_sse(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+    let (mut lo, mut hi) = ([0.0f32; 4], [0.0f32; 4]);
+    let m = entries_sse4(node, 0, r, t_min, t_max, &mut lo)
+        | entries_sse4(node, 4, r, t_min, t_max, &mut hi) << 4;
+    let mut out = [0.0f32; W];
+    out[..4].copy_from_slice(&lo);
+    out[4..].copy_from_slice(&hi);
+    (out, m)
+}
+
+/// [`entries_scalar`] for all eight children at once with AVX: the 256-bit
+/// forms of the SSE instructions, which compute the same on every lane
+/// (`vmaxps`/`vminps` return the second operand on NaN like `maxps`/`minps`).
+///
+/// # Safety
+/// The CPU must support AVX; only call it from a function compiled with
+/// `#[target_feature(enable = "avx")]` after checking that.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn entries_avx(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees AVX; the loads read the 32 bytes of a
+    // `[f32; 8]` row and the store writes the 32 bytes of `out`.
+    unsafe {
+        let load = |a: &[f32; W]| _mm256_loadu_ps(a.as_ptr());
+        let mut near = _mm256_set1_ps(t_min);
+        let mut far = _mm256_set1_ps(t_max);
+        for a in 0..3 {
+            let o = _mm256_set1_ps(r.origin[a]);
+            let inv = _mm256_set1_ps(r.inv_dir[a]);
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(load(&node.bounds[r.near[a]]), o), inv);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(load(&node.bounds[r.far[a]]), o), inv);
+            near = _mm256_max_ps(t0, near);
+            far = _mm256_min_ps(t1, far);
+        }
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_EXIT)));
+        let e = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), near, hit);
+        let mut out = [0.0f32; W];
+        _mm256_storeu_ps(out.as_mut_ptr(), e);
+        (out, _mm256_movemask_ps(hit) as u32)
+    }
+}
+
+/// Box entries, and a mask with bit `k` set where child `k` is hit. `AVX` may
+/// only be set inside a function compiled for AVX on a machine that has it.
+#[inline(always)]
+pub(super) fn entries<const AVX: bool>(
+    node: &WideNode,
+    r: &WideRay,
+    t_min: f32,
+    t_max: f32,
+    simd: bool,
+) -> ([f32; W], u32) {
     #[cfg(target_arch = "x86_64")]
-    if simd {
-        return entries_sse(node, r, t_min, t_max);
+    {
+        if AVX {
+            // SAFETY: `AVX` is only set by the AVX entry points, which check the CPU.
+            return unsafe { entries_avx(node, r, t_min, t_max) };
+        }
+        if simd {
+            return entries_sse(node, r, t_min, t_max);
+        }
     }
     let _ = simd;
     entries_scalar(node, r, t_min, t_max)
@@ -274,34 +477,67 @@ fn entries(node: &Node4, r: &WideRay, t_min: f32, t_max: f32, simd: bool) -> ([f
 /// True when this build has a SIMD box test (x86_64: SSE2, always present).
 pub(super) const SIMD_AVAILABLE: bool = cfg!(target_arch = "x86_64");
 
-/// Most entries a traversal stack holds: a wide node pushes at most three of
-/// its children and descends into the fourth, at most [`MAX_DEPTH`] levels deep.
-const STACK: usize = 3 * MAX_DEPTH + 4;
+/// Most entries a traversal stack holds: a wide node pushes at most `W - 1` of
+/// its children and descends into another, at most [`MAX_DEPTH`] levels deep.
+const STACK: usize = (W - 1) * MAX_DEPTH + W;
 
 /// Fixed-size, uninitialised traversal stack (of wide node indices, with
 /// their entry distances for nearest-hit queries): no per-ray memset.
-struct Stack<T: Copy> {
+pub(super) struct Stack<T: Copy> {
     items: [MaybeUninit<T>; STACK],
     len: usize,
 }
 
 impl<T: Copy> Stack<T> {
     #[inline(always)]
-    fn new() -> Self {
+    pub(super) fn new() -> Self {
         Stack { items: [const { MaybeUninit::uninit() }; STACK], len: 0 }
     }
 
     #[inline(always)]
-    fn push(&mut self, item: T) {
+    pub(super) fn push(&mut self, item: T) {
         self.items[self.len] = MaybeUninit::new(item);
         self.len += 1;
     }
 
     #[inline(always)]
-    fn pop(&mut self) -> Option<T> {
+    pub(super) fn pop(&mut self) -> Option<T> {
         self.len = self.len.checked_sub(1)?;
         // SAFETY: every slot below the length was written by `push`.
         Some(unsafe { self.items[self.len].assume_init() })
+    }
+}
+
+/// A ray prepared for the triangle tests of leaves.
+pub(super) struct LeafRay<'a> {
+    ray: &'a Ray,
+    #[cfg(target_arch = "x86_64")]
+    sse: blocks::RaySse,
+    simd: bool,
+}
+
+impl<'a> LeafRay<'a> {
+    #[inline(always)]
+    pub(super) fn new(ray: &'a Ray, simd: bool) -> Self {
+        LeafRay {
+            ray,
+            #[cfg(target_arch = "x86_64")]
+            sse: blocks::RaySse::new(ray),
+            simd,
+        }
+    }
+
+    /// Hits on leaf `(first lane, count)`.
+    #[inline(always)]
+    pub(super) fn hits(&self, blocks: &[TriBlock], first: u32, count: u32, t_min: f32, t_max: f32) -> Hits4 {
+        let block = &blocks[(first / 4) as usize];
+        let lanes = ((1u32 << count) - 1) << (first % 4);
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            return blocks::hits_sse(block, &self.sse, t_min, t_max, lanes);
+        }
+        let _ = self.simd;
+        blocks::hits_scalar(block, self.ray, t_min, t_max, lanes)
     }
 }
 
@@ -310,35 +546,63 @@ impl<T: Copy> Stack<T> {
 /// At each node the hit leaves are tested at once (in lane order: the order
 /// only decides between hits at bit-identical `t`, and it is the same on every
 /// machine); of the hit interior children still in front of the best hit, the
-/// nearest is visited next and the others are pushed, farthest first.
+/// nearest is visited next and the others are pushed, farthest first. Within a
+/// leaf, the nearest lane wins, the lowest lane on ties — what testing the
+/// lanes one after another with a shrinking `t_max` would give.
 pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+    #[cfg(target_arch = "x86_64")]
+    if bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        return unsafe { intersect_avx(bvh, ray, t_min, t_max) };
+    }
+    intersect_with::<false>(bvh, ray, t_min, t_max)
+}
+
+/// [`intersect`] compiled for AVX.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn intersect_avx(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+    intersect_with::<true>(bvh, ray, t_min, t_max)
+}
+
+/// [`intersect`] with the AVX box test when `AVX` is set (see [`entries`]).
+#[inline(always)]
+fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
     let wide = &bvh.wide[..];
     if wide.is_empty() {
         return None;
     }
     let simd = !bvh.scalar_only;
     let r = WideRay::new(ray);
-    let tris = &bvh.tris[..];
+    let lr = LeafRay::new(ray, simd);
+    let blocks = &bvh.blocks[..];
     let mut best_t = t_max;
-    let mut best: Option<(usize, f32, f32)> = None;
+    let mut best: Option<(u32, f32, f32)> = None;
     let mut stack = Stack::<(u32, f32)>::new();
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
-        let (e, mut mask) = entries(node, &r, t_min, best_t, simd);
+        let (e, mut mask) = entries::<AVX>(node, &r, t_min, best_t, simd);
         let mut inner = 0u32;
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let meta = node.meta[k];
-            if meta == 0 {
+            let word = node.child[k];
+            if word & LEAF == 0 {
                 inner |= 1 << k;
             } else if e[k] <= best_t * ROBUST_EXIT {
-                let first = node.child[k] as usize;
-                for (i, tri) in tris[first..first + (meta & !LEAF) as usize].iter().enumerate() {
-                    if let Some((t, u, v)) = test(tri, ray, t_min, best_t) {
-                        best_t = t;
-                        best = Some((first + i, u, v));
+                let (first, count) = leaf_range(word);
+                let h = lr.hits(blocks, first, count, t_min, best_t);
+                let mut m = h.mask;
+                while m != 0 {
+                    let lane = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if h.t[lane] < best_t {
+                        best_t = h.t[lane];
+                        best = Some(((first & !3) + lane as u32, h.u[lane], h.v[lane]));
                     }
                 }
             }
@@ -346,7 +610,7 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
         // Interior children still in front of the best hit, nearest first
         // (stable on ties, so deterministic).
         let limit = best_t * ROBUST_EXIT;
-        let mut order = [(0.0f32, 0u32); 4];
+        let mut order = [(0.0f32, 0u32); W];
         let mut n = 0;
         while inner != 0 {
             let k = inner.trailing_zeros() as usize;
@@ -372,7 +636,14 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
         }
         current = loop {
             match stack.pop() {
-                None => return best.map(|(k, u, v)| Hit { t: best_t, u, v, prim: bvh.prim_ids[k] }),
+                None => {
+                    return best.map(|(lane, u, v)| Hit {
+                        t: best_t,
+                        u,
+                        v,
+                        prim: bvh.prim_ids[lane as usize],
+                    });
+                }
                 Some((c, t)) if t <= best_t * ROBUST_EXIT => break c,
                 Some(_) => {}
             }
@@ -380,37 +651,51 @@ pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<
     }
 }
 
-#[inline(always)]
-fn test(tri: &PreTriangle, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
-    moller_trumbore(tri.v0, tri.e1, tri.e2, ray, t_min, t_max)
-}
-
 /// Any hit (see [`Bvh::occluded`]).
 pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        return unsafe { occluded_avx(bvh, ray, t_min, t_max) };
+    }
+    occluded_with::<false>(bvh, ray, t_min, t_max)
+}
+
+/// [`occluded`] compiled for AVX.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn occluded_avx(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    occluded_with::<true>(bvh, ray, t_min, t_max)
+}
+
+/// [`occluded`] with the AVX box test when `AVX` is set (see [`entries`]).
+#[inline(always)]
+fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     let wide = &bvh.wide[..];
     if wide.is_empty() {
         return false;
     }
     let simd = !bvh.scalar_only;
     let r = WideRay::new(ray);
-    let tris = &bvh.tris[..];
+    let lr = LeafRay::new(ray, simd);
+    let blocks = &bvh.blocks[..];
     let mut stack = Stack::<u32>::new();
     let mut current = 0u32;
     loop {
         let node = &wide[current as usize];
-        let (_, mut mask) = entries(node, &r, t_min, t_max, simd);
+        let (_, mut mask) = entries::<AVX>(node, &r, t_min, t_max, simd);
         let mut next = None;
         while mask != 0 {
             let k = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let (meta, child) = (node.meta[k], node.child[k]);
-            if meta != 0 {
-                let first = child as usize;
-                let leaf = &tris[first..first + (meta & !LEAF) as usize];
-                for tri in leaf {
-                    if moller_trumbore_any(tri.v0, tri.e1, tri.e2, ray, t_min, t_max) {
-                        return true;
-                    }
+            let child = node.child[k];
+            if child & LEAF != 0 {
+                let (first, count) = leaf_range(child);
+                if lr.hits(blocks, first, count, t_min, t_max).mask != 0 {
+                    return true;
                 }
             } else if next.is_none() {
                 next = Some(child);
@@ -431,8 +716,19 @@ mod tests {
     use crate::sampling::Sampler;
     use glam::Vec3;
 
+    /// [`entries_avx`] compiled for AVX.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    unsafe fn avx_entries_for_test(node: &WideNode, r: &WideRay, t_min: f32, t_max: f32) -> ([f32; W], u32) {
+        // SAFETY: this function is compiled for AVX and the caller checked the CPU.
+        unsafe { entries_avx(node, r, t_min, t_max) }
+    }
+
     #[test]
-    fn sse_and_scalar_box_tests_agree_bit_for_bit() {
+    fn avx_sse_and_scalar_box_tests_agree_bit_for_bit() {
         // Random boxes and rays, including axis-parallel directions, origins on
         // box planes and empty slots.
         let s = Sampler::new(1, 2, 3, 4);
@@ -442,8 +738,8 @@ mod tests {
             s.get(d) * 8.0 - 4.0
         };
         for i in 0..20_000 {
-            let mut node = Node4::EMPTY;
-            for k in 0..(1 + i % 4) {
+            let mut node = WideNode::EMPTY;
+            for k in 0..(1 + i % W) {
                 let (a, b) = (Vec3::new(next(), next(), next()), Vec3::new(next(), next(), next()));
                 let n = Node { min: a.min(b).to_array(), offset: 0, max: a.max(b).to_array(), count: 1 };
                 node.set(k, &n);
@@ -458,10 +754,17 @@ mod tests {
             }
             let r = WideRay::new(&Ray::new(origin, dir));
             let (t_min, t_max) = (0.0, if i % 3 == 0 { f32::INFINITY } else { next().abs() * 2.0 });
-            let (a, ma) = entries(&node, &r, t_min, t_max, true);
+            let (a, ma) = entries::<false>(&node, &r, t_min, t_max, true);
             let (b, mb) = entries_scalar(&node, &r, t_min, t_max);
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "case {i}");
             assert_eq!(ma, mb, "case {i}");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx") {
+                // SAFETY: the CPU has AVX (checked just above).
+                let (c, mc) = unsafe { avx_entries_for_test(&node, &r, t_min, t_max) };
+                assert_eq!(c.map(f32::to_bits), b.map(f32::to_bits), "case {i} (AVX)");
+                assert_eq!(mc, mb, "case {i} (AVX)");
+            }
             for (k, t) in a.iter().enumerate() {
                 assert_eq!(ma & (1 << k) != 0, *t != f32::INFINITY, "case {i}: mask matches entries");
             }
@@ -478,26 +781,29 @@ mod tests {
             }
         }
         let bvh = Bvh::build(&tris);
-        let interior = bvh.nodes.iter().filter(|n| !n.is_leaf()).count();
+        let (nodes, _, _) = super::super::build::binary(&tris);
+        let interior = nodes.iter().filter(|n| !n.is_leaf()).count();
         let (mut wide_leaves, mut used) = (0, 0);
-        let mut seen = vec![0u32; bvh.tris.len()];
+        let mut seen = vec![0u32; bvh.prim_ids.len()];
         for n in &bvh.wide {
-            used += n.meta.iter().filter(|&&m| m != LEAF).count();
-            for k in 0..4 {
-                if n.meta[k] != 0 && n.meta[k] != LEAF {
+            used += (0..W).filter(|&k| !n.is_unused(k)).count();
+            for k in 0..W {
+                if n.child[k] & LEAF != 0 && !n.is_unused(k) {
                     wide_leaves += 1;
-                    let first = n.child[k] as usize;
-                    seen[first..first + (n.meta[k] & !LEAF) as usize].iter_mut().for_each(|s| *s += 1);
+                    let (first, count) = leaf_range(n.child[k]);
+                    seen[first as usize..(first + count) as usize].iter_mut().for_each(|s| *s += 1);
                 }
             }
         }
-        assert!(seen.iter().all(|&s| s == 1), "every triangle in exactly one wide leaf");
+        for (lane, &s) in seen.iter().enumerate() {
+            assert_eq!(s, (bvh.prim_ids[lane] != u32::MAX) as u32, "every triangle in exactly one wide leaf");
+        }
         // Every wide node but the root fills one slot of its parent.
         assert_eq!(used, bvh.wide.len() - 1 + wide_leaves);
-        // Each wide node absorbs more than 1.5 binary interior nodes on average
-        // (3 when the tree is full; a subtree ending in two leaves absorbs 1).
+        // Each wide node absorbs more than 3 binary interior nodes on average
+        // (7 when the tree is full; a subtree ending in two leaves absorbs 1).
         assert!(
-            bvh.wide.len() * 3 < interior * 2,
+            bvh.wide.len() * 3 < interior,
             "{} wide for {interior} binary interior nodes",
             bvh.wide.len()
         );
