@@ -122,9 +122,10 @@ fn run_cluster(args: &RenderArgs, ticket: &str) -> anyhow::Result<()> {
     println!("resolution {}x{}", frame.width, frame.height);
     let per: Vec<String> = stats.per_slave.iter().map(|(k, n)| format!("{k}: {n}")).collect();
     println!(
-        "tiles      {} ({}), {} duplicated, {} requeued",
+        "tiles      {} ({}), {} moved, {} duplicated, {} requeued",
         stats.tiles,
         per.join(", "),
+        stats.moved,
         stats.duplicated,
         stats.requeued
     );

@@ -292,9 +292,10 @@ impl Master {
                     if let Some(spec) = self.frame.take_if(|f| f.id == frame) {
                         tracing::info!(
                             frame,
-                            "frame done in {:.1} ms: {} tiles, {} duplicated, {} requeued",
+                            "frame done in {:.1} ms: {} tiles, {} moved, {} duplicated, {} requeued",
                             stats.micros as f64 / 1e3,
                             stats.tiles,
+                            stats.moved,
                             stats.duplicated,
                             stats.requeued
                         );

@@ -207,6 +207,10 @@ pub struct FrameStats {
     pub duplicated: u32,
     /// Tiles put back in the queue because their slave died.
     pub requeued: u32,
+    /// Tiles still waiting in one slave's queue that were moved to an idle
+    /// slave at the end of the frame.
+    #[serde(default)]
+    pub moved: u32,
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
     /// Bytes the master received from all peers while the frame was open

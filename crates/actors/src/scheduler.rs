@@ -16,6 +16,12 @@
 //! - **Smaller tiles at the end.** When fewer tiles remain queued than the
 //!   cluster has threads, the next tile is split in four (down to
 //!   [`SchedulerConfig::min_tile_size`]) so the frame does not wait on one big tile.
+//! - **No queues at the end.** Once no more tiles are queued than the cluster
+//!   has threads, slaves are only topped up to one tile per thread (no
+//!   `queue_depth`), and when the queue is empty a slave with an idle thread
+//!   takes over the newest tile still waiting behind busy threads on another
+//!   slave (that slave is told to cancel it; its queued jobs are skipped). A
+//!   tile waiting on one slave while another idles is the frame's tail.
 //! - **Stragglers.** When the queue is empty but the frame is open, a slave with
 //!   an idle thread gets a copy of the oldest outstanding tile that has been
 //!   out longer than the frame's mean turnaround; the first result wins and the
@@ -492,7 +498,8 @@ impl Scheduler {
             let mut progressed = false;
             for id in &order {
                 let s = self.slaves.get_mut(id).expect("ordered ids are live");
-                if s.in_flight.len() >= (s.threads + cfg.queue_depth) as usize {
+                let depth = if f.queue.len() > total_threads { cfg.queue_depth } else { 0 };
+                if s.in_flight.len() >= (s.threads + depth) as usize {
                     continue;
                 }
                 let Some(tile) = next_tile(f, cfg, total_threads) else { break 'rounds };
@@ -510,6 +517,9 @@ impl Scheduler {
             if !progressed {
                 break;
             }
+        }
+        if f.queue.is_empty() {
+            move_waiting_tiles(&mut self.slaves, f, &order, now, &mut batches, &mut self.outputs);
         }
         if cfg.duplicate_stragglers && f.queue.is_empty() && f.turnaround_n > 0 {
             let mean = f.turnaround_sum / f.turnaround_n;
@@ -540,6 +550,53 @@ impl Scheduler {
         for (slave, tiles) in batches {
             let reassigned = reassigned.get(&slave).copied().unwrap_or(0);
             self.outputs.push_back(Output::Assign { slave, frame: f.id, tiles, reassigned });
+        }
+    }
+}
+
+/// Gives each slave with an idle thread the newest tile waiting behind busy
+/// threads on another slave (the most backed-up one first), and tells that
+/// slave to cancel it.
+fn move_waiting_tiles(
+    slaves: &mut BTreeMap<SlaveId, SlaveState>,
+    f: &mut FrameState,
+    order: &[SlaveId],
+    now: Duration,
+    batches: &mut BTreeMap<SlaveId, Vec<TileJob>>,
+    outputs: &mut VecDeque<Output>,
+) {
+    for id in order {
+        while slaves.get(id).is_some_and(|s| s.in_flight.len() < s.threads as usize) {
+            // The slave with the most tiles beyond its threads.
+            let victim = slaves
+                .iter()
+                .filter(|(v, _)| *v != id)
+                .map(|(&v, s)| (s.in_flight.len().saturating_sub(s.threads as usize), v))
+                .filter(|&(waiting, _)| waiting > 0)
+                .max();
+            let Some((_, victim)) = victim else { return };
+            let vs = slaves.get_mut(&victim).expect("victim is live");
+            // Its newest sole-held tile: the one furthest back in its queue.
+            let newest = vs
+                .in_flight
+                .iter()
+                .copied()
+                .filter(|&t| {
+                    f.tiles
+                        .get(t as usize)
+                        .is_some_and(|r| r.state == TileState::InFlight && r.holders.as_slice() == [victim])
+                })
+                .max_by_key(|&t| (f.tiles[t as usize].assigned_at, t));
+            let Some(tile) = newest else { return };
+            vs.in_flight.remove(&tile);
+            outputs.push_back(Output::Cancel { slave: victim, frame: f.id, tiles: vec![tile] });
+            let rec = &mut f.tiles[tile as usize];
+            rec.holders = vec![*id];
+            rec.assigned_at = now;
+            f.stats.moved += 1;
+            let s = slaves.get_mut(id).expect("ordered ids are live");
+            s.in_flight.insert(tile);
+            batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
         }
     }
 }

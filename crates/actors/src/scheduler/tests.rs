@@ -335,6 +335,36 @@ fn newer_frame_supersedes_and_stale_results_are_dropped() {
 }
 
 #[test]
+fn tiles_waiting_on_a_busy_slave_move_to_an_idle_one() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    let _fast = sim.join(1, 1);
+    let slow = sim.join(1, 100); // 102 ms per 32x32 tile
+    sim.frame(1, 128, 64);
+    let queued_on_slow = sim.slaves[&slow].queue.len();
+    assert!(queued_on_slow > 1, "the slow slave starts with tiles queued: {queued_on_slow}");
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+    let stats = &sim.log.done[0].1;
+    assert!(stats.moved as usize >= queued_on_slow - 1, "{stats:?}");
+    assert_eq!(stats.per_slave.get(&format!("sim{slow}")), Some(&1), "{stats:?}");
+    // One slow tile, not every tile the slow slave was first given.
+    assert!(sim.now < Duration::from_millis(150), "took {:?}", sim.now);
+}
+
+#[test]
+fn near_the_end_of_a_frame_slaves_get_one_tile_per_thread() {
+    let no_split = SchedulerConfig { duplicate_stragglers: false, min_tile_size: 32, ..cfg() };
+    let mut sim = Sim::new(no_split);
+    let a = sim.join(2, 1);
+    let b = sim.join(2, 1);
+    sim.frame(1, 96, 64); // 6 tiles for 4 threads: the 2 left wait at the master
+    let held: usize = [a, b].iter().map(|id| sim.slaves[id].queue.len()).sum();
+    assert_eq!(held, 4, "one per thread, none queued behind one: {:?}", sim.sched.slaves());
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    sim.assert_exact_cover(1);
+}
+
+#[test]
 fn idle_slave_duplicates_the_straggler_and_first_result_wins() {
     let mut sim = Sim::new(cfg());
     let fast = sim.join(1, 1);
