@@ -2,6 +2,7 @@
 
 mod assets;
 mod cli;
+mod netlab;
 
 fn main() -> anyhow::Result<()> {
     cli::run()
