@@ -19,9 +19,6 @@ mod transports;
 
 use clap::{Args, Subcommand};
 
-#[cfg(test)]
-pub use procs::cpu_secs_of;
-
 /// Arguments of `isin bench`.
 #[derive(Args, Debug)]
 pub struct BenchArgs {
