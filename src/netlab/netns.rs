@@ -110,11 +110,13 @@ fn switch_name() -> String {
 
 impl Lab {
     /// Builds the LAN for `slaves` slaves with every cable shaped as `link`.
-    /// Removes leftovers of an earlier run first.
+    /// Removes namespaces left by an earlier run first (see also
+    /// [`cleanup_stale`](super::cleanup_stale), which removes cgroups too).
     pub fn new(slaves: usize, link: LinkSpec) -> anyhow::Result<Lab> {
         anyhow::ensure!(slaves <= 200, "at most 200 slaves in the lab");
-        for gone in super::cleanup_stale() {
-            tracing::warn!("removed {gone}, left over from an earlier run");
+        for ns in list_namespaces().into_iter().filter(|n| n.starts_with(PREFIX)) {
+            tracing::warn!("removing namespace {ns}, left over from an earlier run");
+            remove_namespace(&ns);
         }
         let mut lab = Lab {
             switch: switch_name(),
@@ -300,26 +302,21 @@ pub fn enter(ns: &str) -> anyhow::Result<()> {
 
 /// A command for `exe args…` that runs in namespace `ns` (when given) and in
 /// the cgroup whose `cgroup.procs` is `procs` (when given). The process id of
-/// the returned command's child is that of `exe` itself (`ip netns exec` and
-/// the shell both exec).
+/// the returned command's child is that of `exe` itself (the shell and `ip
+/// netns exec` both exec). The shell joins the cgroup before entering the
+/// namespace: `ip netns exec` mounts the namespace's own `/sys`, without cgroups.
 pub fn command(ns: Option<&str>, procs: Option<&std::path::Path>, exe: &std::path::Path, args: &[String]) -> Command {
-    let script = match procs {
-        Some(p) => format!("echo $$ > '{}' && exec \"$0\" \"$@\"", p.display()),
-        None => "exec \"$0\" \"$@\"".to_string(),
-    };
-    let mut cmd = match ns {
-        Some(ns) => {
-            let mut c = Command::new("ip");
-            c.args(["netns", "exec", ns, "sh", "-c", &script]);
-            c
-        }
-        None => {
-            let mut c = Command::new("sh");
-            c.args(["-c", &script]);
-            c
-        }
-    };
-    cmd.arg(exe).args(args);
+    let mut script = String::new();
+    if let Some(p) = procs {
+        script.push_str(&format!("echo $$ > '{}' && ", p.display()));
+    }
+    script.push_str("exec ");
+    if let Some(ns) = ns {
+        script.push_str(&format!("ip netns exec '{ns}' "));
+    }
+    script.push_str("\"$0\" \"$@\"");
+    let mut cmd = Command::new("sh");
+    cmd.args(["-c", &script]).arg(exe).args(args);
     cmd
 }
 

@@ -60,6 +60,17 @@ impl ChildGuard {
         }
     }
 
+    /// The stderr lines not consumed yet (the last `n`).
+    pub fn tail(&self, n: usize) -> Vec<String> {
+        let all: Vec<String> = self.lines.try_iter().map(|(_, l)| l).collect();
+        all[all.len().saturating_sub(n)..].to_vec()
+    }
+
+    /// Whether the process has exited (with its status).
+    pub fn exited(&mut self) -> Option<std::process::ExitStatus> {
+        self.child.try_wait().ok().flatten()
+    }
+
     /// The process id.
     pub fn pid(&self) -> u32 {
         self.child.id()
@@ -126,6 +137,29 @@ pub fn start_slave(
     args.extend_from_slice(extra);
     let procs = cgroup.map(CpuCgroup::procs_file);
     Ok(ChildGuard::spawn_cmd(netlab::netns::command(ns, procs.as_deref(), &exe, &args))?.0)
+}
+
+/// Waits until the master logged `n` slaves joined; fails early when a slave exits.
+pub fn wait_joined(master: &ChildGuard, slaves: &mut [ChildGuard], timeout: Duration) -> anyhow::Result<()> {
+    let deadline = Instant::now() + timeout;
+    let mut joined = 0;
+    while joined < slaves.len() {
+        if let Some((i, status)) = slaves.iter_mut().enumerate().find_map(|(i, s)| s.exited().map(|st| (i, st))) {
+            anyhow::bail!("slave {} exited ({status}) before joining: {:?}", i + 1, slaves[i].tail(5));
+        }
+        if Instant::now() >= deadline {
+            anyhow::bail!(
+                "only {joined} of {} slaves joined within {timeout:?}; master: {:?}; slave 1: {:?}",
+                slaves.len(),
+                master.tail(5),
+                slaves[0].tail(5)
+            );
+        }
+        if master.wait_for("joined with", Duration::from_millis(500)).is_ok() {
+            joined += 1;
+        }
+    }
+    Ok(())
 }
 
 /// CPU seconds (user + system) from a `/proc/…/stat` file's contents at `path`.

@@ -17,7 +17,7 @@
 //! cgroup's `cpu.stat`) and idle (no tile to render).
 
 use super::modes;
-use super::procs::{ChildGuard, SchedStat, cpu_secs, start_master, start_slave};
+use super::procs::{ChildGuard, SchedStat, cpu_secs, start_master, start_slave, wait_joined};
 use super::report::{self, Series, median, quantile};
 use super::{loadavg, parse_list, parse_sizes};
 use crate::cli::cluster;
@@ -225,6 +225,9 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
         }
     } else {
         netlab::install_signal_cleanup()?;
+        for gone in netlab::cleanup_stale() {
+            println!("removed {gone}, left over from an earlier run");
+        }
     }
     let cpu_total = args.cpu_total.unwrap_or(cores as f64);
     let share = cpu_total / n_max as f64;
@@ -346,9 +349,7 @@ fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow:
         let ns = lab.and_then(|l| l.slave(i)).map(|h| h.ns.as_str());
         slaves.push(start_slave(ns, cgroups.get(i), &ticket, 1, &format!("pc{}", i + 1), &[])?);
     }
-    for _ in 0..spec.n {
-        master.wait_for("joined with", Duration::from_secs(120))?;
-    }
+    wait_joined(&master, &mut slaves, Duration::from_secs(120))?;
     let (master_pid, slave_pids): (String, Vec<u32>) =
         (master.pid().to_string(), slaves.iter().map(ChildGuard::pid).collect());
     let snapshot = || Snapshot {
