@@ -2,6 +2,7 @@
 
 mod assets;
 mod cli;
+mod frame_cache;
 mod netlab;
 
 fn main() -> anyhow::Result<()> {

@@ -89,6 +89,7 @@ impl CpuCgroup {
     }
 
     /// Moves process `pid` (all its threads) into the cgroup.
+    #[cfg(test)]
     pub fn add(&self, pid: u32) -> anyhow::Result<()> {
         self.write("cgroup.procs", &pid.to_string())
     }

@@ -275,7 +275,8 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                         };
                         let r = run_once(lab.as_ref(), &cgroups, &spec)
                             .with_context(|| format!("{w}x{h} {transport}/{compression}, {n} slaves"))?;
-                        let base = group.first().map(|b: &Row| b.sec_median);
+                        // Speedup against the smallest N, taken as linear up to there.
+                        let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
                         let row = make_row(&spec, rate, cgroups.first().map(CpuCgroup::share), &r, base);
                         println!(
                             "{w}x{h} {transport}/{compression} N={n:>2}: {:.3} s/frame (p95 {:.3}), {:.2} fps, \
@@ -397,7 +398,7 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
     let frames = r.secs.len();
     let wall = (r.after.at - r.before.at).as_secs_f64().max(1e-9);
     let sec_median = median(&r.secs);
-    let speedup = base.map_or(1.0, |b| b / sec_median.max(1e-9));
+    let speedup = base.map_or(n as f64, |b| b / sec_median.max(1e-9));
     let efficiency = speedup / n as f64;
     let bytes_per_frame = r.bytes_in.iter().sum::<u64>() as f64 / frames.max(1) as f64;
     let iface = match (&r.before.iface, &r.after.iface) {
