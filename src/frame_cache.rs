@@ -51,7 +51,12 @@ impl<R: Renderer> FrameCache<R> {
     }
 
     /// The whole frame for `camera` and `settings`: from memory, disk, or rendered now.
-    fn frame(&self, scene: &(SceneHash, R::Scene), camera: &Camera, settings: &RenderSettings) -> Arc<Vec<u8>> {
+    fn frame(
+        &self,
+        scene: &(SceneHash, R::Scene),
+        camera: &Camera,
+        settings: &RenderSettings,
+    ) -> Arc<Vec<u8>> {
         let key = Self::key(&scene.0, camera, settings);
         let slot: Slot = {
             let mut frames = self.frames.lock().unwrap_or_else(|e| e.into_inner());
@@ -64,7 +69,9 @@ impl<R: Renderer> FrameCache<R> {
                 fresh = true;
                 let len = settings.width as usize * settings.height as usize * 3;
                 let file = self.dir.as_ref().map(|d| d.join(format!("{}.rgb", hex(&key))));
-                if let Some(bytes) = file.as_ref().and_then(|f| std::fs::read(f).ok()).filter(|b| b.len() == len) {
+                if let Some(bytes) =
+                    file.as_ref().and_then(|f| std::fs::read(f).ok()).filter(|b| b.len() == len)
+                {
                     return Arc::new(bytes);
                 }
                 let whole = Tile { x: 0, y: 0, w: settings.width, h: settings.height };
@@ -138,7 +145,11 @@ mod tests {
         let camera = Camera::default();
         let settings = RenderSettings { width: 40, height: 30, ..Default::default() };
         let reference = Pattern::default();
-        for tile in [Tile { x: 0, y: 0, w: 32, h: 30 }, Tile { x: 32, y: 8, w: 8, h: 8 }, Tile { x: 5, y: 7, w: 1, h: 1 }] {
+        for tile in [
+            Tile { x: 0, y: 0, w: 32, h: 30 },
+            Tile { x: 32, y: 8, w: 8, h: 8 },
+            Tile { x: 5, y: 7, w: 1, h: 1 },
+        ] {
             let got = cache.render(&scene, &camera, &settings, tile);
             assert_eq!(got, reference.render(&String::new(), &camera, &settings, tile), "{tile:?}");
         }

@@ -63,11 +63,7 @@ impl Support {
         } else {
             Ok(())
         };
-        let cpu_quota = if !root {
-            not_root()
-        } else {
-            cgroup::probe()
-        };
+        let cpu_quota = if !root { not_root() } else { cgroup::probe() };
         Support { netns, loss, cpu_quota }
     }
 
@@ -100,11 +96,7 @@ fn tool_works(tool: &str, args: &[&str]) -> bool {
 pub(crate) fn run(cmd: &str, args: &[&str]) -> anyhow::Result<String> {
     let out = Command::new(cmd).args(args).output().with_context(|| format!("cannot run {cmd}"))?;
     if !out.status.success() {
-        anyhow::bail!(
-            "`{cmd} {}` failed: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&out.stderr).trim()
-        );
+        anyhow::bail!("`{cmd} {}` failed: {}", args.join(" "), String::from_utf8_lossy(&out.stderr).trim());
     }
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
@@ -117,7 +109,8 @@ struct Registry {
     pids: Vec<u32>,
 }
 
-static REGISTRY: Mutex<Registry> = Mutex::new(Registry { namespaces: Vec::new(), cgroups: Vec::new(), pids: Vec::new() });
+static REGISTRY: Mutex<Registry> =
+    Mutex::new(Registry { namespaces: Vec::new(), cgroups: Vec::new(), pids: Vec::new() });
 
 fn registry() -> std::sync::MutexGuard<'static, Registry> {
     REGISTRY.lock().unwrap_or_else(|e| e.into_inner())
@@ -190,7 +183,8 @@ pub fn install_signal_cleanup() -> anyhow::Result<()> {
     std::thread::Builder::new().name("isin-lab-signals".into()).spawn(move || {
         rt.block_on(async {
             use tokio::signal::unix::{SignalKind, signal};
-            let (Ok(mut int), Ok(mut term)) = (signal(SignalKind::interrupt()), signal(SignalKind::terminate()))
+            let (Ok(mut int), Ok(mut term)) =
+                (signal(SignalKind::interrupt()), signal(SignalKind::terminate()))
             else {
                 tracing::warn!("cannot watch signals: the lab is cleaned at the next start instead");
                 return;
@@ -205,6 +199,13 @@ pub fn install_signal_cleanup() -> anyhow::Result<()> {
         })
     })?;
     Ok(())
+}
+
+/// Lab tests share fixed names: run them one at a time.
+#[cfg(test)]
+pub(crate) fn tests_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 #[cfg(test)]
@@ -228,11 +229,4 @@ mod tests {
         let e = run("sh", &["-c", "echo boom >&2; exit 3"]).unwrap_err().to_string();
         assert!(e.contains("boom"), "{e}");
     }
-}
-
-/// Lab tests share fixed names: run them one at a time.
-#[cfg(test)]
-pub(crate) fn tests_lock() -> std::sync::MutexGuard<'static, ()> {
-    static LOCK: Mutex<()> = Mutex::new(());
-    LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }

@@ -140,7 +140,10 @@ impl Lab {
             lab.add_namespace(&host.ns)?;
             run(
                 "ip",
-                &["-n", &sw, "link", "add", &host.port, "type", "veth", "peer", "name", "eth0", "netns", &host.ns],
+                &[
+                    "-n", &sw, "link", "add", &host.port, "type", "veth", "peer", "name", "eth0", "netns",
+                    &host.ns,
+                ],
             )?;
             run("ip", &["-n", &sw, "link", "set", &host.port, "master", "br0", "up"])?;
             run("ip", &["-n", &host.ns, "addr", "add", &format!("{}/24", host.addr), "dev", "eth0"])?;
@@ -305,7 +308,12 @@ pub fn enter(ns: &str) -> anyhow::Result<()> {
 /// the returned command's child is that of `exe` itself (the shell and `ip
 /// netns exec` both exec). The shell joins the cgroup before entering the
 /// namespace: `ip netns exec` mounts the namespace's own `/sys`, without cgroups.
-pub fn command(ns: Option<&str>, procs: Option<&std::path::Path>, exe: &std::path::Path, args: &[String]) -> Command {
+pub fn command(
+    ns: Option<&str>,
+    procs: Option<&std::path::Path>,
+    exe: &std::path::Path,
+    args: &[String],
+) -> Command {
     let mut script = String::new();
     if let Some(p) = procs {
         script.push_str(&format!("echo $$ > '{}' && ", p.display()));
@@ -351,7 +359,8 @@ mod tests {
 
     #[test]
     fn command_without_namespace_runs_the_program_with_its_arguments() {
-        let out = command(None, None, std::path::Path::new("echo"), &["a b".into(), "c".into()]).output().unwrap();
+        let out =
+            command(None, None, std::path::Path::new("echo"), &["a b".into(), "c".into()]).output().unwrap();
         assert_eq!(String::from_utf8_lossy(&out.stdout), "a b c\n");
     }
 

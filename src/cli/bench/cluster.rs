@@ -5,8 +5,8 @@
 
 use super::procs::{ChildGuard, cpu_secs};
 use super::{loadavg, parse_list};
-use crate::cli::cluster;
 use crate::assets::load_scene_file;
+use crate::cli::cluster;
 use anyhow::Context;
 use clap::Args;
 use isin_actors::auth::{self, Ticket};

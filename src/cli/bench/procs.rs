@@ -144,7 +144,9 @@ pub fn wait_joined(master: &ChildGuard, slaves: &mut [ChildGuard], timeout: Dura
     let deadline = Instant::now() + timeout;
     let mut joined = 0;
     while joined < slaves.len() {
-        if let Some((i, status)) = slaves.iter_mut().enumerate().find_map(|(i, s)| s.exited().map(|st| (i, st))) {
+        if let Some((i, status)) =
+            slaves.iter_mut().enumerate().find_map(|(i, s)| s.exited().map(|st| (i, st)))
+        {
             anyhow::bail!("slave {} exited ({status}) before joining: {:?}", i + 1, slaves[i].tail(5));
         }
         if Instant::now() >= deadline {

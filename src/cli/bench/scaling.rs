@@ -247,11 +247,19 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     }
     let loadavg_before = loadavg();
     let mut rows = Vec::new();
-    let rate_list: Vec<Option<u32>> = if use_lab { rates.iter().map(|&r| Some(r)).collect() } else { vec![None] };
+    let rate_list: Vec<Option<u32>> =
+        if use_lab { rates.iter().map(|&r| Some(r)).collect() } else { vec![None] };
     for &rate in &rate_list {
-        let mut lab = if use_lab { Some(Lab::new(n_max, LinkSpec { rate_mbit: rate, loss_per_mille: 0 })?) } else { None };
+        let mut lab = if use_lab {
+            Some(Lab::new(n_max, LinkSpec { rate_mbit: rate, loss_per_mille: 0 })?)
+        } else {
+            None
+        };
         if let (Some(lab), Some(r)) = (lab.as_mut(), rate) {
-            println!("lab: every PC on a {r} Mbit/s cable to one switch ({} namespaces)", lab.slave_count() + 2);
+            println!(
+                "lab: every PC on a {r} Mbit/s cable to one switch ({} namespaces)",
+                lab.slave_count() + 2
+            );
         }
         for &(w, h) in &sizes {
             let n_frames = (frames * 320 * 240 / (w as usize * h as usize).max(1)).max(4).min(frames.max(4));
@@ -273,8 +281,14 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                             cameras: &cameras,
                             master_extra,
                         };
-                        let r = run_once(lab.as_ref(), &cgroups, &spec)
-                            .with_context(|| format!("{w}x{h} {transport}/{compression}, {n} slaves"))?;
+                        let what = format!("{w}x{h} {transport}/{compression}, {n} slaves");
+                        let r = match run_once(lab.as_ref(), &cgroups, &spec) {
+                            Ok(r) => r,
+                            Err(e) => {
+                                println!("{what} failed, trying once more: {e:#}");
+                                run_once(lab.as_ref(), &cgroups, &spec).with_context(|| what.clone())?
+                            }
+                        };
                         // Speedup against the smallest N, taken as linear up to there.
                         let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
                         let row = make_row(&spec, rate, cgroups.first().map(CpuCgroup::share), &r, base);
@@ -291,7 +305,10 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                             row.master_cpu,
                             row.slave_idle * 100.0,
                             row.slave_crowded * 100.0,
-                            row.bottleneck.as_ref().map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}")).unwrap_or_default()
+                            row.bottleneck
+                                .as_ref()
+                                .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
+                                .unwrap_or_default()
                         );
                         group.push(row);
                     }
@@ -302,7 +319,8 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
         drop(lab.take());
     }
     drop(cgroups);
-    let unix_time = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let unix_time =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     let first = cgroups_meta(use_lab, share);
     let report = Report {
         meta: Meta {
@@ -344,7 +362,8 @@ fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow:
     let token = auth::generate_token()?;
     let master_ns = lab.map(|l| l.master().ns.clone());
     let listen = lab.map_or("127.0.0.1:0".to_string(), |l| format!("{}:0", l.master().addr));
-    let (master, ticket) = start_master(master_ns.as_deref(), spec.scene, &listen, &token, &spec.master_extra)?;
+    let (master, ticket) =
+        start_master(master_ns.as_deref(), spec.scene, &listen, &token, &spec.master_extra)?;
     let mut slaves: Vec<ChildGuard> = Vec::new();
     for i in 0..spec.n {
         let ns = lab.and_then(|l| l.slave(i)).map(|h| h.ns.as_str());
@@ -410,7 +429,8 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         _ => None,
     };
     let master_cpu = (r.after.master_cpu - r.before.master_cpu) / wall;
-    let render: Vec<SchedStat> = r.after.render.iter().zip(&r.before.render).map(|(a, b)| a.since(b)).collect();
+    let render: Vec<SchedStat> =
+        r.after.render.iter().zip(&r.before.render).map(|(a, b)| a.since(b)).collect();
     let throttled: Vec<f64> =
         r.after.throttled_us.iter().zip(&r.before.throttled_us).map(|(a, b)| (a - b) / 1e6).collect();
     let mean = |f: &dyn Fn(usize) -> f64| (0..render.len()).map(f).sum::<f64>() / render.len().max(1) as f64;
@@ -626,7 +646,12 @@ fn group_label(r: &Row) -> String {
 fn plot(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
     let n_max = rows.iter().map(|r| r.slaves).max().unwrap_or(12).max(12) as f64;
     let mut series = vec![
-        Series { name: "ideal (linear)".into(), points: vec![(1.0, 1.0), (n_max, n_max)], color: 6, dashed: true },
+        Series {
+            name: "ideal (linear)".into(),
+            points: vec![(1.0, 1.0), (n_max, n_max)],
+            color: 6,
+            dashed: true,
+        },
         Series {
             name: "paper, 320×240 (12 PCs, 100 Mbit/s LAN)".into(),
             points: PAPER.iter().map(|&(n, s)| (n as f64, PAPER[0].1 / s)).collect(),

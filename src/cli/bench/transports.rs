@@ -191,7 +191,10 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
     let mut kinds: Vec<String> = parse_list(&args.kinds)?;
     let mut frames = args.frames.max(1);
     if args.quick {
-        conditions = ["loopback", "100:0", "100:10"].iter().map(|c| Condition::parse(c)).collect::<anyhow::Result<_>>()?;
+        conditions = ["loopback", "100:0", "100:10"]
+            .iter()
+            .map(|c| Condition::parse(c))
+            .collect::<anyhow::Result<_>>()?;
         kinds = vec!["cached".into()];
         frames = frames.min(24);
     }
@@ -202,7 +205,8 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
     let path = isin_viewer::CameraPath::load(&args.path)?;
     anyhow::ensure!(!path.frames.is_empty(), "{} has no cameras", args.path.display());
     let n_cam = args.cameras.clamp(1, path.frames.len());
-    let cameras: Vec<Camera> = (0..n_cam).map(|i| path.frames[i * path.frames.len() / n_cam].camera()).collect();
+    let cameras: Vec<Camera> =
+        (0..n_cam).map(|i| path.frames[i * path.frames.len() / n_cam].camera()).collect();
     let cache_dir = std::path::absolute(&args.cache_dir)?;
 
     let support = Support::probe();
@@ -215,7 +219,10 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
             Condition::Loopback => true,
             Condition::Lan(l) => lab_ok && (l.loss_per_mille == 0 || support.loss.is_ok()),
         });
-        notes.push(format!("{} emulated-LAN conditions skipped; loopback still runs", before - conditions.len()));
+        notes.push(format!(
+            "{} emulated-LAN conditions skipped; loopback still runs",
+            before - conditions.len()
+        ));
     }
     for n in &notes {
         println!("note: {n}");
@@ -258,8 +265,14 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
                         threads: args.threads.max(1),
                         cache_dir: &cache_dir,
                     };
-                    let row = run_once(run_lab, cond, &spec)
-                        .with_context(|| format!("{} {kind} {transport}/{compression}", cond.label()))?;
+                    let what = format!("{} {kind} {transport}/{compression}", cond.label());
+                    let row = match run_once(run_lab, cond, &spec) {
+                        Ok(r) => r,
+                        Err(e) => {
+                            println!("{what} failed, trying once more: {e:#}");
+                            run_once(run_lab, cond, &spec).with_context(|| what.clone())?
+                        }
+                    };
                     println!(
                         "{:<26} {kind:<6} {transport:<4} {compression:<4}: {:6.2} fps, {:5.0} kB/frame (iface {}), \
                          tile latency p50/p99 {:.1}/{:.1} ms, 1-tile RTT {:.2}/{:.2} ms, CPU/frame master {:.3} s, \
@@ -292,7 +305,9 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
         lab_notes: notes,
         loadavg_before,
         loadavg_after: loadavg(),
-        unix_time: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
+        unix_time: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
         rows,
     };
     let json = args.out_dir.join("transports.json");
@@ -342,24 +357,19 @@ fn run_once(lab: Option<&Lab>, cond: &Condition, spec: &RunSpec) -> anyhow::Resu
                     for &c in warm {
                         timed_frame(&v, &mut events, c, settings).await?;
                     }
-                    let (c0, s0, i0) = (
-                        cpu_secs(&master_pid),
-                        pids.iter().map(|p| cpu_secs(p)).sum::<f64>(),
-                        iface(),
-                    );
+                    let (c0, s0, i0) =
+                        (cpu_secs(&master_pid), pids.iter().map(|p| cpu_secs(p)).sum::<f64>(), iface());
                     let (mut secs, mut lat, mut bytes, mut dup) = (Vec::new(), Vec::new(), 0u64, 0u64);
                     for i in 0..spec.frames {
-                        let f = timed_frame(&v, &mut events, spec.cameras[i % spec.cameras.len()], settings).await?;
+                        let f = timed_frame(&v, &mut events, spec.cameras[i % spec.cameras.len()], settings)
+                            .await?;
                         secs.push(f.secs);
                         lat.extend(f.tile_secs);
                         bytes += f.bytes_in;
                         dup += u64::from(f.duplicated);
                     }
-                    let (c1, s1, i1) = (
-                        cpu_secs(&master_pid),
-                        pids.iter().map(|p| cpu_secs(p)).sum::<f64>(),
-                        iface(),
-                    );
+                    let (c1, s1, i1) =
+                        (cpu_secs(&master_pid), pids.iter().map(|p| cpu_secs(p)).sum::<f64>(), iface());
                     let probe = RenderSettings { width: spec.tile, height: spec.tile, ..settings };
                     let mut rtt = Vec::new();
                     timed_frame(&v, &mut events, spec.cameras[0], probe).await?;
