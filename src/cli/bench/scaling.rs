@@ -116,8 +116,8 @@ pub struct Row {
     slave_quota_use: Option<f64>,
     /// Slaves' render threads: share of wall time with nothing to render.
     slave_idle: f64,
-    /// Slaves' render threads: share of wall time runnable but neither running
-    /// nor throttled by their quota (other load on the machine).
+    /// Slaves' render threads: share of their quota lost to other load on the
+    /// machine (`1 − quota used − idle`; without quotas: time waiting for a core).
     slave_crowded: f64,
     /// Tiles handed to a second slave per frame (straggler copies).
     duplicated_per_frame: f64,
@@ -435,9 +435,16 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         r.after.throttled_us.iter().zip(&r.before.throttled_us).map(|(a, b)| (a - b) / 1e6).collect();
     let mean = |f: &dyn Fn(usize) -> f64| (0..render.len()).map(f).sum::<f64>() / render.len().max(1) as f64;
     let slave_idle = mean(&|i| (1.0 - (render[i].run + render[i].wait) / wall).max(0.0));
-    let slave_crowded =
-        mean(&|i| ((render[i].wait - throttled.get(i).copied().unwrap_or(0.0)) / wall).clamp(0.0, 1.0));
     let slave_quota_use = share.map(|s| mean(&|i| render[i].run / (s * wall)));
+    // With a quota, a slave with work gets `share` of a core unless the machine
+    // is too busy to give it: the quota it neither used nor left idle was lost
+    // to other load. Without one, count the wait for a core beyond throttling.
+    let slave_crowded = match slave_quota_use {
+        Some(u) => (1.0 - u - slave_idle).clamp(0.0, 1.0),
+        None => {
+            mean(&|i| ((render[i].wait - throttled.get(i).copied().unwrap_or(0.0)) / wall).clamp(0.0, 1.0))
+        }
+    };
     let duplicated_per_frame = r.duplicated as f64 / frames.max(1) as f64;
     let mut row = Row {
         width: spec.settings_size.0,
@@ -479,8 +486,8 @@ fn bottleneck(r: &Row) -> String {
     }
     if r.slave_crowded >= 0.05 && r.slave_crowded >= r.slave_idle {
         why.push(format!(
-            "machine CPU: slaves' render threads waited {:.0} % of the time for a core beyond their quota \
-             (other load; the N slaves' quotas add up to the whole machine)",
+            "machine CPU: slaves lost {:.0} % of their quota to other load on the machine \
+             (the N slaves' quotas add up to the whole machine; other processes compete)",
             r.slave_crowded * 100.0
         ));
     }
