@@ -5,6 +5,7 @@ use crate::assets::load_scene_file;
 use clap::Args;
 use isin_actors::auth::{self, Ticket};
 use isin_actors::master::{Master, MasterConfig};
+use isin_actors::scheduler::SchedulerConfig;
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -36,6 +37,10 @@ pub struct MasterArgs {
     /// Do not hand idle slaves copies of straggling tiles.
     #[arg(long)]
     pub no_duplicates: bool,
+    /// Tiles queued per slave beyond one per render thread (the in-flight window).
+    /// Slow slaves want 0 or 1, so that the end of a frame is not stuck behind their queues.
+    #[arg(long, default_value_t = SchedulerConfig::default().queue_depth)]
+    pub queue_depth: u32,
 }
 
 /// Runs `isin master` until killed.
@@ -51,6 +56,7 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.scheduler.tile_size = args.tile.max(1);
     cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
     cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
+    cfg.scheduler.queue_depth = args.queue_depth;
     let (transport, fingerprint) = cluster::server_transport(&args.transport, args.identity.as_deref())?;
     actix::System::new().block_on(async move {
         let listener = transport.listen(&args.listen).await?;

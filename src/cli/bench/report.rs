@@ -54,12 +54,14 @@ const PALETTE: [RGBColor; 8] = [
 
 /// Draws `series` as an SVG line plot with point markers (no fonts needed:
 /// text is written as SVG `<text>` and drawn by whatever shows the file).
+/// With `x_names`, x = 0, 1, 2, … are categories named by it.
 pub fn line_plot(
     path: &Path,
     title: &str,
     x_label: &str,
     y_label: &str,
     series: &[Series],
+    x_names: Option<&[&str]>,
 ) -> anyhow::Result<()> {
     let pts = series.iter().flat_map(|s| s.points.iter());
     let (mut x1, mut y1) = (1.0f64, 1.0f64);
@@ -77,13 +79,21 @@ pub fn line_plot(
         .y_label_area_size(50)
         .build_cartesian_2d(0.0..x1 * 1.05, 0.0..y1 * 1.08)
         .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc(x_label)
-        .y_desc(y_label)
-        .light_line_style(WHITE.mix(0.0))
-        .draw()
-        .map_err(|e| err(&e))?;
+    let name_of = |x: &f64| -> String {
+        match x_names {
+            Some(names) if (x - x.round()).abs() < 1e-6 && *x >= 0.0 => {
+                names.get(x.round() as usize).map_or(String::new(), |s| s.to_string())
+            }
+            Some(_) => String::new(),
+            None => format!("{x}"),
+        }
+    };
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc(x_label).y_desc(y_label).light_line_style(WHITE.mix(0.0)).x_label_formatter(&name_of);
+    if let Some(names) = x_names {
+        mesh.x_labels(names.len() * 2 + 1);
+    }
+    mesh.draw().map_err(|e| err(&e))?;
     for s in series {
         let color = PALETTE[s.color % PALETTE.len()];
         let style = color.stroke_width(2);
@@ -102,7 +112,11 @@ pub fn line_plot(
     }
     chart
         .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
+        .position(if x_names.is_some() {
+            SeriesLabelPosition::UpperRight
+        } else {
+            SeriesLabelPosition::UpperLeft
+        })
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .draw()
@@ -148,7 +162,9 @@ mod tests {
             Series { name: "measured".into(), points: vec![(1.0, 1.0), (2.0, 1.9)], color: 0, dashed: false },
             Series { name: "ideal".into(), points: vec![(1.0, 1.0), (2.0, 2.0)], color: 6, dashed: true },
         ];
-        line_plot(&p, "t", "x", "y", &series).unwrap();
+        line_plot(&p, "t", "x", "y", &series, None).unwrap();
+        line_plot(&p, "t", "x", "y", &series, Some(&["none", "one", "two"])).unwrap();
+        assert!(std::fs::read_to_string(&p).unwrap().contains(">one<"));
         let svg = std::fs::read_to_string(&p).unwrap();
         assert!(svg.starts_with("<svg") && svg.contains("measured") && svg.contains("ideal"));
     }

@@ -80,13 +80,17 @@ pub struct ScalingArgs {
     /// Skip the lab even when root: all processes on loopback, no quotas.
     #[arg(long)]
     loopback: bool,
+    /// Only redraw scaling.md and scaling.svg from this JSON report of an earlier run
+    /// (recomputing the derived columns: crowding and the bottleneck).
+    #[arg(long)]
+    from_json: Option<PathBuf>,
     /// Directory for scaling.json, scaling.md and scaling.svg.
     #[arg(long, default_value = "target/bench")]
     out_dir: PathBuf,
 }
 
 /// One measured configuration.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct Row {
     width: u32,
     height: u32,
@@ -125,7 +129,7 @@ pub struct Row {
     bottleneck: Option<String>,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, serde::Deserialize)]
 struct Meta {
     scene: String,
     path: String,
@@ -143,7 +147,7 @@ struct Meta {
     unix_time: u64,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, serde::Deserialize)]
 struct Report {
     meta: Meta,
     paper: Vec<(usize, f64)>,
@@ -181,6 +185,18 @@ struct RunResult {
 
 /// Runs `isin bench scaling`.
 pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
+    if let Some(json) = &args.from_json {
+        let text =
+            std::fs::read_to_string(json).with_context(|| format!("cannot read {}", json.display()))?;
+        let mut report: Report = serde_json::from_str(&text)?;
+        for r in &mut report.rows {
+            if let Some(u) = r.slave_quota_use {
+                r.slave_crowded = (1.0 - u - r.slave_idle).clamp(0.0, 1.0);
+            }
+            r.bottleneck = (r.slaves > 1 && r.efficiency < EFFICIENCY_BAR).then(|| bottleneck(r));
+        }
+        return write_outputs(&report, &args.out_dir, false);
+    }
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let (mut slave_counts, mut sizes, mut transports, mut frames): (Vec<usize>, _, Vec<String>, _) = (
         parse_list(&args.slaves)?,
@@ -342,14 +358,18 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
         paper: PAPER.to_vec(),
         rows,
     };
-    let json = args.out_dir.join("scaling.json");
-    report::write(&json, &serde_json::to_string_pretty(&report)?)?;
-    let md = markdown(&report);
-    report::write(&args.out_dir.join("scaling.md"), &md)?;
-    let svg = args.out_dir.join("scaling.svg");
-    plot(&svg, &report.rows)?;
+    write_outputs(&report, &args.out_dir, true)
+}
+
+fn write_outputs(report: &Report, dir: &Path, json: bool) -> anyhow::Result<()> {
+    if json {
+        report::write(&dir.join("scaling.json"), &serde_json::to_string_pretty(report)?)?;
+    }
+    let md = markdown(report);
+    report::write(&dir.join("scaling.md"), &md)?;
+    plot(&dir.join("scaling.svg"), &report.rows)?;
     println!("\n{md}");
-    println!("wrote {}, scaling.md and scaling.svg in {}", json.display(), args.out_dir.display());
+    println!("wrote scaling.json, scaling.md and scaling.svg in {}", dir.display());
     Ok(())
 }
 
@@ -675,7 +695,7 @@ fn plot(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
             dashed: false,
         });
     }
-    report::line_plot(path, "Speedup against one slave PC", "slave PCs (N)", "speedup", &series)
+    report::line_plot(path, "Speedup against one slave PC", "slave PCs (N)", "speedup", &series, None)
 }
 
 #[cfg(test)]

@@ -83,6 +83,9 @@ pub struct TransportsArgs {
     /// A short run: loopback and 100 Mbit/s at 0 % and 1 % loss, cached only, 24 frames.
     #[arg(long)]
     quick: bool,
+    /// Only redraw transports.md and transports.svg from this JSON report (of an earlier run).
+    #[arg(long)]
+    from_json: Option<PathBuf>,
     /// Directory for transports.json, transports.md and transports.svg.
     #[arg(long, default_value = "target/bench")]
     out_dir: PathBuf,
@@ -113,7 +116,7 @@ impl Condition {
 }
 
 /// One measured configuration.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 struct Row {
     condition: String,
     rate_mbit: Option<u32>,
@@ -144,7 +147,7 @@ struct Row {
     duplicated_per_frame: f64,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, serde::Deserialize)]
 struct Report {
     scene: String,
     path: String,
@@ -177,6 +180,12 @@ struct RunSpec<'a> {
 
 /// Runs `isin bench transports`.
 pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
+    if let Some(json) = &args.from_json {
+        let text =
+            std::fs::read_to_string(json).with_context(|| format!("cannot read {}", json.display()))?;
+        let report: Report = serde_json::from_str(&text)?;
+        return write_outputs(&report, &args.out_dir, false);
+    }
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let (w, h) = *parse_sizes(&args.size)?.first().context("no size")?;
     let transports: Vec<String> = parse_list(&args.transports)?;
@@ -310,13 +319,18 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
             .map_or(0, |d| d.as_secs()),
         rows,
     };
-    let json = args.out_dir.join("transports.json");
-    report::write(&json, &serde_json::to_string_pretty(&report)?)?;
-    let md = markdown(&report);
-    report::write(&args.out_dir.join("transports.md"), &md)?;
-    plot(&args.out_dir.join("transports.svg"), &report.rows)?;
+    write_outputs(&report, &args.out_dir, true)
+}
+
+fn write_outputs(report: &Report, dir: &Path, json: bool) -> anyhow::Result<()> {
+    if json {
+        report::write(&dir.join("transports.json"), &serde_json::to_string_pretty(report)?)?;
+    }
+    let md = markdown(report);
+    report::write(&dir.join("transports.md"), &md)?;
+    plot(&dir.join("transports.svg"), &report.rows)?;
     println!("\n{md}");
-    println!("wrote {}, transports.md and transports.svg in {}", json.display(), args.out_dir.display());
+    println!("wrote transports.json, transports.md and transports.svg in {}", dir.display());
     Ok(())
 }
 
@@ -551,10 +565,11 @@ fn plot(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
         .collect();
     report::line_plot(
         path,
-        "Frames/s against random loss (x: 0 = 0 %, 1 = 0.1 %, 2 = 1 %)",
-        "loss (0 %, 0.1 %, 1 %)",
+        "Frames/s against random packet loss (solid: TCP, dashed: QUIC)",
+        "random loss on every host's input",
         "frames/s",
         &series,
+        Some(&["0 %", "0.1 %", "1 %"]),
     )
 }
 
