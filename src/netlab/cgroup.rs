@@ -170,6 +170,7 @@ mod tests {
         }
         let _serial = crate::netlab::tests_lock();
         let cg = CpuCgroup::create("test-quota", 0.1).unwrap();
+        // (Only this test's own cgroup is touched: a running bench's are left alone.)
         let mut child = std::process::Command::new("sh").args(["-c", "while :; do :; done"]).spawn().unwrap();
         cg.add(child.id()).unwrap();
         let stat = format!("/proc/{}/stat", child.id());

@@ -374,12 +374,27 @@ mod tests {
             return;
         }
         let _serial = crate::netlab::tests_lock();
+        if list_namespaces().iter().any(|n| n.starts_with(PREFIX)) {
+            println!("skipped: a lab (a running `isin bench`?) exists; building one would remove it");
+            return;
+        }
         let lab = Lab::new(1, LinkSpec { rate_mbit: Some(20), loss_per_mille: 0 }).unwrap();
         let (m, s) = (lab.master().clone(), lab.slave(0).unwrap().clone());
         let server = std::thread::spawn(move || {
             enter(&m.ns).unwrap();
             let l = std::net::TcpListener::bind((m.addr, 7901)).unwrap();
-            let (mut c, _) = l.accept().unwrap();
+            // Never block forever: a failed client must fail the test, not hang it.
+            l.set_nonblocking(true).unwrap();
+            let t0 = Instant::now();
+            let mut c = loop {
+                match l.accept() {
+                    Ok((c, _)) => break c,
+                    Err(_) if t0.elapsed() < Duration::from_secs(20) => std::thread::yield_now(),
+                    Err(e) => panic!("no connection from the slave's namespace: {e}"),
+                }
+            };
+            c.set_nonblocking(false).unwrap();
+            c.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
             let mut buf = Vec::new();
             c.read_to_end(&mut buf).unwrap();
             buf.len()

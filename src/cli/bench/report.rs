@@ -69,6 +69,11 @@ pub fn line_plot(
         x1 = x1.max(x);
         y1 = y1.max(y);
     }
+    // Categories sit on whole numbers with a margin; numbers start at 0.
+    let x_range = match x_names {
+        Some(names) => -0.3..(names.len().max(1) - 1) as f64 + 0.3,
+        None => 0.0..x1 * 1.05,
+    };
     let root = SVGBackend::new(path, (760, 480)).into_drawing_area();
     let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("cannot draw {}: {e}", path.display());
     root.fill(&WHITE).map_err(|e| err(&e))?;
@@ -77,7 +82,7 @@ pub fn line_plot(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
-        .build_cartesian_2d(0.0..x1 * 1.05, 0.0..y1 * 1.08)
+        .build_cartesian_2d(x_range, 0.0..y1 * 1.08)
         .map_err(|e| err(&e))?;
     let name_of = |x: &f64| -> String {
         match x_names {
@@ -91,7 +96,7 @@ pub fn line_plot(
     let mut mesh = chart.configure_mesh();
     mesh.x_desc(x_label).y_desc(y_label).light_line_style(WHITE.mix(0.0)).x_label_formatter(&name_of);
     if let Some(names) = x_names {
-        mesh.x_labels(names.len() * 2 + 1);
+        mesh.x_labels(names.len());
     }
     mesh.draw().map_err(|e| err(&e))?;
     for s in series {
