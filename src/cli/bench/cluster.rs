@@ -3,7 +3,7 @@
 //! the same number of render threads, bytes on the wire per frame, and the
 //! time from a slave's `kill -9` to its tiles being handed to another slave.
 
-use super::procs::{ChildGuard, cpu_secs};
+use super::procs::{ChildGuard, cpu_secs, start_master};
 use super::{loadavg, parse_list};
 use crate::assets::load_scene_file;
 use crate::cli::cluster;
@@ -12,7 +12,6 @@ use clap::Args;
 use isin_actors::auth::{self, Ticket};
 use isin_actors::viewer;
 use serde::Serialize;
-use std::io::BufRead;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -147,20 +146,7 @@ pub(super) fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
 /// Starts a master and `n` slave processes; returns the guards and the ticket.
 fn start_cluster(scene: &str, n: usize, per: usize) -> anyhow::Result<(ChildGuard, Vec<ChildGuard>, Ticket)> {
     let token = auth::generate_token()?;
-    let (master, mut out) =
-        ChildGuard::spawn(&["master", scene, "--listen", "127.0.0.1:0", "--token", &token])?;
-    let mut ticket = None;
-    for _ in 0..10 {
-        let mut line = String::new();
-        if out.read_line(&mut line)? == 0 {
-            break;
-        }
-        if let Some(t) = line.strip_prefix("ticket ") {
-            ticket = Some(t.trim().to_string());
-            break;
-        }
-    }
-    let ticket: Ticket = ticket.context("master printed no ticket")?.parse()?;
+    let (master, ticket) = start_master(None, scene, "127.0.0.1:0", &token, &[])?;
     let mut slaves = Vec::new();
     let per_s = per.to_string();
     for i in 0..n {

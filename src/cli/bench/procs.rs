@@ -110,6 +110,9 @@ pub fn start_master(
             break;
         }
     }
+    // Keep reading: a master whose stdout is closed fails on its next line
+    // ("join with: …") and exits — that was an intermittent "slaves never join".
+    std::thread::spawn(move || for _ in out.lines() {});
     let ticket: Ticket = ticket.context("master printed no ticket")?.parse()?;
     Ok((master, ticket))
 }
