@@ -168,8 +168,9 @@ mod tests {
             Series { name: "ideal".into(), points: vec![(1.0, 1.0), (2.0, 2.0)], color: 6, dashed: true },
         ];
         line_plot(&p, "t", "x", "y", &series, None).unwrap();
-        line_plot(&p, "t", "x", "y", &series, Some(&["none", "one", "two"])).unwrap();
-        assert!(std::fs::read_to_string(&p).unwrap().contains(">one<"));
+        line_plot(&p, "t", "x", "y", &series, Some(&["zero", "first", "second"])).unwrap();
+        let svg = std::fs::read_to_string(&p).unwrap();
+        assert!(["zero", "first", "second"].iter().all(|c| svg.contains(c)), "category labels missing");
         let svg = std::fs::read_to_string(&p).unwrap();
         assert!(svg.starts_with("<svg") && svg.contains("measured") && svg.contains("ideal"));
     }
