@@ -2,6 +2,8 @@
 
 mod assets;
 mod cli;
+mod frame_cache;
+mod netlab;
 
 fn main() -> anyhow::Result<()> {
     cli::run()

@@ -6,6 +6,7 @@ use clap::Args;
 use isin_actors::auth::{self, Ticket};
 use isin_actors::codec::Compression;
 use isin_actors::master::{Master, MasterConfig};
+use isin_actors::scheduler::SchedulerConfig;
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -47,6 +48,10 @@ pub struct MasterArgs {
     /// or a codec (`qoi`, `lz4`; raw for slaves that do not offer it).
     #[arg(long, default_value = "auto")]
     pub compression: Compression,
+    /// Tiles queued per slave beyond one per render thread (the in-flight window;
+    /// near the end of a frame slaves only get one tile per thread anyway).
+    #[arg(long, default_value_t = SchedulerConfig::default().queue_depth)]
+    pub queue_depth: u32,
 }
 
 /// Runs `isin master` until killed.
@@ -62,6 +67,7 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.scheduler.tile_size = args.tile.max(1);
     cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
     cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
+    cfg.scheduler.queue_depth = args.queue_depth;
     cfg.compression = args.compression;
     let name = match (args.transport.as_str(), args.insecure) {
         (_, false) => args.transport.as_str(),

@@ -1,6 +1,8 @@
 //! `isin slave`: render tiles for a master.
 
 use super::cluster;
+use crate::frame_cache::FrameCache;
+use anyhow::Context;
 use clap::Args;
 use isin_actors::slave::{self, SlaveOptions, Tracer};
 use std::sync::Arc;
@@ -25,6 +27,11 @@ pub struct SlaveArgs {
     /// Name in the master's logs (default: host name and process id).
     #[arg(long)]
     pub name: Option<String>,
+    /// For network measurements: render each frame (scene, camera, settings) once,
+    /// keep it in DIR (slaves on one machine may share it) and serve every later
+    /// tile of it from there — the same bytes, without the tracer's cost.
+    #[arg(long, value_name = "DIR")]
+    pub cache_tiles: Option<std::path::PathBuf>,
 }
 
 /// Runs `isin slave` until refused or killed.
@@ -37,8 +44,18 @@ pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
         opts.threads = n;
     }
     opts.name = args.name.unwrap_or_else(|| format!("slave-{}", std::process::id()));
+    let cache = match args.cache_tiles {
+        Some(dir) => Some(Arc::new(
+            FrameCache::new(Tracer, Some(dir.clone()))
+                .with_context(|| format!("cannot create the tile cache {}", dir.display()))?,
+        )),
+        None => None,
+    };
     actix::System::new().block_on(async move {
-        slave::run(transport, ticket, opts, Arc::new(Tracer)).await?;
+        match cache {
+            Some(cache) => slave::run(transport, ticket, opts, cache).await?,
+            None => slave::run(transport, ticket, opts, Arc::new(Tracer)).await?,
+        }
         anyhow::Ok(())
     })
 }

@@ -3,31 +3,18 @@
 //! the same number of render threads, bytes on the wire per frame, and the
 //! time from a slave's `kill -9` to its tiles being handed to another slave.
 
-use super::cluster;
+use super::procs::{ChildGuard, cpu_secs, start_master};
+use super::{loadavg, parse_list};
 use crate::assets::load_scene_file;
+use crate::cli::cluster;
 use anyhow::Context;
-use clap::{Args, Subcommand};
+use clap::Args;
 use isin_actors::auth::{self, Ticket};
 use isin_actors::viewer;
 use serde::Serialize;
-use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, mpsc};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-/// Arguments of `isin bench`.
-#[derive(Args, Debug)]
-pub struct BenchArgs {
-    #[command(subcommand)]
-    what: BenchCommand,
-}
-
-#[derive(Subcommand, Debug)]
-enum BenchCommand {
-    /// Cluster throughput and efficiency against in-process rendering.
-    Cluster(ClusterBenchArgs),
-}
 
 /// Arguments of `isin bench cluster`.
 #[derive(Args, Debug)]
@@ -98,85 +85,8 @@ struct Report {
     kill: Option<KillResult>,
 }
 
-/// A child process killed on drop, with its stderr lines (and arrival times) on a channel.
-struct ChildGuard {
-    child: Child,
-    lines: mpsc::Receiver<(Instant, String)>,
-}
-
-impl ChildGuard {
-    fn spawn(args: &[&str]) -> anyhow::Result<(Self, BufReader<std::process::ChildStdout>)> {
-        let exe = std::env::current_exe()?;
-        let mut child = Command::new(exe)
-            .args(args)
-            .env("RUST_LOG", "info")
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .context("cannot start a cluster process")?;
-        let stdout = BufReader::new(child.stdout.take().context("stdout")?);
-        let stderr = child.stderr.take().context("stderr")?;
-        let (tx, lines) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if tx.send((Instant::now(), line)).is_err() {
-                    break;
-                }
-            }
-        });
-        Ok((Self { child, lines }, stdout))
-    }
-
-    /// Waits for a stderr line containing `needle`; returns when it arrived.
-    fn wait_for(&self, needle: &str, timeout: Duration) -> anyhow::Result<(Instant, String)> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let (at, line) =
-                self.lines.recv_timeout(left).with_context(|| format!("no `{needle}` within {timeout:?}"))?;
-            if line.contains(needle) {
-                return Ok((at, line));
-            }
-        }
-    }
-}
-
-impl Drop for ChildGuard {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// Runs `isin bench`.
-pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    match args.what {
-        BenchCommand::Cluster(a) => run_cluster(a),
-    }
-}
-
-/// CPU seconds (user + system) used so far by process `pid` (`self` for this one).
-fn cpu_secs(pid: &str) -> f64 {
-    let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else { return 0.0 };
-    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
-    // SAFETY: sysconf has no preconditions.
-    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
-    (ticks(11) + ticks(12)) / hz
-}
-
-fn loadavg() -> String {
-    std::fs::read_to_string("/proc/loadavg").unwrap_or_default().trim().to_string()
-}
-
-fn parse_list<T: std::str::FromStr>(s: &str) -> anyhow::Result<Vec<T>> {
-    s.split(',').map(|x| x.trim().parse::<T>().map_err(|_| anyhow::anyhow!("bad list item `{x}`"))).collect()
-}
-
-fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
+/// Runs `isin bench cluster`.
+pub(super) fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let threads = args.threads.unwrap_or(cores).max(1);
     let sizes: Vec<(u32, u32)> = args
@@ -236,20 +146,7 @@ fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
 /// Starts a master and `n` slave processes; returns the guards and the ticket.
 fn start_cluster(scene: &str, n: usize, per: usize) -> anyhow::Result<(ChildGuard, Vec<ChildGuard>, Ticket)> {
     let token = auth::generate_token()?;
-    let (master, mut out) =
-        ChildGuard::spawn(&["master", scene, "--listen", "127.0.0.1:0", "--token", &token])?;
-    let mut ticket = None;
-    for _ in 0..10 {
-        let mut line = String::new();
-        if out.read_line(&mut line)? == 0 {
-            break;
-        }
-        if let Some(t) = line.strip_prefix("ticket ") {
-            ticket = Some(t.trim().to_string());
-            break;
-        }
-    }
-    let ticket: Ticket = ticket.context("master printed no ticket")?.parse()?;
+    let (master, ticket) = start_master(None, scene, "127.0.0.1:0", &token, &[])?;
     let mut slaves = Vec::new();
     let per_s = per.to_string();
     for i in 0..n {

@@ -1,0 +1,79 @@
+//! `isin bench`: measurements of whole clusters of `isin` processes.
+//!
+//! - [`cluster`]: `isin bench cluster`, frames/s and efficiency of 1–2 local
+//!   slaves against in-process rendering, and the reaction to a killed slave;
+//! - [`scaling`]: `isin bench scaling`, the paper's Table 1 with N emulated
+//!   slave PCs (network namespaces, rate-limited links, CPU quotas);
+//! - [`transports`]: `isin bench transports`, TCP against QUIC under rate
+//!   limits and packet loss;
+//! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
+//!   and reading their CPU time; [`modes`]: the transport and compression
+//!   modes the benches run; [`report`]: statistics, tables and plots.
+
+mod cluster;
+pub mod modes;
+pub mod procs;
+pub mod report;
+mod scaling;
+mod transports;
+
+use clap::{Args, Subcommand};
+
+/// Arguments of `isin bench`.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    what: BenchCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum BenchCommand {
+    /// Cluster throughput and efficiency against in-process rendering.
+    Cluster(cluster::ClusterBenchArgs),
+    /// The paper's Table 1: speedup with 1–12 emulated slave PCs on a 100 Mbit/s LAN.
+    Scaling(scaling::ScalingArgs),
+    /// TCP against QUIC: frames/s, bytes, latency and CPU under rate limits and loss.
+    Transports(transports::TransportsArgs),
+}
+
+/// Runs `isin bench`.
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    match args.what {
+        BenchCommand::Cluster(a) => cluster::run_cluster(a),
+        BenchCommand::Scaling(a) => scaling::run(a),
+        BenchCommand::Transports(a) => transports::run(a),
+    }
+}
+
+/// `/proc/loadavg`, trimmed: wall-clock figures mean little on a busy machine.
+pub fn loadavg() -> String {
+    std::fs::read_to_string("/proc/loadavg").unwrap_or_default().trim().to_string()
+}
+
+/// A comma-separated list.
+pub fn parse_list<T: std::str::FromStr>(s: &str) -> anyhow::Result<Vec<T>> {
+    s.split(',').map(|x| x.trim().parse::<T>().map_err(|_| anyhow::anyhow!("bad list item `{x}`"))).collect()
+}
+
+/// A comma-separated list of `WxH` sizes.
+pub fn parse_sizes(s: &str) -> anyhow::Result<Vec<(u32, u32)>> {
+    s.split(',')
+        .map(|s| {
+            let (w, h) = s.trim().split_once('x').ok_or_else(|| anyhow::anyhow!("size `{s}` is not WxH"))?;
+            Ok((w.parse()?, h.parse()?))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lists_and_sizes_parse_and_reject_garbage() {
+        assert_eq!(parse_list::<usize>("1, 2,12").unwrap(), vec![1, 2, 12]);
+        assert!(parse_list::<usize>("1,x").is_err());
+        assert_eq!(parse_sizes("320x240,640x480").unwrap(), vec![(320, 240), (640, 480)]);
+        assert!(parse_sizes("320").is_err());
+    }
+}

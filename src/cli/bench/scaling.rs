@@ -1,0 +1,776 @@
+//! `isin bench scaling`: the paper's Table 1 (seconds per frame and speedup
+//! with 1–12 PCs on a 100 Mbit/s LAN) on one machine.
+//!
+//! Every slave is an emulated PC ([`crate::netlab`]): its own network
+//! namespace on a switch, its cable rate-limited with tbf, its CPU limited by a
+//! cgroup quota of `cpu_total / N_max` of a core, so that the N slaves together
+//! never have more CPU than the machine. The master sits in a namespace of its
+//! own behind one such cable; the viewer (this process) talks to it inside the
+//! master's namespace, like the paper's master showing frames on its screen.
+//! Frames are the cameras of a recorded path, requested one after another.
+//!
+//! Besides seconds per frame it measures where the time went, so that a run
+//! whose efficiency falls short names the saturated resource: the master's
+//! link (interface counters against the rate), the master's CPU, and for the
+//! slaves' render threads the time on a CPU, waiting for one (throttled by the
+//! quota or crowded out by other load, `/proc/PID/task/*/schedstat` and the
+//! cgroup's `cpu.stat`) and idle (no tile to render).
+
+use super::modes;
+use super::procs::{ChildGuard, SchedStat, cpu_secs, start_master, start_slave, wait_joined};
+use super::report::{self, Series, median, quantile};
+use super::{loadavg, parse_list, parse_sizes};
+use crate::cli::cluster;
+use crate::netlab::{self, CpuCgroup, Lab, LinkSpec, Support, netns::IfCounters};
+use anyhow::Context;
+use clap::Args;
+use isin_actors::auth;
+use isin_actors::viewer;
+use isin_tracer::{Camera, RenderSettings};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// The paper's Table 1: PCs, seconds per 320×240 frame.
+pub const PAPER: [(usize, f64); 8] =
+    [(1, 2.61), (2, 1.33), (3, 0.89), (4, 0.68), (5, 0.56), (6, 0.48), (8, 0.39), (12, 0.32)];
+
+/// Efficiency below which the bench names the saturated resource.
+pub const EFFICIENCY_BAR: f64 = 0.9;
+
+/// Arguments of `isin bench scaling`.
+#[derive(Args, Debug)]
+pub struct ScalingArgs {
+    /// Scene file.
+    #[arg(long, default_value = "scenes/paper.toml")]
+    scene: PathBuf,
+    /// Camera path replayed (evenly spaced cameras of it, see --frames).
+    #[arg(long, default_value = "scenes/paths/paper.toml")]
+    path: PathBuf,
+    /// Slave counts N, comma-separated (the largest is N_max).
+    #[arg(long, default_value = "1,2,3,4,5,6,8,12")]
+    slaves: String,
+    /// Image sizes, `WxH` comma-separated.
+    #[arg(long, default_value = "320x240,640x480")]
+    sizes: String,
+    /// Transports, comma-separated (tcp, quic).
+    #[arg(long, default_value = "tcp,quic")]
+    transports: String,
+    /// Compression modes, comma-separated (default: every mode this build can run).
+    #[arg(long)]
+    compression: Option<String>,
+    /// Link rates in Mbit/s, comma-separated (100: the paper's LAN; 1000 optional).
+    #[arg(long, default_value = "100")]
+    rates: String,
+    /// Cores shared by the slaves: each gets CPU_TOTAL / N_max of a core (default: all cores).
+    #[arg(long)]
+    cpu_total: Option<f64>,
+    /// Timed frames per run at 320×240 (larger images: fewer, in proportion, at least 4).
+    #[arg(long, default_value_t = 16)]
+    frames: usize,
+    /// Tile edge in pixels (`isin master --tile`).
+    #[arg(long, default_value_t = 32)]
+    tile: u32,
+    /// Extra argument for `isin master` (repeatable), e.g. `--master-arg=--no-duplicates`.
+    #[arg(long = "master-arg", allow_hyphen_values = true)]
+    master_args: Vec<String>,
+    /// A short run: N = 1,2,4,12, 320×240, TCP, 8 frames.
+    #[arg(long)]
+    quick: bool,
+    /// Skip the lab even when root: all processes on loopback, no quotas.
+    #[arg(long)]
+    loopback: bool,
+    /// Only redraw scaling.md and scaling.svg from this JSON report of an earlier run
+    /// (recomputing the derived columns: crowding and the bottleneck).
+    #[arg(long)]
+    from_json: Option<PathBuf>,
+    /// Directory for scaling.json, scaling.md and scaling.svg.
+    #[arg(long, default_value = "target/bench")]
+    out_dir: PathBuf,
+}
+
+/// One measured configuration.
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct Row {
+    width: u32,
+    height: u32,
+    transport: String,
+    compression: String,
+    /// Link rate, Mbit/s (`None` on loopback).
+    rate_mbit: Option<u32>,
+    slaves: usize,
+    frames: usize,
+    /// Seconds per frame: median and 95th percentile.
+    sec_median: f64,
+    sec_p95: f64,
+    fps: f64,
+    /// Median seconds per frame at N = 1 ÷ at N.
+    speedup: f64,
+    /// Speedup ÷ N.
+    efficiency: f64,
+    /// Bytes the master received per frame, counted by the transport (framing and heartbeats included).
+    bytes_per_frame: f64,
+    /// Bytes received per frame on the master's interface (Ethernet frames), when in the lab.
+    iface_bytes_per_frame: Option<f64>,
+    /// The master's received bits per second ÷ the link rate.
+    link_utilisation: Option<f64>,
+    /// The master process's CPU seconds per wall second.
+    master_cpu: f64,
+    /// Slaves' render threads: CPU time ÷ (quota × wall), averaged over slaves.
+    slave_quota_use: Option<f64>,
+    /// Slaves' render threads: share of wall time with nothing to render.
+    slave_idle: f64,
+    /// Slaves' render threads: share of their quota lost to other load on the
+    /// machine (`1 − quota used − idle`; without quotas: time waiting for a core).
+    slave_crowded: f64,
+    /// Tiles handed to a second slave per frame (straggler copies).
+    duplicated_per_frame: f64,
+    /// Where efficiency < 0.9: the saturated resource, from the figures above.
+    bottleneck: Option<String>,
+}
+
+#[derive(Serialize, serde::Deserialize)]
+struct Meta {
+    scene: String,
+    path: String,
+    cameras_in_path: usize,
+    cores: usize,
+    lab: bool,
+    lab_notes: Vec<String>,
+    cpu_total: Option<f64>,
+    slave_share_of_a_core: Option<f64>,
+    cfs_period_us: Option<u64>,
+    cfs_quota_us: Option<u64>,
+    tile: u32,
+    loadavg_before: String,
+    loadavg_after: String,
+    unix_time: u64,
+}
+
+#[derive(Serialize, serde::Deserialize)]
+struct Report {
+    meta: Meta,
+    paper: Vec<(usize, f64)>,
+    rows: Vec<Row>,
+}
+
+/// Counters sampled before and after a run.
+struct Snapshot {
+    at: Instant,
+    master_cpu: f64,
+    render: Vec<SchedStat>,
+    throttled_us: Vec<f64>,
+    iface: Option<IfCounters>,
+}
+
+/// What one run (one N) needs.
+struct RunSpec<'a> {
+    scene: &'a str,
+    transport: &'a str,
+    compression: &'a str,
+    n: usize,
+    settings_size: (u32, u32),
+    cameras: &'a [Camera],
+    master_extra: Vec<String>,
+}
+
+/// Per-frame results and the counters around them.
+struct RunResult {
+    secs: Vec<f64>,
+    bytes_in: Vec<u64>,
+    duplicated: u64,
+    before: Snapshot,
+    after: Snapshot,
+}
+
+/// Runs `isin bench scaling`.
+pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
+    if let Some(json) = &args.from_json {
+        let text =
+            std::fs::read_to_string(json).with_context(|| format!("cannot read {}", json.display()))?;
+        let mut report: Report = serde_json::from_str(&text)?;
+        for r in &mut report.rows {
+            if let Some(u) = r.slave_quota_use {
+                r.slave_crowded = (1.0 - u - r.slave_idle).clamp(0.0, 1.0);
+            }
+            r.bottleneck = (r.slaves > 1 && r.efficiency < EFFICIENCY_BAR).then(|| bottleneck(r));
+        }
+        return write_outputs(&report, &args.out_dir, false);
+    }
+    let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let (mut slave_counts, mut sizes, mut transports, mut frames): (Vec<usize>, _, Vec<String>, _) = (
+        parse_list(&args.slaves)?,
+        parse_sizes(&args.sizes)?,
+        parse_list(&args.transports)?,
+        args.frames.max(1),
+    );
+    if args.quick {
+        slave_counts = vec![1, 2, 4, 12];
+        sizes = vec![(320, 240)];
+        transports = vec!["tcp".into()];
+        frames = frames.min(8);
+    }
+    slave_counts.sort_unstable();
+    slave_counts.dedup();
+    anyhow::ensure!(slave_counts.first().is_some_and(|&n| n >= 1), "slave counts must be ≥ 1");
+    let n_max = *slave_counts.last().context("no slave counts")?;
+    let compressions: Vec<String> = match &args.compression {
+        Some(c) => parse_list(c)?,
+        None => modes::default_compressions(),
+    };
+    modes::check_transports(&transports)?;
+    modes::check_compressions(&compressions)?;
+    let rates: Vec<u32> = parse_list(&args.rates)?;
+    let scene_arg = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
+    let path = isin_viewer::CameraPath::load(&args.path)?;
+    anyhow::ensure!(!path.frames.is_empty(), "{} has no cameras", args.path.display());
+
+    let support = Support::probe();
+    let mut notes = support.describe();
+    let use_lab = !args.loopback && support.netns.is_ok() && support.cpu_quota.is_ok();
+    if !use_lab {
+        notes.push(if args.loopback {
+            "--loopback: no lab".into()
+        } else {
+            "no lab: running on loopback without rate limits or CPU quotas — every slave \
+             competes for all cores, so speedup cannot exceed the core count"
+                .into()
+        });
+        for n in &notes {
+            println!("note: {n}");
+        }
+    } else {
+        netlab::install_signal_cleanup()?;
+        for gone in netlab::cleanup_stale() {
+            println!("removed {gone}, left over from an earlier run");
+        }
+    }
+    let cpu_total = args.cpu_total.unwrap_or(cores as f64);
+    let share = cpu_total / n_max as f64;
+    let cgroups: Vec<CpuCgroup> = if use_lab {
+        (1..=n_max).map(|i| CpuCgroup::create(&format!("s{i}"), share)).collect::<anyhow::Result<_>>()?
+    } else {
+        Vec::new()
+    };
+    if let Some(cg) = cgroups.first() {
+        println!(
+            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {} in total",
+            cg.share(),
+            cg.quota_us,
+            cg.period_us,
+            cpu_total
+        );
+    }
+    let loadavg_before = loadavg();
+    let mut rows = Vec::new();
+    let rate_list: Vec<Option<u32>> =
+        if use_lab { rates.iter().map(|&r| Some(r)).collect() } else { vec![None] };
+    for &rate in &rate_list {
+        let mut lab = if use_lab {
+            Some(Lab::new(n_max, LinkSpec { rate_mbit: rate, loss_per_mille: 0 })?)
+        } else {
+            None
+        };
+        if let (Some(lab), Some(r)) = (lab.as_mut(), rate) {
+            println!(
+                "lab: every PC on a {r} Mbit/s cable to one switch ({} namespaces)",
+                lab.slave_count() + 2
+            );
+        }
+        for &(w, h) in &sizes {
+            let n_frames = (frames * 320 * 240 / (w as usize * h as usize).max(1)).max(4).min(frames.max(4));
+            let cameras: Vec<Camera> =
+                (0..n_frames).map(|i| path.frames[i * path.frames.len() / n_frames].camera()).collect();
+            for transport in &transports {
+                for compression in &compressions {
+                    let mut group: Vec<Row> = Vec::new();
+                    for &n in &slave_counts {
+                        let mut master_extra = modes::master_args(transport, compression);
+                        master_extra.extend(["--tile".to_string(), args.tile.to_string()]);
+                        master_extra.extend(args.master_args.iter().cloned());
+                        let spec = RunSpec {
+                            scene: &scene_arg,
+                            transport,
+                            compression,
+                            n,
+                            settings_size: (w, h),
+                            cameras: &cameras,
+                            master_extra,
+                        };
+                        let what = format!("{w}x{h} {transport}/{compression}, {n} slaves");
+                        let r = match run_once(lab.as_ref(), &cgroups, &spec) {
+                            Ok(r) => r,
+                            Err(e) => {
+                                println!("{what} failed, trying once more: {e:#}");
+                                run_once(lab.as_ref(), &cgroups, &spec).with_context(|| what.clone())?
+                            }
+                        };
+                        // Speedup against the smallest N, taken as linear up to there.
+                        let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
+                        let row = make_row(&spec, rate, cgroups.first().map(CpuCgroup::share), &r, base);
+                        println!(
+                            "{w}x{h} {transport}/{compression} N={n:>2}: {:.3} s/frame (p95 {:.3}), {:.2} fps, \
+                             speedup {:.2}, efficiency {:.2}, {:.0} kB/frame, master CPU {:.2}, slaves idle {:.0} %, \
+                             crowded {:.0} %{}",
+                            row.sec_median,
+                            row.sec_p95,
+                            row.fps,
+                            row.speedup,
+                            row.efficiency,
+                            row.bytes_per_frame / 1e3,
+                            row.master_cpu,
+                            row.slave_idle * 100.0,
+                            row.slave_crowded * 100.0,
+                            row.bottleneck
+                                .as_ref()
+                                .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
+                                .unwrap_or_default()
+                        );
+                        group.push(row);
+                    }
+                    rows.extend(group);
+                }
+            }
+        }
+        drop(lab.take());
+    }
+    drop(cgroups);
+    let unix_time =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let first = cgroups_meta(use_lab, share);
+    let report = Report {
+        meta: Meta {
+            scene: scene_arg,
+            path: args.path.display().to_string(),
+            cameras_in_path: path.frames.len(),
+            cores,
+            lab: use_lab,
+            lab_notes: notes,
+            cpu_total: use_lab.then_some(cpu_total),
+            slave_share_of_a_core: use_lab.then_some(share),
+            cfs_period_us: first.map(|f| f.0),
+            cfs_quota_us: first.map(|f| f.1),
+            tile: args.tile,
+            loadavg_before,
+            loadavg_after: loadavg(),
+            unix_time,
+        },
+        paper: PAPER.to_vec(),
+        rows,
+    };
+    write_outputs(&report, &args.out_dir, true)
+}
+
+fn write_outputs(report: &Report, dir: &Path, json: bool) -> anyhow::Result<()> {
+    if json {
+        report::write(&dir.join("scaling.json"), &serde_json::to_string_pretty(report)?)?;
+    }
+    let md = markdown(report);
+    report::write(&dir.join("scaling.md"), &md)?;
+    plot(&dir.join("scaling.svg"), &report.rows)?;
+    println!("\n{md}");
+    println!("wrote scaling.json, scaling.md and scaling.svg in {}", dir.display());
+    Ok(())
+}
+
+fn cgroups_meta(use_lab: bool, share: f64) -> Option<(u64, u64)> {
+    use_lab.then(|| netlab::cgroup::period_for_share(share))
+}
+
+/// Starts a master and `spec.n` slaves, replays the cameras, stops them.
+fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow::Result<RunResult> {
+    let token = auth::generate_token()?;
+    let master_ns = lab.map(|l| l.master().ns.clone());
+    let listen = lab.map_or("127.0.0.1:0".to_string(), |l| format!("{}:0", l.master().addr));
+    let (master, ticket) =
+        start_master(master_ns.as_deref(), spec.scene, &listen, &token, &spec.master_extra)?;
+    let mut slaves: Vec<ChildGuard> = Vec::new();
+    for i in 0..spec.n {
+        let ns = lab.and_then(|l| l.slave(i)).map(|h| h.ns.as_str());
+        slaves.push(start_slave(ns, cgroups.get(i), &ticket, 1, &format!("pc{}", i + 1), &[])?);
+    }
+    wait_joined(&master, &mut slaves, Duration::from_secs(120))?;
+    let (master_pid, slave_pids): (String, Vec<u32>) =
+        (master.pid().to_string(), slaves.iter().map(ChildGuard::pid).collect());
+    let snapshot = || Snapshot {
+        at: Instant::now(),
+        master_cpu: cpu_secs(&master_pid),
+        render: slave_pids.iter().map(|&p| SchedStat::read(p, "isin-render")).collect(),
+        throttled_us: cgroups.iter().take(spec.n).map(|c| c.throttled().1).collect(),
+        iface: lab.and_then(|l| l.counters(l.master()).ok()),
+    };
+    let (w, h) = spec.settings_size;
+    let cameras = spec.cameras;
+    std::thread::scope(|scope| {
+        scope
+            .spawn(|| {
+                if let Some(ns) = &master_ns {
+                    netlab::netns::enter(ns)?;
+                }
+                actix::System::new().block_on(async {
+                    let transport = cluster::client_transport(&ticket)?;
+                    let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
+                    let settings = RenderSettings { width: w, height: h, ..info.settings };
+                    // Warm-up: scene loaded and caches hot on every slave.
+                    viewer::collect_frame(&v, &mut events, cameras[0], settings).await?;
+                    let before = snapshot();
+                    let (mut secs, mut bytes_in, mut duplicated) = (Vec::new(), Vec::new(), 0);
+                    for &camera in cameras {
+                        let t0 = Instant::now();
+                        let (_, stats) = viewer::collect_frame(&v, &mut events, camera, settings).await?;
+                        secs.push(t0.elapsed().as_secs_f64());
+                        bytes_in.push(stats.bytes_in);
+                        duplicated += u64::from(stats.duplicated);
+                    }
+                    let after = snapshot();
+                    let _ = v.send(viewer::Disconnect).await;
+                    anyhow::Ok(RunResult { secs, bytes_in, duplicated, before, after })
+                })
+            })
+            .join()
+            .map_err(|_| anyhow::anyhow!("viewer thread panicked"))?
+    })
+}
+
+fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult, base: Option<f64>) -> Row {
+    let n = spec.n;
+    let frames = r.secs.len();
+    let wall = (r.after.at - r.before.at).as_secs_f64().max(1e-9);
+    let sec_median = median(&r.secs);
+    let speedup = base.map_or(n as f64, |b| b / sec_median.max(1e-9));
+    let efficiency = speedup / n as f64;
+    let bytes_per_frame = r.bytes_in.iter().sum::<u64>() as f64 / frames.max(1) as f64;
+    let iface = match (&r.before.iface, &r.after.iface) {
+        (Some(b), Some(a)) => Some(a.since(b)),
+        _ => None,
+    };
+    let link_utilisation = match (iface, rate) {
+        (Some(c), Some(rate)) => Some(c.rx_bytes as f64 * 8.0 / wall / (f64::from(rate) * 1e6)),
+        _ => None,
+    };
+    let master_cpu = (r.after.master_cpu - r.before.master_cpu) / wall;
+    let render: Vec<SchedStat> =
+        r.after.render.iter().zip(&r.before.render).map(|(a, b)| a.since(b)).collect();
+    let throttled: Vec<f64> =
+        r.after.throttled_us.iter().zip(&r.before.throttled_us).map(|(a, b)| (a - b) / 1e6).collect();
+    let mean = |f: &dyn Fn(usize) -> f64| (0..render.len()).map(f).sum::<f64>() / render.len().max(1) as f64;
+    let slave_idle = mean(&|i| (1.0 - (render[i].run + render[i].wait) / wall).max(0.0));
+    let slave_quota_use = share.map(|s| mean(&|i| render[i].run / (s * wall)));
+    // With a quota, a slave with work gets `share` of a core unless the machine
+    // is too busy to give it: the quota it neither used nor left idle was lost
+    // to other load. Without one, count the wait for a core beyond throttling.
+    let slave_crowded = match slave_quota_use {
+        Some(u) => (1.0 - u - slave_idle).clamp(0.0, 1.0),
+        None => {
+            mean(&|i| ((render[i].wait - throttled.get(i).copied().unwrap_or(0.0)) / wall).clamp(0.0, 1.0))
+        }
+    };
+    let duplicated_per_frame = r.duplicated as f64 / frames.max(1) as f64;
+    let mut row = Row {
+        width: spec.settings_size.0,
+        height: spec.settings_size.1,
+        transport: spec.transport.to_string(),
+        compression: spec.compression.to_string(),
+        rate_mbit: rate,
+        slaves: n,
+        frames,
+        sec_median,
+        sec_p95: quantile(&r.secs, 0.95),
+        fps: frames as f64 / r.secs.iter().sum::<f64>().max(1e-9),
+        speedup,
+        efficiency,
+        bytes_per_frame,
+        iface_bytes_per_frame: iface.map(|c| c.rx_bytes as f64 / frames.max(1) as f64),
+        link_utilisation,
+        master_cpu,
+        slave_quota_use,
+        slave_idle,
+        slave_crowded,
+        duplicated_per_frame,
+        bottleneck: None,
+    };
+    if n > 1 && efficiency < EFFICIENCY_BAR {
+        row.bottleneck = Some(bottleneck(&row));
+    }
+    row
+}
+
+/// Names the resource that kept a run below the efficiency bar, from its measurements.
+fn bottleneck(r: &Row) -> String {
+    let mut why = Vec::new();
+    if let Some(u) = r.link_utilisation.filter(|&u| u >= 0.7) {
+        why.push(format!("link: the master's port ran at {:.0} % of its rate", u * 100.0));
+    }
+    if r.master_cpu >= 0.7 {
+        why.push(format!("master CPU: {:.2} cores busy", r.master_cpu));
+    }
+    if r.slave_crowded >= 0.05 && r.slave_crowded >= r.slave_idle {
+        why.push(format!(
+            "machine CPU: slaves lost {:.0} % of their quota to other load on the machine \
+             (the N slaves' quotas add up to the whole machine; other processes compete)",
+            r.slave_crowded * 100.0
+        ));
+    }
+    if r.slave_idle >= 0.05 && r.slave_idle > r.slave_crowded {
+        why.push(format!(
+            "scheduling: slaves' render threads had no tile {:.0} % of the time (round trips between \
+             tiles, end-of-frame tail)",
+            r.slave_idle * 100.0
+        ));
+    }
+    if r.duplicated_per_frame >= 1.0 {
+        why.push(format!("{:.1} straggler tiles rendered twice per frame", r.duplicated_per_frame));
+    }
+    if why.is_empty() {
+        why.push(format!(
+            "no single resource saturated (slaves idle {:.0} %, crowded {:.0} %, master CPU {:.2})",
+            r.slave_idle * 100.0,
+            r.slave_crowded * 100.0,
+            r.master_cpu
+        ));
+    }
+    why.join("; ")
+}
+
+fn fmt_opt(v: Option<f64>, f: impl Fn(f64) -> String) -> String {
+    v.map_or("–".into(), f)
+}
+
+/// The Markdown report: Table 1 layout per configuration, then the details.
+fn markdown(rep: &Report) -> String {
+    let m = &rep.meta;
+    let mut out = String::new();
+    out.push_str(&format!(
+        "Scene `{}`, {} evenly spaced cameras of `{}`; lab: {}{}; tile {} px; load average {} → {}.\n\n",
+        m.scene,
+        rep.rows.first().map_or(0, |r| r.frames),
+        m.path,
+        if m.lab { "yes" } else { "no (loopback)" },
+        match (m.slave_share_of_a_core, m.cfs_quota_us, m.cfs_period_us) {
+            (Some(s), Some(q), Some(p)) => format!(", each slave {s:.3} of a core (quota {q} µs / {p} µs)"),
+            _ => String::new(),
+        },
+        m.tile,
+        m.loadavg_before,
+        m.loadavg_after
+    ));
+    for n in &m.lab_notes {
+        out.push_str(&format!("Note: {n}.\n\n"));
+    }
+    let ns: Vec<usize> = {
+        let mut v: Vec<usize> = rep.rows.iter().map(|r| r.slaves).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let mut header = vec!["PCs".to_string()];
+    header.extend(ns.iter().map(|n| n.to_string()));
+    let paper_at = |n: usize| PAPER.iter().find(|p| p.0 == n).map(|p| p.1);
+    let mut rows = vec![
+        std::iter::once("paper 320×240: s/frame".to_string())
+            .chain(ns.iter().map(|&n| fmt_opt(paper_at(n), |s| format!("{s:.2}"))))
+            .collect::<Vec<_>>(),
+        std::iter::once("paper: speedup".to_string())
+            .chain(ns.iter().map(|&n| fmt_opt(paper_at(n), |s| format!("{:.2}", PAPER[0].1 / s))))
+            .collect(),
+    ];
+    for key in groups(&rep.rows) {
+        let g: Vec<&Row> = rep.rows.iter().filter(|r| group_key(r) == key).collect();
+        let at = |n: usize| g.iter().find(|r| r.slaves == n);
+        let label = group_label(g[0]);
+        rows.push(
+            std::iter::once(format!("isin {label}: s/frame"))
+                .chain(ns.iter().map(|&n| fmt_opt(at(n).map(|r| r.sec_median), |s| format!("{s:.3}"))))
+                .collect(),
+        );
+        rows.push(
+            std::iter::once(format!("isin {label}: speedup"))
+                .chain(ns.iter().map(|&n| fmt_opt(at(n).map(|r| r.speedup), |s| format!("{s:.2}"))))
+                .collect(),
+        );
+        rows.push(
+            std::iter::once(format!("isin {label}: efficiency"))
+                .chain(ns.iter().map(|&n| fmt_opt(at(n).map(|r| r.efficiency), |s| format!("{s:.2}"))))
+                .collect(),
+        );
+    }
+    let header_refs: Vec<&str> = header.iter().map(String::as_str).collect();
+    out.push_str(&report::table(&header_refs, &rows));
+    out.push_str("\nDetails (seconds per frame: median / p95):\n\n");
+    let detail: Vec<Vec<String>> = rep
+        .rows
+        .iter()
+        .map(|r| {
+            vec![
+                group_label(r),
+                r.slaves.to_string(),
+                format!("{:.3} / {:.3}", r.sec_median, r.sec_p95),
+                format!("{:.2}", r.fps),
+                format!("{:.2}", r.speedup),
+                format!("{:.2}", r.efficiency),
+                format!("{:.0}", r.bytes_per_frame / 1e3),
+                fmt_opt(r.iface_bytes_per_frame, |b| format!("{:.0}", b / 1e3)),
+                fmt_opt(r.link_utilisation, |u| format!("{:.1} %", u * 100.0)),
+                format!("{:.2}", r.master_cpu),
+                fmt_opt(r.slave_quota_use, |u| format!("{:.0} %", u * 100.0)),
+                format!("{:.0} %", r.slave_idle * 100.0),
+                format!("{:.0} %", r.slave_crowded * 100.0),
+                format!("{:.1}", r.duplicated_per_frame),
+                r.bottleneck.clone().unwrap_or_default(),
+            ]
+        })
+        .collect();
+    out.push_str(&report::table(
+        &[
+            "setup",
+            "N",
+            "s/frame",
+            "fps",
+            "speedup",
+            "eff.",
+            "kB/frame (transport)",
+            "kB/frame (interface)",
+            "master link",
+            "master CPU",
+            "slave quota used",
+            "slave idle",
+            "slave crowded",
+            "dup. tiles/frame",
+            "short of 0.9 because",
+        ],
+        &detail,
+    ));
+    out
+}
+
+type GroupKey = (u32, u32, String, String, Option<u32>);
+
+fn group_key(r: &Row) -> GroupKey {
+    (r.width, r.height, r.transport.clone(), r.compression.clone(), r.rate_mbit)
+}
+
+fn groups(rows: &[Row]) -> Vec<GroupKey> {
+    let mut keys: Vec<GroupKey> = Vec::new();
+    for r in rows {
+        let k = group_key(r);
+        if !keys.contains(&k) {
+            keys.push(k);
+        }
+    }
+    keys
+}
+
+fn group_label(r: &Row) -> String {
+    let rate = match r.rate_mbit {
+        Some(m) if m >= 1000 => format!(", {} Gbit/s", m / 1000),
+        Some(m) => format!(", {m} Mbit/s"),
+        None => ", loopback".into(),
+    };
+    format!("{}×{} {}/{}{rate}", r.width, r.height, r.transport, r.compression)
+}
+
+/// The speedup plot: isin per configuration, the paper, ideal.
+fn plot(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
+    let n_max = rows.iter().map(|r| r.slaves).max().unwrap_or(12).max(12) as f64;
+    let mut series = vec![
+        Series {
+            name: "ideal (linear)".into(),
+            points: vec![(1.0, 1.0), (n_max, n_max)],
+            color: 6,
+            dashed: true,
+        },
+        Series {
+            name: "paper, 320×240 (12 PCs, 100 Mbit/s LAN)".into(),
+            points: PAPER.iter().map(|&(n, s)| (n as f64, PAPER[0].1 / s)).collect(),
+            color: 5,
+            dashed: false,
+        },
+    ];
+    for (i, key) in groups(rows).into_iter().enumerate() {
+        let g: Vec<&Row> = rows.iter().filter(|r| group_key(r) == key).collect();
+        series.push(Series {
+            name: format!("isin {}", group_label(g[0])),
+            points: g.iter().map(|r| (r.slaves as f64, r.speedup)).collect(),
+            color: [0, 1, 2, 3, 4, 7][i % 6],
+            dashed: false,
+        });
+    }
+    report::line_plot(path, "Speedup against one slave PC", "slave PCs (N)", "speedup", &series, None)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(n: usize, eff: f64) -> Row {
+        Row {
+            width: 320,
+            height: 240,
+            transport: "tcp".into(),
+            compression: "raw".into(),
+            rate_mbit: Some(100),
+            slaves: n,
+            frames: 4,
+            sec_median: 1.0 / (n as f64 * eff),
+            sec_p95: 1.0,
+            fps: 1.0,
+            speedup: n as f64 * eff,
+            efficiency: eff,
+            bytes_per_frame: 230e3,
+            iface_bytes_per_frame: Some(240e3),
+            link_utilisation: Some(0.1),
+            master_cpu: 0.1,
+            slave_quota_use: Some(0.9),
+            slave_idle: 0.02,
+            slave_crowded: 0.0,
+            duplicated_per_frame: 0.0,
+            bottleneck: None,
+        }
+    }
+
+    #[test]
+    fn bottleneck_names_the_saturated_resource() {
+        let mut r = row(12, 0.6);
+        r.link_utilisation = Some(0.95);
+        assert!(bottleneck(&r).starts_with("link"), "{}", bottleneck(&r));
+        let mut r = row(12, 0.6);
+        r.slave_crowded = 0.3;
+        assert!(bottleneck(&r).contains("machine CPU"), "{}", bottleneck(&r));
+        let mut r = row(12, 0.6);
+        r.slave_idle = 0.3;
+        assert!(bottleneck(&r).contains("scheduling"), "{}", bottleneck(&r));
+        let mut r = row(12, 0.6);
+        r.master_cpu = 0.95;
+        assert!(bottleneck(&r).contains("master CPU"), "{}", bottleneck(&r));
+    }
+
+    #[test]
+    fn markdown_puts_paper_and_isin_rows_under_the_pc_counts() {
+        let rep = Report {
+            meta: Meta {
+                scene: "s".into(),
+                path: "p".into(),
+                cameras_in_path: 4,
+                cores: 2,
+                lab: true,
+                lab_notes: vec![],
+                cpu_total: Some(2.0),
+                slave_share_of_a_core: Some(1.0 / 6.0),
+                cfs_period_us: Some(6000),
+                cfs_quota_us: Some(1000),
+                tile: 32,
+                loadavg_before: "1".into(),
+                loadavg_after: "1".into(),
+                unix_time: 0,
+            },
+            paper: PAPER.to_vec(),
+            rows: vec![row(1, 1.0), row(12, 0.95)],
+        };
+        let md = markdown(&rep);
+        let header = md.lines().find(|l| l.starts_with("| PCs")).unwrap();
+        assert_eq!(header, "| PCs | 1 | 12 |");
+        assert!(md.contains("| paper 320×240: s/frame | 2.61 | 0.32 |"), "{md}");
+        assert!(md.contains("| paper: speedup | 1.00 | 8.16 |"), "{md}");
+        assert!(md.contains("isin 320×240 tcp/raw, 100 Mbit/s: efficiency | 1.00 | 0.95 |"), "{md}");
+    }
+}
