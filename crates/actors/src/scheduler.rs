@@ -13,6 +13,9 @@
 //!   each slave keeps up to `threads + queue_depth` tiles in flight, so network
 //!   latency hides behind queued work and faster slaves take more tiles (dynamic
 //!   load balancing rather than a static split).
+//! - **Enough tiles for the cluster.** A frame is cut into tiles of
+//!   [`SchedulerConfig::tile_size`], halved (down to 16 px) while that would
+//!   give fewer than 8 tiles per render thread in the cluster.
 //! - **Smaller tiles at the end.** When fewer tiles remain queued than the
 //!   cluster has threads, the next tile is split in four (down to
 //!   [`SchedulerConfig::min_tile_size`]) so the frame does not wait on one big tile.
@@ -334,7 +337,9 @@ impl Scheduler {
             return Err(SchedulerError::NotNewer { new: frame, current });
         }
         self.abandon_frame();
-        let tiles: Vec<TileRec> = Tile::grid(width, height, self.config.tile_size)
+        let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
+        let edge = frame_tile_size(&self.config, width, height, threads);
+        let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
             .into_iter()
             .map(|tile| TileRec {
                 tile,
@@ -552,6 +557,27 @@ impl Scheduler {
             self.outputs.push_back(Output::Assign { slave, frame: f.id, tiles, reassigned });
         }
     }
+}
+
+/// Tiles a frame needs per render thread in the cluster before the tile edge
+/// stops shrinking: fewer, and the last round of tiles leaves threads idle.
+const TILES_PER_THREAD: u32 = 8;
+
+/// Smallest edge [`frame_tile_size`] shrinks to: below it the per-tile cost
+/// (a message, a stream, a round trip) outweighs the finer balance.
+const SMALLEST_FRAME_TILE: u32 = 16;
+
+/// The tile edge for a `width × height` frame on a cluster of `threads` render
+/// threads: [`SchedulerConfig::tile_size`], halved while the frame would have
+/// fewer than [`TILES_PER_THREAD`] tiles per thread.
+fn frame_tile_size(cfg: &SchedulerConfig, width: u32, height: u32, threads: u32) -> u32 {
+    let floor = SMALLEST_FRAME_TILE.max(cfg.min_tile_size);
+    let mut edge = cfg.tile_size;
+    let count = |e: u32| u64::from(width.div_ceil(e)) * u64::from(height.div_ceil(e));
+    while edge / 2 >= floor && count(edge) < u64::from(TILES_PER_THREAD) * u64::from(threads) {
+        edge /= 2;
+    }
+    edge
 }
 
 /// Gives each slave with an idle thread the newest tile waiting behind busy

@@ -336,7 +336,8 @@ fn newer_frame_supersedes_and_stale_results_are_dropped() {
 
 #[test]
 fn tiles_waiting_on_a_busy_slave_move_to_an_idle_one() {
-    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    // Whole 32 px tiles only (no shrinking, no end-of-frame splits).
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, min_tile_size: 32, ..cfg() });
     let _fast = sim.join(1, 1);
     let slow = sim.join(1, 100); // 102 ms per 32x32 tile
     sim.frame(1, 128, 64);
@@ -362,6 +363,21 @@ fn near_the_end_of_a_frame_slaves_get_one_tile_per_thread() {
     assert_eq!(held, 4, "one per thread, none queued behind one: {:?}", sim.sched.slaves());
     sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
     sim.assert_exact_cover(1);
+}
+
+#[test]
+fn a_large_cluster_gets_smaller_tiles() {
+    let edge_for = |slaves: u32| {
+        let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+        let ids: Vec<SlaveId> = (0..slaves).map(|_| sim.join(1, 1)).collect();
+        sim.frame(1, 320, 240);
+        let first = sim.slaves[&ids[0]].queue.front().map(|(_, job)| job.tile).expect("work assigned");
+        sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+        sim.assert_exact_cover(1);
+        first.w
+    };
+    assert_eq!(edge_for(1), 32, "80 tiles are plenty for one thread");
+    assert_eq!(edge_for(12), 16, "80 tiles of 32 px are under 8 per thread for 12 threads");
 }
 
 #[test]
