@@ -35,7 +35,8 @@ pub struct MasterArgs {
     /// Shared secret slaves and viewers must prove (generated if absent).
     #[arg(long)]
     pub token: Option<String>,
-    /// Tile edge in pixels.
+    /// Tile edge in pixels (halved, down to 16, while a frame would have fewer
+    /// than 8 tiles per render thread in the cluster).
     #[arg(long, default_value_t = 32)]
     pub tile: u32,
     /// Milliseconds of silence after which a slave is declared dead.
