@@ -130,6 +130,27 @@ pub fn line_plot(
     Ok(())
 }
 
+/// Writes a bench's outputs into `dir`: `STEM.json` (the report, when
+/// `json`; a redraw from `--from-json` skips it), `STEM.md` and `STEM.svg`
+/// (drawn by `plot`), and prints the table.
+pub fn write_outputs(
+    dir: &Path,
+    stem: &str,
+    report: &impl serde::Serialize,
+    json: bool,
+    md: &str,
+    plot: impl FnOnce(&Path) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    if json {
+        write(&dir.join(format!("{stem}.json")), &serde_json::to_string_pretty(report)?)?;
+    }
+    write(&dir.join(format!("{stem}.md")), md)?;
+    plot(&dir.join(format!("{stem}.svg")))?;
+    println!("\n{md}");
+    println!("wrote {stem}.json, {stem}.md and {stem}.svg in {}", dir.display());
+    Ok(())
+}
+
 /// Writes `text` to `path`, creating the directory.
 pub fn write(path: &Path, text: &str) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {

@@ -362,15 +362,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
 }
 
 fn write_outputs(report: &Report, dir: &Path, json: bool) -> anyhow::Result<()> {
-    if json {
-        report::write(&dir.join("scaling.json"), &serde_json::to_string_pretty(report)?)?;
-    }
-    let md = markdown(report);
-    report::write(&dir.join("scaling.md"), &md)?;
-    plot(&dir.join("scaling.svg"), &report.rows)?;
-    println!("\n{md}");
-    println!("wrote scaling.json, scaling.md and scaling.svg in {}", dir.display());
-    Ok(())
+    report::write_outputs(dir, "scaling", report, json, &markdown(report), |path| plot(path, &report.rows))
 }
 
 fn cgroups_meta(use_lab: bool, share: f64) -> Option<(u64, u64)> {

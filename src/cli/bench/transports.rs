@@ -323,15 +323,7 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
 }
 
 fn write_outputs(report: &Report, dir: &Path, json: bool) -> anyhow::Result<()> {
-    if json {
-        report::write(&dir.join("transports.json"), &serde_json::to_string_pretty(report)?)?;
-    }
-    let md = markdown(report);
-    report::write(&dir.join("transports.md"), &md)?;
-    plot(&dir.join("transports.svg"), &report.rows)?;
-    println!("\n{md}");
-    println!("wrote transports.json, transports.md and transports.svg in {}", dir.display());
-    Ok(())
+    report::write_outputs(dir, "transports", report, json, &markdown(report), |path| plot(path, &report.rows))
 }
 
 fn run_once(lab: Option<&Lab>, cond: &Condition, spec: &RunSpec) -> anyhow::Result<Row> {
