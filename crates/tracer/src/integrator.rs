@@ -362,8 +362,26 @@ impl<'a> Integrator<'a> {
     /// and random numbers are given.
     #[inline]
     pub fn trace(&self, ray: &Ray, cone: RayCone, sample: &SampleId, counts: &mut RayCounts) -> Vec3 {
+        self.trace_hit(ray, self.scene.intersect(ray, 0.0, f32::INFINITY), cone, sample, counts)
+    }
+
+    /// [`Integrator::trace`] for a camera ray whose nearest hit the caller
+    /// already found (e.g. with a packet query that gives exactly
+    /// `scene.intersect(ray, 0.0, f32::INFINITY)`).
+    #[inline]
+    pub fn trace_hit(
+        &self,
+        ray: &Ray,
+        hit: Option<Hit>,
+        cone: RayCone,
+        sample: &SampleId,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
         counts.primary += 1;
-        self.radiance(ray, cone, 0, Vec3::ONE, sample, counts)
+        match hit {
+            Some(hit) => self.shade(ray, &hit, cone, 0, Vec3::ONE, sample, counts),
+            None => self.scene.background,
+        }
     }
 
     /// Radiance along `ray` at recursion depth `depth`; `weight` is the
@@ -377,10 +395,26 @@ impl<'a> Integrator<'a> {
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
+        match self.scene.intersect(ray, 0.0, f32::INFINITY) {
+            Some(hit) => self.shade(ray, &hit, cone, depth, weight, sample, counts),
+            None => self.scene.background,
+        }
+    }
+
+    /// Radiance leaving `hit`, the nearest hit of `ray`, towards the ray's origin.
+    #[allow(clippy::too_many_arguments)]
+    fn shade(
+        &self,
+        ray: &Ray,
+        hit: &Hit,
+        cone: RayCone,
+        depth: u32,
+        weight: Vec3,
+        sample: &SampleId,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
         let scene = self.scene;
-        let Some(hit) = scene.intersect(ray, 0.0, f32::INFINITY) else {
-            return scene.background;
-        };
+        let hit = *hit;
         let sp = SurfacePoint::new(scene, ray, &hit);
         let cone_width = cone.width_at(hit.t);
         let material = scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
