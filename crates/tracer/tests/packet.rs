@@ -350,3 +350,48 @@ fn small_and_empty_trees() {
     assert_eq!(bvh.occluded8(&rays, [0.0; 8], [f32::INFINITY; 8], 0xff), want);
     assert_eq!(bvh.occluded8(&rays, [0.0; 8], [1.5; 8], 0xff), 0, "the triangle is 2 units away");
 }
+
+/// A fixed workload for counting instructions (ignored by default): the
+/// bunny's 1024×768 camera packets (or shadow packets from their hits) traced
+/// as packets or as single rays, chosen by `PACKET_RAYS` = `primary8`
+/// (default), `primary`, `shadow8`, `shadow` or `none` (setup only);
+/// `PACKET_MESH` picks another mesh.
+///
+/// `PACKET_RAYS=primary valgrind --tool=callgrind target/debug/deps/packet-… packet_workload --ignored`
+#[test]
+#[ignore]
+fn packet_workload() {
+    let mesh = std::env::var("PACKET_MESH").unwrap_or_else(|_| "bunny/stanford-bunny.obj".into());
+    let Some(tris) = load_mesh(&mesh) else { return };
+    let bvh = Bvh::build(&tris);
+    let b = bounds_of(&tris);
+    let camera = camera_packets(&b, b.center() + Vec3::new(0.2, 0.25, 0.75) * b.diagonal(), 1024, 768);
+    let kind = std::env::var("PACKET_RAYS").unwrap_or_else(|_| "primary8".into());
+    let packets = if kind.starts_with("shadow") { shadow_packets(&b, &bvh, &camera, 1) } else { camera };
+    let start = std::time::Instant::now();
+    let hits: usize = if kind == "none" {
+        0 // setup only, to subtract from instruction counts
+    } else if kind.ends_with('8') {
+        packets
+            .iter()
+            .map(|(r, a, z)| {
+                if kind == "shadow8" {
+                    bvh.occluded8(r, *a, *z, 0xff).count_ones() as usize
+                } else {
+                    bvh.intersect8(r, *a, *z, 0xff).iter().filter(|h| h.is_some()).count()
+                }
+            })
+            .sum()
+    } else {
+        packets
+            .iter()
+            .flat_map(|(r, a, z)| (0..PACKET_LANES).map(move |j| (r[j], a[j], z[j])))
+            .filter(|(r, a, z)| {
+                if kind == "shadow" { bvh.occluded(r, *a, *z) } else { bvh.intersect(r, *a, *z).is_some() }
+            })
+            .count()
+    };
+    let secs = start.elapsed().as_secs_f64();
+    let rays = packets.len() * PACKET_LANES;
+    println!("{kind}: {rays} rays, {hits} hits, {:.2} Mrays/s", rays as f64 / secs * 1e-6);
+}

@@ -52,40 +52,13 @@ use crate::shapes::Hit;
 /// Rays in a packet.
 pub const LANES: usize = 8;
 
-/// Per-ray inputs of a packet query, checked for the interval-arithmetic path.
+/// Per-ray inputs of a packet query.
 struct Packet<'a> {
     rays: &'a [Ray; LANES],
     t_min: [f32; LANES],
     t_max: [f32; LANES],
     /// Rays to answer.
     active: u8,
-}
-
-impl Packet<'_> {
-    /// True when the active rays can be traced as one packet (see the module docs).
-    fn boundable(&self) -> bool {
-        let mut sign: Option<[bool; 3]> = None;
-        let mut todo = self.active;
-        while todo != 0 {
-            let j = todo.trailing_zeros() as usize;
-            todo &= todo - 1;
-            let r = &self.rays[j];
-            let inv = r.dir.recip();
-            if !(r.origin.is_finite() && r.dir.is_finite() && inv.is_finite())
-                || self.t_min[j].is_nan()
-                || self.t_max[j].is_nan()
-            {
-                return false;
-            }
-            let s = [r.dir.x < 0.0, r.dir.y < 0.0, r.dir.z < 0.0];
-            match sign {
-                None => sign = Some(s),
-                Some(s0) if s0 != s => return false,
-                Some(_) => {}
-            }
-        }
-        sign.is_some()
-    }
 }
 
 /// See [`Bvh::intersect8`].
@@ -100,11 +73,11 @@ pub(super) fn intersect8(
     let p = Packet { rays, t_min, t_max, active };
     let mut single = active;
     #[cfg(target_arch = "x86_64")]
-    if !bvh.wide.is_empty() && active.count_ones() > 1 && bvh.avx_active() && p.boundable() {
-        // SAFETY: `avx_active` checked that this CPU has AVX; `boundable` that
-        // the rays fit the interval bounds.
-        let tied = unsafe { avx::intersect(bvh, &p, &mut out) };
-        single = tied;
+    if !bvh.wide.is_empty() && active.count_ones() > 1 && bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        if let Some(tied) = unsafe { avx::intersect(bvh, &p, &mut out) } {
+            single = tied;
+        }
     }
     while single != 0 {
         let j = single.trailing_zeros() as usize;
@@ -124,9 +97,11 @@ pub(super) fn occluded8(
 ) -> u8 {
     let p = Packet { rays, t_min, t_max, active };
     #[cfg(target_arch = "x86_64")]
-    if !bvh.wide.is_empty() && active.count_ones() > 1 && bvh.avx_active() && p.boundable() {
-        // SAFETY: as in `intersect8`.
-        return unsafe { avx::occluded(bvh, &p) };
+    if !bvh.wide.is_empty() && active.count_ones() > 1 && bvh.avx_active() {
+        // SAFETY: `avx_active` checked that this CPU has AVX.
+        if let Some(hit) = unsafe { avx::occluded(bvh, &p) } {
+            return hit;
+        }
     }
     let mut out = 0;
     let mut todo = p.active;
@@ -179,42 +154,72 @@ mod avx {
         t_min_lo: f32,
     }
 
-    /// Builds [`Lanes`]; the packet must be [`Packet::boundable`].
+    /// Builds [`Lanes`], or `None` when the interval bounds cannot handle the
+    /// active rays: a non-finite origin or interval end, a zero or non-finite
+    /// `1 / d`, or direction components of both signs on one axis.
     ///
     /// # Safety
     /// The CPU must support AVX.
     #[inline(always)]
-    unsafe fn lanes(p: &Packet) -> Lanes {
+    unsafe fn lanes(p: &Packet) -> Option<Lanes> {
         let first = p.active.trailing_zeros() as usize;
-        let pick = |j: usize| if p.active & (1 << j) != 0 { j } else { first };
-        let o = |a: usize| std::array::from_fn::<f32, LANES, _>(|j| p.rays[pick(j)].origin[a]);
-        let d = |a: usize| std::array::from_fn::<f32, LANES, _>(|j| p.rays[pick(j)].dir[a]);
-        // `recip` per component, exactly as `WideRay::new` computes it.
-        let inv = |a: usize| std::array::from_fn::<f32, LANES, _>(|j| p.rays[pick(j)].dir.recip()[a]);
-        let neg = [0, 1, 2].map(|a| p.rays[first].dir[a] < 0.0);
-        let lo = |v: [f32; LANES]| v.iter().copied().fold(f32::INFINITY, f32::min);
-        let hi = |v: [f32; LANES]| v.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        let t_min_lo = (0..LANES)
-            .filter(|&j| p.active & (1 << j) != 0)
-            .map(|j| p.t_min[j])
-            .fold(f32::INFINITY, f32::min);
-        let t_mins = std::array::from_fn::<f32, LANES, _>(|j| p.t_min[pick(j)]);
+        let (mut o, mut d, mut inv) = ([[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3]);
+        let (mut t_min, mut t_max) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for j in 0..LANES {
+            // Inactive lanes copy an active ray, so that they do not widen the bounds.
+            let src = if p.active & (1 << j) != 0 { j } else { first };
+            let r = &p.rays[src];
+            for a in 0..3 {
+                o[a][j] = r.origin[a];
+                d[a][j] = r.dir[a];
+                // `recip` per component, exactly as `WideRay::new` computes it.
+                inv[a][j] = 1.0 / r.dir[a];
+            }
+            t_min[j] = p.t_min[src];
+            t_max[j] = p.t_max[src];
+        }
         // SAFETY: the caller guarantees AVX; the loads read 32-byte arrays.
         unsafe {
-            let v = |a: [f32; LANES]| _mm256_loadu_ps(a.as_ptr());
-            let s = _mm256_set1_ps;
-            Lanes {
-                o: [0, 1, 2].map(|a| v(o(a))),
-                d: [0, 1, 2].map(|a| v(d(a))),
-                inv: [0, 1, 2].map(|a| v(inv(a))),
-                t_min: v(t_mins),
-                neg,
-                o_near: [0, 1, 2].map(|a| s(if neg[a] { lo(o(a)) } else { hi(o(a)) })),
-                o_far: [0, 1, 2].map(|a| s(if neg[a] { hi(o(a)) } else { lo(o(a)) })),
-                inv_lo: [0, 1, 2].map(|a| s(lo(inv(a)))),
-                inv_hi: [0, 1, 2].map(|a| s(hi(inv(a)))),
-                t_min_lo,
+            let v = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
+            let o = [v(&o[0]), v(&o[1]), v(&o[2])];
+            let d = [v(&d[0]), v(&d[1]), v(&d[2])];
+            let inv = [v(&inv[0]), v(&inv[1]), v(&inv[2])];
+            let (t_min, t_max) = (v(&t_min), v(&t_max));
+            // |x| < inf is false for NaN and infinities.
+            let abs = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            let finite = |x: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_and_ps(x, abs), inf);
+            let mut ok = _mm256_and_ps(finite(o[0]), _mm256_and_ps(finite(o[1]), finite(o[2])));
+            ok = _mm256_and_ps(
+                ok,
+                _mm256_and_ps(finite(inv[0]), _mm256_and_ps(finite(inv[1]), finite(inv[2]))),
+            );
+            for x in &inv {
+                ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_NEQ_OQ>(*x, _mm256_setzero_ps()));
             }
+            // NaN interval ends (infinite ones are fine).
+            ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_ORD_Q>(t_min, t_max));
+            if _mm256_movemask_ps(ok) != 0xff {
+                return None;
+            }
+            let signs = inv.map(|x| _mm256_movemask_ps(x));
+            if signs.iter().any(|&m| m != 0 && m != 0xff) {
+                return None;
+            }
+            let neg = signs.map(|m| m == 0xff);
+            let (lo, hi) = (|x: __m256| _mm256_set1_ps(hmin(x)), |x: __m256| _mm256_set1_ps(hmax(x)));
+            Some(Lanes {
+                o,
+                d,
+                inv,
+                t_min,
+                neg,
+                o_near: [0, 1, 2].map(|a| if neg[a] { lo(o[a]) } else { hi(o[a]) }),
+                o_far: [0, 1, 2].map(|a| if neg[a] { hi(o[a]) } else { lo(o[a]) }),
+                inv_lo: inv.map(lo),
+                inv_hi: inv.map(hi),
+                t_min_lo: hmin(t_min),
+            })
         }
     }
 
@@ -335,6 +340,21 @@ mod avx {
         }
     }
 
+    /// Smallest lane.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn hmin(v: __m256) -> f32 {
+        // SAFETY: the caller guarantees AVX.
+        unsafe {
+            let m = _mm_min_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+            let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+            let m = _mm_min_ss(m, _mm_shuffle_ps::<1>(m, m));
+            _mm_cvtss_f32(m)
+        }
+    }
+
     /// A lane mask (all bits set in the lanes of `bits`).
     ///
     /// # Safety
@@ -347,15 +367,16 @@ mod avx {
     }
 
     /// Nearest hits of the packet `p` into `out`; returns the rays whose nearest
-    /// hit is tied (to be answered by the single-ray query).
+    /// hit is tied (to be answered by the single-ray query), or `None` when
+    /// the packet cannot be bounded (see [`lanes`]; `out` is then untouched).
     ///
     /// # Safety
-    /// The CPU must support AVX and `p` must be [`Packet::boundable`].
+    /// The CPU must support AVX.
     #[target_feature(enable = "avx")]
-    pub(super) unsafe fn intersect(bvh: &Bvh, p: &Packet, out: &mut [Option<Hit>; LANES]) -> u8 {
+    pub(super) unsafe fn intersect(bvh: &Bvh, p: &Packet, out: &mut [Option<Hit>; LANES]) -> Option<u8> {
         // SAFETY: this function is compiled for AVX and the caller checked the CPU.
         unsafe {
-            let l = lanes(p);
+            let l = lanes(p)?;
             let wide = &bvh.wide[..];
             let blocks = &bvh.blocks[..];
             let active = mask_of(p.active);
@@ -459,7 +480,7 @@ mod avx {
                                     out[j] = Some(Hit { t: ts[j], u: us[j], v: vs[j], prim });
                                 }
                             }
-                            return tie;
+                            return Some(tie);
                         }
                         Some((c, t)) if t <= best_hi * ROBUST_EXIT => break c,
                         Some(_) => {}
@@ -469,15 +490,16 @@ mod avx {
         }
     }
 
-    /// Any-hit answers of the packet `p` (bit `j` for ray `j`).
+    /// Any-hit answers of the packet `p` (bit `j` for ray `j`), or `None` when
+    /// the packet cannot be bounded (see [`lanes`]).
     ///
     /// # Safety
-    /// The CPU must support AVX and `p` must be [`Packet::boundable`].
+    /// The CPU must support AVX.
     #[target_feature(enable = "avx")]
-    pub(super) unsafe fn occluded(bvh: &Bvh, p: &Packet) -> u8 {
+    pub(super) unsafe fn occluded(bvh: &Bvh, p: &Packet) -> Option<u8> {
         // SAFETY: this function is compiled for AVX and the caller checked the CPU.
         unsafe {
-            let l = lanes(p);
+            let l = lanes(p)?;
             let wide = &bvh.wide[..];
             let blocks = &bvh.blocks[..];
             // Per lane: the interval end, -inf once the ray is answered (or inactive).
@@ -523,7 +545,7 @@ mod avx {
                     if done != 0 {
                         open &= !done;
                         if open == 0 {
-                            return p.active;
+                            return Some(p.active);
                         }
                         far = _mm256_blendv_ps(_mm256_set1_ps(f32::NEG_INFINITY), far, mask_of(open as u8));
                         far_hi = hmax(far);
@@ -531,7 +553,7 @@ mod avx {
                 }
                 current = match next.or_else(|| stack.pop()) {
                     Some(c) => c,
-                    None => return p.active & !(open as u8),
+                    None => return Some(p.active & !(open as u8)),
                 };
             }
         }
