@@ -124,7 +124,8 @@ mod avx {
     use super::{LANES, Packet};
     use crate::bvh::Bvh;
     use crate::bvh::blocks::TriBlock;
-    use crate::bvh::wide::{LEAF, ROBUST_EXIT, Stack, W, WideNode, leaf_range};
+    use crate::bvh::wide::{ROBUST_EXIT, Stack, W, WideNode, leaf_range};
+    use crate::geometry::Ray;
     use crate::shapes::Hit;
     use std::arch::x86_64::*;
 
@@ -138,6 +139,11 @@ mod avx {
         inv: [__m256; 3],
         /// Interval starts.
         t_min: __m256,
+        /// Interval ends of the active rays, `-inf` in inactive lanes (which
+        /// then pass no box test and record no hit).
+        t_max: __m256,
+        /// All bits set in the lanes of active rays.
+        active: __m256,
         /// Per axis: true when every direction component is negative (the
         /// near plane is then the box's max plane).
         neg: [bool; 3],
@@ -155,69 +161,72 @@ mod avx {
     }
 
     /// Builds [`Lanes`], or `None` when the interval bounds cannot handle the
-    /// active rays: a non-finite origin or interval end, a zero or non-finite
-    /// `1 / d`, or direction components of both signs on one axis.
+    /// active rays: a non-finite origin, a NaN interval end, a zero or
+    /// non-finite `1 / d`, or direction components of both signs on one axis.
     ///
     /// # Safety
     /// The CPU must support AVX.
     #[inline(always)]
     unsafe fn lanes(p: &Packet) -> Option<Lanes> {
+        let full = p.active == 0xff;
         let first = p.active.trailing_zeros() as usize;
-        let (mut o, mut d, mut inv) = ([[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3]);
-        let (mut t_min, mut t_max) = ([0.0f32; LANES], [0.0f32; LANES]);
-        for j in 0..LANES {
-            // Inactive lanes copy an active ray, so that they do not widen the bounds.
-            let src = if p.active & (1 << j) != 0 { j } else { first };
-            let r = &p.rays[src];
+        // Inactive lanes copy an active ray, so that they do not widen the bounds.
+        let src = |j: usize| if full || p.active & (1 << j) != 0 { j } else { first };
+        let rays: [Ray; LANES] = if full { *p.rays } else { std::array::from_fn(|j| p.rays[src(j)]) };
+        let t_min: [f32; LANES] = if full { p.t_min } else { std::array::from_fn(|j| p.t_min[src(j)]) };
+        let t_max: [f32; LANES] = if full { p.t_max } else { std::array::from_fn(|j| p.t_max[src(j)]) };
+        let (mut o, mut d) = ([[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3]);
+        for (j, r) in rays.iter().enumerate() {
             for a in 0..3 {
                 o[a][j] = r.origin[a];
                 d[a][j] = r.dir[a];
-                // `recip` per component, exactly as `WideRay::new` computes it.
-                inv[a][j] = 1.0 / r.dir[a];
             }
-            t_min[j] = p.t_min[src];
-            t_max[j] = p.t_max[src];
         }
+        let bits: [i32; LANES] = std::array::from_fn(|j| -(((p.active >> j) & 1) as i32));
         // SAFETY: the caller guarantees AVX; the loads read 32-byte arrays.
         unsafe {
             let v = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
             let o = [v(&o[0]), v(&o[1]), v(&o[2])];
             let d = [v(&d[0]), v(&d[1]), v(&d[2])];
-            let inv = [v(&inv[0]), v(&inv[1]), v(&inv[2])];
+            // `1 / d` per lane: the IEEE division `WideRay::new` (`recip`) does.
+            let one = _mm256_set1_ps(1.0);
+            let inv = [_mm256_div_ps(one, d[0]), _mm256_div_ps(one, d[1]), _mm256_div_ps(one, d[2])];
             let (t_min, t_max) = (v(&t_min), v(&t_max));
+            let active = _mm256_castsi256_ps(_mm256_loadu_si256(bits.as_ptr().cast()));
             // |x| < inf is false for NaN and infinities.
             let abs = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
             let inf = _mm256_set1_ps(f32::INFINITY);
             let finite = |x: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_and_ps(x, abs), inf);
-            let mut ok = _mm256_and_ps(finite(o[0]), _mm256_and_ps(finite(o[1]), finite(o[2])));
-            ok = _mm256_and_ps(
-                ok,
-                _mm256_and_ps(finite(inv[0]), _mm256_and_ps(finite(inv[1]), finite(inv[2]))),
-            );
-            for x in &inv {
-                ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_NEQ_OQ>(*x, _mm256_setzero_ps()));
+            let zero = _mm256_setzero_ps();
+            let mut ok = _mm256_cmp_ps::<_CMP_ORD_Q>(t_min, t_max);
+            for a in 0..3 {
+                ok = _mm256_and_ps(ok, _mm256_and_ps(finite(o[a]), finite(inv[a])));
+                ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_NEQ_OQ>(inv[a], zero));
             }
-            // NaN interval ends (infinite ones are fine).
-            ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_ORD_Q>(t_min, t_max));
             if _mm256_movemask_ps(ok) != 0xff {
                 return None;
             }
-            let signs = inv.map(|x| _mm256_movemask_ps(x));
+            let signs = [_mm256_movemask_ps(inv[0]), _mm256_movemask_ps(inv[1]), _mm256_movemask_ps(inv[2])];
             if signs.iter().any(|&m| m != 0 && m != 0xff) {
                 return None;
             }
-            let neg = signs.map(|m| m == 0xff);
-            let (lo, hi) = (|x: __m256| _mm256_set1_ps(hmin(x)), |x: __m256| _mm256_set1_ps(hmax(x)));
+            let neg = [signs[0] == 0xff, signs[1] == 0xff, signs[2] == 0xff];
+            let lo = |x: __m256| _mm256_set1_ps(hmin(x));
+            let hi = |x: __m256| _mm256_set1_ps(hmax(x));
+            let (o_lo, o_hi) = ([lo(o[0]), lo(o[1]), lo(o[2])], [hi(o[0]), hi(o[1]), hi(o[2])]);
+            let pick = |a: usize, near: bool| if neg[a] == near { o_lo[a] } else { o_hi[a] };
             Some(Lanes {
                 o,
                 d,
                 inv,
                 t_min,
+                t_max: _mm256_blendv_ps(_mm256_set1_ps(f32::NEG_INFINITY), t_max, active),
+                active,
                 neg,
-                o_near: [0, 1, 2].map(|a| if neg[a] { lo(o[a]) } else { hi(o[a]) }),
-                o_far: [0, 1, 2].map(|a| if neg[a] { hi(o[a]) } else { lo(o[a]) }),
-                inv_lo: inv.map(lo),
-                inv_hi: inv.map(hi),
+                o_near: [pick(0, true), pick(1, true), pick(2, true)],
+                o_far: [pick(0, false), pick(1, false), pick(2, false)],
+                inv_lo: [lo(inv[0]), lo(inv[1]), lo(inv[2])],
+                inv_hi: [hi(inv[0]), hi(inv[1]), hi(inv[2])],
                 t_min_lo: hmin(t_min),
             })
         }
@@ -241,26 +250,41 @@ mod avx {
                 let (rn, rf) = if l.neg[a] { (a + 3, a) } else { (a, a + 3) };
                 let dn = _mm256_sub_ps(load(rn), l.o_near[a]);
                 let df = _mm256_sub_ps(load(rf), l.o_far[a]);
-                let t0 = _mm256_min_ps(_mm256_mul_ps(dn, l.inv_lo[a]), _mm256_mul_ps(dn, l.inv_hi[a]));
-                let t1 = _mm256_max_ps(_mm256_mul_ps(df, l.inv_lo[a]), _mm256_mul_ps(df, l.inv_hi[a]));
+                // min(dn · inv_lo, dn · inv_hi) is the product with inv_lo where
+                // dn ≥ 0 (sign bit clear) and with inv_hi where dn < 0; the
+                // max of the exit products the other way round.
+                let t0 = _mm256_mul_ps(dn, _mm256_blendv_ps(l.inv_lo[a], l.inv_hi[a], dn));
+                let t1 = _mm256_mul_ps(df, _mm256_blendv_ps(l.inv_hi[a], l.inv_lo[a], df));
                 near = _mm256_max_ps(t0, near);
                 far = _mm256_min_ps(t1, far);
             }
             let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_EXIT)));
-            let e = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), near, hit);
             let mut out = [0.0f32; W];
-            _mm256_storeu_ps(out.as_mut_ptr(), e);
+            _mm256_storeu_ps(out.as_mut_ptr(), near);
             (out, _mm256_movemask_ps(hit) as u32)
         }
     }
 
-    /// Each ray's own box test of child `k` of `node` (the single-ray
-    /// operations, one ray per lane) within `(t_min, t_far)`: the lanes that pass.
+    /// Bit `k` set where child `k` of `node` is a leaf (bit 31 of its word).
     ///
     /// # Safety
     /// The CPU must support AVX.
     #[inline(always)]
-    unsafe fn box_rays(node: &WideNode, k: usize, l: &Lanes, t_far: __m256) -> u32 {
+    unsafe fn leaf_mask(node: &WideNode) -> u32 {
+        // SAFETY: the caller guarantees AVX; the load reads the 32 bytes of `child`.
+        unsafe {
+            _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_loadu_si256(node.child.as_ptr().cast()))) as u32
+        }
+    }
+
+    /// Each ray's own box test of child `k` of `node` (the single-ray
+    /// operations, one ray per lane) within `(t_min, t_far)`: all bits set in
+    /// the lanes that pass.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn box_rays(node: &WideNode, k: usize, l: &Lanes, t_far: __m256) -> __m256 {
         // SAFETY: the caller guarantees AVX.
         unsafe {
             let mut near = l.t_min;
@@ -272,15 +296,18 @@ mod avx {
                 near = _mm256_max_ps(t0, near);
                 far = _mm256_min_ps(t1, far);
             }
-            let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_EXIT)));
-            _mm256_movemask_ps(hit) as u32
+            _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_mul_ps(far, _mm256_set1_ps(ROBUST_EXIT)))
         }
     }
 
     /// Möller–Trumbore of triangle `lane` of `block` against every ray, with the
     /// operations of `moller_trumbore` in its order: returns the lanes whose
-    /// hit is valid apart from the upper bound (`det ≠ 0`, `u`, `v` inside,
-    /// `t > t_min`), and `t`, `u`, `v`.
+    /// hit is valid apart from the upper bound (`u`, `v` inside, `t > t_min`),
+    /// and `t`, `u`, `v`.
+    ///
+    /// The scalar test's `det == 0` early-out needs no lane of its own: then
+    /// `1 / det` is infinite and `u` is infinite or NaN, which fails `0 ≤ u ≤ 1`
+    /// (as a NaN `det` does).
     ///
     /// # Safety
     /// The CPU must support AVX.
@@ -313,10 +340,8 @@ mod avx {
             let v = mul(add(add(mul(dx, qx), mul(dy, qy)), mul(dz, qz)), inv);
             let t = mul(add(add(mul(e2x, qx), mul(e2y, qy)), mul(e2z, qz)), inv);
             let (zero, one) = (_mm256_setzero_ps(), s(1.0));
-            // Ordered comparisons (false on NaN) except det != 0, which is true
-            // on NaN as the scalar `det == 0.0` is false; a NaN det makes u NaN.
-            let mut ok = _mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero);
-            ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(u, zero));
+            // Ordered comparisons: false on NaN, as the scalar ones.
+            let mut ok = _mm256_cmp_ps::<_CMP_GE_OQ>(u, zero);
             ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(u, one));
             ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GE_OQ>(v, zero));
             ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(add(u, v), one));
@@ -355,17 +380,6 @@ mod avx {
         }
     }
 
-    /// A lane mask (all bits set in the lanes of `bits`).
-    ///
-    /// # Safety
-    /// The CPU must support AVX.
-    #[inline(always)]
-    unsafe fn mask_of(bits: u8) -> __m256 {
-        let m: [i32; LANES] = std::array::from_fn(|j| if bits & (1 << j) != 0 { -1 } else { 0 });
-        // SAFETY: the caller guarantees AVX; the load reads the 32 bytes of `m`.
-        unsafe { _mm256_castsi256_ps(_mm256_loadu_si256(m.as_ptr().cast())) }
-    }
-
     /// Nearest hits of the packet `p` into `out`; returns the rays whose nearest
     /// hit is tied (to be answered by the single-ray query), or `None` when
     /// the packet cannot be bounded (see [`lanes`]; `out` is then untouched).
@@ -379,15 +393,10 @@ mod avx {
             let l = lanes(p)?;
             let wide = &bvh.wide[..];
             let blocks = &bvh.blocks[..];
-            let active = mask_of(p.active);
-            let t_max: [f32; LANES] =
-                std::array::from_fn(
-                    |j| if p.active & (1 << j) != 0 { p.t_max[j] } else { f32::NEG_INFINITY },
-                );
-            // Per lane: nearest t so far (-inf for inactive lanes, which then
-            // pass no test), its u, v and triangle lane, whether there is a hit
-            // and whether a second hit at the same t was seen.
-            let mut best = _mm256_loadu_ps(t_max.as_ptr());
+            // Per lane: nearest t so far (starting at the interval end, -inf
+            // for inactive lanes), its u, v and triangle lane, whether there
+            // is a hit and whether a second hit at the same t was seen.
+            let mut best = l.t_max;
             let (mut bu, mut bv, mut bid) = (_mm256_setzero_ps(), _mm256_setzero_ps(), _mm256_setzero_ps());
             let (mut has, mut tie) = (_mm256_setzero_ps(), _mm256_setzero_ps());
             let mut best_hi = hmax(best);
@@ -395,30 +404,29 @@ mod avx {
             let mut current = 0u32;
             loop {
                 let node = &wide[current as usize];
-                let (e, mut mask) = frustum(node, &l, best_hi);
-                let mut inner = 0u32;
-                while mask != 0 {
-                    let k = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    let word = node.child[k];
-                    if word & LEAF == 0 {
-                        inner |= 1 << k;
-                        continue;
-                    }
+                let (e, mask) = frustum(node, &l, best_hi);
+                let leaf = leaf_mask(node);
+                let (mut leaves, mut inner) = (mask & leaf, mask & !leaf);
+                while leaves != 0 {
+                    let k = leaves.trailing_zeros() as usize;
+                    leaves &= leaves - 1;
                     if e[k] > best_hi * ROBUST_EXIT {
                         continue;
                     }
+                    // Inactive lanes have best = -inf and fail.
                     let rays = box_rays(node, k, &l, best);
-                    if rays == 0 {
+                    if _mm256_movemask_ps(rays) == 0 {
                         continue;
                     }
-                    let rays = _mm256_and_ps(mask_of(rays as u8), active);
-                    let (first, count) = leaf_range(word);
+                    let (first, count) = leaf_range(node.child[k]);
                     let block = &blocks[(first / 4) as usize];
                     let mut improved = false;
                     for lane in (first % 4)..(first % 4 + count) {
                         let (ok, t, u, v) = triangle(block, lane as usize, &l);
-                        let ok = _mm256_and_ps(ok, rays);
+                        let ok = _mm256_and_ps(_mm256_and_ps(ok, rays), _mm256_cmp_ps::<_CMP_LE_OQ>(t, best));
+                        if _mm256_movemask_ps(ok) == 0 {
+                            continue;
+                        }
                         let lt = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, best));
                         let eq = _mm256_and_ps(_mm256_and_ps(ok, has), _mm256_cmp_ps::<_CMP_EQ_OQ>(t, best));
                         tie = _mm256_or_ps(_mm256_andnot_ps(lt, tie), eq);
@@ -466,16 +474,20 @@ mod avx {
                 current = loop {
                     match stack.pop() {
                         None => {
-                            let mut ts = [0.0f32; LANES];
-                            let (mut us, mut vs, mut ids) = ([0.0f32; LANES], [0.0f32; LANES], [0i32; LANES]);
-                            _mm256_storeu_ps(ts.as_mut_ptr(), best);
-                            _mm256_storeu_ps(us.as_mut_ptr(), bu);
-                            _mm256_storeu_ps(vs.as_mut_ptr(), bv);
-                            _mm256_storeu_si256(ids.as_mut_ptr().cast(), _mm256_castps_si256(bid));
-                            let has = _mm256_movemask_ps(has) as u8 & p.active;
+                            let has = _mm256_movemask_ps(has) as u8;
                             let tie = _mm256_movemask_ps(tie) as u8 & has;
-                            for j in 0..LANES {
-                                if has & !tie & (1 << j) != 0 {
+                            let mut todo = has & !tie;
+                            if todo != 0 {
+                                let mut ts = [0.0f32; LANES];
+                                let (mut us, mut vs, mut ids) =
+                                    ([0.0f32; LANES], [0.0f32; LANES], [0u32; LANES]);
+                                _mm256_storeu_ps(ts.as_mut_ptr(), best);
+                                _mm256_storeu_ps(us.as_mut_ptr(), bu);
+                                _mm256_storeu_ps(vs.as_mut_ptr(), bv);
+                                _mm256_storeu_si256(ids.as_mut_ptr().cast(), _mm256_castps_si256(bid));
+                                while todo != 0 {
+                                    let j = todo.trailing_zeros() as usize;
+                                    todo &= todo - 1;
                                     let prim = bvh.prim_ids[ids[j] as usize];
                                     out[j] = Some(Hit { t: ts[j], u: us[j], v: vs[j], prim });
                                 }
@@ -502,58 +514,53 @@ mod avx {
             let l = lanes(p)?;
             let wide = &bvh.wide[..];
             let blocks = &bvh.blocks[..];
-            // Per lane: the interval end, -inf once the ray is answered (or inactive).
-            let t_max: [f32; LANES] =
-                std::array::from_fn(
-                    |j| if p.active & (1 << j) != 0 { p.t_max[j] } else { f32::NEG_INFINITY },
-                );
-            let t_max_v = _mm256_loadu_ps(t_max.as_ptr());
-            let mut open = p.active as u32;
-            let mut far = t_max_v;
-            let mut far_hi = hmax(far);
+            // Lanes still to answer (all bits set), and the largest interval end among them.
+            let mut open = l.active;
+            let mut far_hi = hmax(l.t_max);
             let mut stack = Stack::<u32>::new();
             let mut current = 0u32;
             loop {
                 let node = &wide[current as usize];
-                let (_, mut mask) = frustum(node, &l, far_hi);
-                let mut next = None;
-                while mask != 0 {
-                    let k = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    let word = node.child[k];
-                    if word & LEAF == 0 {
-                        if next.is_none() {
-                            next = Some(word);
-                        } else {
-                            stack.push(word);
-                        }
-                        continue;
-                    }
+                let (_, mask) = frustum(node, &l, far_hi);
+                let leaf = leaf_mask(node);
+                let (mut leaves, mut inner) = (mask & leaf, mask & !leaf);
+                while leaves != 0 {
+                    let k = leaves.trailing_zeros() as usize;
+                    leaves &= leaves - 1;
                     // The exact single-ray test with each ray's own interval.
-                    let rays = box_rays(node, k, &l, t_max_v) & open;
-                    if rays == 0 {
+                    let rays = _mm256_and_ps(box_rays(node, k, &l, l.t_max), open);
+                    if _mm256_movemask_ps(rays) == 0 {
                         continue;
                     }
-                    let (first, count) = leaf_range(word);
+                    let (first, count) = leaf_range(node.child[k]);
                     let block = &blocks[(first / 4) as usize];
                     let mut hit = _mm256_setzero_ps();
                     for lane in (first % 4)..(first % 4 + count) {
                         let (ok, t, _, _) = triangle(block, lane as usize, &l);
-                        hit = _mm256_or_ps(hit, _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, t_max_v)));
+                        hit = _mm256_or_ps(hit, _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, l.t_max)));
                     }
-                    let done = _mm256_movemask_ps(hit) as u32 & rays;
-                    if done != 0 {
-                        open &= !done;
-                        if open == 0 {
+                    let done = _mm256_and_ps(hit, rays);
+                    if _mm256_movemask_ps(done) != 0 {
+                        open = _mm256_andnot_ps(done, open);
+                        if _mm256_movemask_ps(open) == 0 {
                             return Some(p.active);
                         }
-                        far = _mm256_blendv_ps(_mm256_set1_ps(f32::NEG_INFINITY), far, mask_of(open as u8));
-                        far_hi = hmax(far);
+                        far_hi = hmax(_mm256_blendv_ps(_mm256_set1_ps(f32::NEG_INFINITY), l.t_max, open));
+                    }
+                }
+                let mut next = None;
+                while inner != 0 {
+                    let k = inner.trailing_zeros() as usize;
+                    inner &= inner - 1;
+                    if next.is_none() {
+                        next = Some(node.child[k]);
+                    } else {
+                        stack.push(node.child[k]);
                     }
                 }
                 current = match next.or_else(|| stack.pop()) {
                     Some(c) => c,
-                    None => return Some(p.active & !(open as u8)),
+                    None => return Some(p.active & !(_mm256_movemask_ps(open) as u8)),
                 };
             }
         }
