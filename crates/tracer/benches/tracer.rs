@@ -678,8 +678,12 @@ fn bench_mesh(name: &str, mesh: &BenchMesh, view: View, isin_only: bool, report:
     assert_eq!(single_hits, packet_hits, "{name}: packets and single rays hit as many rays");
     report.notes.push(format!("{name} primary8: {} packets of 8 rays; hits {packet_hits}", packets.len()));
     for (n, p) in &pools {
-        let (median, best, per_cpu) =
-            measure(REPS, primary.len(), || trace_packets_once(p, &isin, &packets).0);
+        // Like the single-ray rows, a repetition lasts about REP_BUDGET: the
+        // packet set is traced `k` times in one (so the CPU-time ticks add up).
+        let probe = trace_packets_once(p, &isin, &packets).0;
+        let k = (REP_BUDGET.as_secs_f64() / probe.max(1e-6)).ceil().clamp(1.0, 100.0) as usize;
+        let run = || (0..k).map(|_| trace_packets_once(p, &isin, &packets).0).sum::<f64>();
+        let (median, best, per_cpu) = measure(REPS, primary.len() * k, run);
         report_row(report, &format!("{name} primary8 {n}T"), Unit::MraysPerSec, median, None, None);
         let row = report.rows.last_mut().expect("row just added");
         (row.isin_best, row.isin_per_cpu) = (Some(best), per_cpu);
