@@ -439,6 +439,7 @@ fn randomised_sessions_never_lose_or_duplicate_a_pixel() {
             queue_depth: rng.below(4) as u32,
             heartbeat_timeout: Duration::from_millis(200 + rng.below(400)),
             duplicate_stragglers: rng.below(3) != 0,
+            max_open_frames: 4,
         };
         let mut sim = Sim::new(config);
         for _ in 0..1 + rng.below(4) {
