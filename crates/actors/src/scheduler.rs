@@ -205,7 +205,8 @@ struct SlaveState {
 impl SlaveState {
     /// Takes every tile of `frame` this slave holds.
     fn take_frame(&mut self, frame: FrameId) -> Vec<TileId> {
-        let tiles: Vec<TileId> = self.in_flight.range((frame, 0)..=(frame, TileId::MAX)).map(|&(_, t)| t).collect();
+        let tiles: Vec<TileId> =
+            self.in_flight.range((frame, 0)..=(frame, TileId::MAX)).map(|&(_, t)| t).collect();
         for t in &tiles {
             self.in_flight.remove(&(frame, *t));
         }
@@ -622,7 +623,14 @@ impl Scheduler {
         }
         let all_handed_out = self.frames.iter().filter(|f| !f.done).all(|f| f.queue.is_empty());
         if all_handed_out {
-            move_waiting_tiles(&mut self.slaves, &mut self.frames, &order, now, &mut batches, &mut self.outputs);
+            move_waiting_tiles(
+                &mut self.slaves,
+                &mut self.frames,
+                &order,
+                now,
+                &mut batches,
+                &mut self.outputs,
+            );
         }
         if cfg.duplicate_stragglers && all_handed_out {
             for id in &order {
@@ -762,7 +770,12 @@ fn next_open_tile(
 /// Takes the next queued tile of `f`, splitting it first when little work is
 /// left (fewer tiles queued, here and in the `behind` tiles of later frames,
 /// than the cluster has threads).
-fn next_tile(f: &mut FrameState, cfg: &SchedulerConfig, total_threads: usize, behind: usize) -> Option<TileId> {
+fn next_tile(
+    f: &mut FrameState,
+    cfg: &SchedulerConfig,
+    total_threads: usize,
+    behind: usize,
+) -> Option<TileId> {
     loop {
         let id = f.queue.pop_front()?;
         let rec = &f.tiles[id as usize];
