@@ -7,7 +7,13 @@
 //! never have more CPU than the machine. The master sits in a namespace of its
 //! own behind one such cable; the viewer (this process) talks to it inside the
 //! master's namespace, like the paper's master showing frames on its screen.
-//! Frames are the cameras of a recorded path, requested one after another.
+//! Frames are the cameras of a recorded path, requested one after another —
+//! by default with the next frame queued at the master while one renders
+//! (`--pipeline 2`: slaves roll from one frame straight into the next, as a
+//! replaying viewer would have them), or with a barrier between frames
+//! (`--pipeline 1`: each requested when the previous one completed). Seconds
+//! per frame are the intervals between completions (throughput); the latency
+//! of each frame (request to completion) is reported beside them.
 //!
 //! Besides seconds per frame it measures where the time went, so that a run
 //! whose efficiency falls short names the saturated resource: the master's
@@ -18,6 +24,7 @@
 
 use super::modes;
 use super::procs::{ChildGuard, SchedStat, cpu_secs, start_master, start_slave, wait_joined};
+use super::replay;
 use super::report::{self, Series, median, quantile};
 use super::{loadavg, parse_list, parse_sizes};
 use crate::cli::cluster;
@@ -71,6 +78,11 @@ pub struct ScalingArgs {
     /// Tile edge in pixels (`isin master --tile`).
     #[arg(long, default_value_t = 32)]
     tile: u32,
+    /// Frames kept requested at the master at once, comma-separated: 1 requests
+    /// each frame when the previous one completed (a barrier between frames); 2
+    /// keeps the next frame queued behind the one rendering (pipelined replay).
+    #[arg(long, default_value = "2")]
+    pipeline: String,
     /// Extra argument for `isin master` (repeatable), e.g. `--master-arg=--no-duplicates`.
     #[arg(long = "master-arg", allow_hyphen_values = true)]
     master_args: Vec<String>,
@@ -98,11 +110,25 @@ pub struct Row {
     compression: String,
     /// Link rate, Mbit/s (`None` on loopback).
     rate_mbit: Option<u32>,
+    /// Frames kept requested at once (1: one at a time).
+    #[serde(default = "one")]
+    pipeline: usize,
     slaves: usize,
     frames: usize,
-    /// Seconds per frame: median and 95th percentile.
+    /// Seconds per frame (intervals between completions): median and 95th percentile.
     sec_median: f64,
     sec_p95: f64,
+    /// Seconds from a frame's request to its completion: median and 95th percentile.
+    #[serde(default)]
+    latency_median: f64,
+    #[serde(default)]
+    latency_p95: f64,
+    /// Median seconds from a request to its first tile (the cluster's ramp-up).
+    #[serde(default)]
+    first_tile_median: f64,
+    /// Median seconds a frame took to deliver its last tenth of pixels (its tail).
+    #[serde(default)]
+    last_tenth_median: f64,
     fps: f64,
     /// Median seconds per frame at N = 1 ÷ at N.
     speedup: f64,
@@ -142,6 +168,9 @@ struct Meta {
     cfs_period_us: Option<u64>,
     cfs_quota_us: Option<u64>,
     tile: u32,
+    /// Frames kept requested at once, per group (`--pipeline`).
+    #[serde(default)]
+    pipeline: Vec<usize>,
     loadavg_before: String,
     loadavg_after: String,
     unix_time: u64,
@@ -171,12 +200,20 @@ struct RunSpec<'a> {
     n: usize,
     settings_size: (u32, u32),
     cameras: &'a [Camera],
+    pipeline: usize,
     master_extra: Vec<String>,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// Per-frame results and the counters around them.
 struct RunResult {
     secs: Vec<f64>,
+    latency: Vec<f64>,
+    first_tile: Vec<f64>,
+    last_tenth: Vec<f64>,
     bytes_in: Vec<u64>,
     duplicated: u64,
     before: Snapshot,
@@ -221,6 +258,8 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     modes::check_transports(&transports)?;
     modes::check_compressions(&compressions)?;
     let rates: Vec<u32> = parse_list(&args.rates)?;
+    let pipelines: Vec<usize> = parse_list(&args.pipeline)?;
+    anyhow::ensure!(pipelines.iter().all(|&p| (1..=4).contains(&p)), "--pipeline takes 1 to 4 frames");
     let scene_arg = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
     let path = isin_viewer::CameraPath::load(&args.path)?;
     anyhow::ensure!(!path.frames.is_empty(), "{} has no cameras", args.path.display());
@@ -282,7 +321,9 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             let cameras: Vec<Camera> =
                 (0..n_frames).map(|i| path.frames[i * path.frames.len() / n_frames].camera()).collect();
             for transport in &transports {
-                for compression in &compressions {
+                for (compression, &pipeline) in
+                    compressions.iter().flat_map(|c| pipelines.iter().map(move |p| (c, p)))
+                {
                     let mut group: Vec<Row> = Vec::new();
                     for &n in &slave_counts {
                         let mut master_extra = modes::master_args(transport, compression);
@@ -295,9 +336,11 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                             n,
                             settings_size: (w, h),
                             cameras: &cameras,
+                            pipeline,
                             master_extra,
                         };
-                        let what = format!("{w}x{h} {transport}/{compression}, {n} slaves");
+                        let what =
+                            format!("{w}x{h} {transport}/{compression}, {n} slaves, pipeline {pipeline}");
                         let r = match run_once(lab.as_ref(), &cgroups, &spec) {
                             Ok(r) => r,
                             Err(e) => {
@@ -309,11 +352,16 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                         let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
                         let row = make_row(&spec, rate, cgroups.first().map(CpuCgroup::share), &r, base);
                         println!(
-                            "{w}x{h} {transport}/{compression} N={n:>2}: {:.3} s/frame (p95 {:.3}), {:.2} fps, \
+                            "{w}x{h} {transport}/{compression} open {pipeline} N={n:>2}: {:.3} s/frame (p95 {:.3}), \
+                             latency {:.3} s (p95 {:.3}), first tile {:.1} ms, last tenth {:.1} ms, {:.2} fps, \
                              speedup {:.2}, efficiency {:.2}, {:.0} kB/frame, master CPU {:.2}, slaves idle {:.0} %, \
                              crowded {:.0} %{}",
                             row.sec_median,
                             row.sec_p95,
+                            row.latency_median,
+                            row.latency_p95,
+                            row.first_tile_median * 1e3,
+                            row.last_tenth_median * 1e3,
                             row.fps,
                             row.speedup,
                             row.efficiency,
@@ -351,6 +399,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             cfs_period_us: first.map(|f| f.0),
             cfs_quota_us: first.map(|f| f.1),
             tile: args.tile,
+            pipeline: pipelines.clone(),
             loadavg_before,
             loadavg_after: loadavg(),
             unix_time,
@@ -406,17 +455,19 @@ fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow:
                     // Warm-up: scene loaded and caches hot on every slave.
                     viewer::collect_frame(&v, &mut events, cameras[0], settings).await?;
                     let before = snapshot();
-                    let (mut secs, mut bytes_in, mut duplicated) = (Vec::new(), Vec::new(), 0);
-                    for &camera in cameras {
-                        let t0 = Instant::now();
-                        let (_, stats) = viewer::collect_frame(&v, &mut events, camera, settings).await?;
-                        secs.push(t0.elapsed().as_secs_f64());
-                        bytes_in.push(stats.bytes_in);
-                        duplicated += u64::from(stats.duplicated);
-                    }
+                    let r = replay::replay(&v, &mut events, cameras, settings, spec.pipeline).await?;
                     let after = snapshot();
                     let _ = v.send(viewer::Disconnect).await;
-                    anyhow::Ok(RunResult { secs, bytes_in, duplicated, before, after })
+                    anyhow::Ok(RunResult {
+                        secs: r.intervals(),
+                        latency: r.latencies(),
+                        first_tile: r.first_tile(),
+                        last_tenth: r.last_tenth(),
+                        bytes_in: r.frames.iter().map(|f| f.stats.bytes_in).collect(),
+                        duplicated: r.frames.iter().map(|f| u64::from(f.stats.duplicated)).sum(),
+                        before,
+                        after,
+                    })
                 })
             })
             .join()
@@ -464,10 +515,15 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         transport: spec.transport.to_string(),
         compression: spec.compression.to_string(),
         rate_mbit: rate,
+        pipeline: spec.pipeline,
         slaves: n,
         frames,
         sec_median,
         sec_p95: quantile(&r.secs, 0.95),
+        latency_median: median(&r.latency),
+        latency_p95: quantile(&r.latency, 0.95),
+        first_tile_median: median(&r.first_tile),
+        last_tenth_median: median(&r.last_tenth),
         fps: frames as f64 / r.secs.iter().sum::<f64>().max(1e-9),
         speedup,
         efficiency,
@@ -588,7 +644,11 @@ fn markdown(rep: &Report) -> String {
     }
     let header_refs: Vec<&str> = header.iter().map(String::as_str).collect();
     out.push_str(&report::table(&header_refs, &rows));
-    out.push_str("\nDetails (seconds per frame: median / p95):\n\n");
+    out.push_str(
+        "\nDetails (seconds per frame — intervals between completions — and latency — request to \
+         completion —: median / p95; first tile: request to first tile; last tenth: the time a frame \
+         took to deliver its last 10 % of pixels; `N open`: frames kept requested at once):\n\n",
+    );
     let detail: Vec<Vec<String>> = rep
         .rows
         .iter()
@@ -597,6 +657,8 @@ fn markdown(rep: &Report) -> String {
                 group_label(r),
                 r.slaves.to_string(),
                 format!("{:.3} / {:.3}", r.sec_median, r.sec_p95),
+                format!("{:.3} / {:.3}", r.latency_median, r.latency_p95),
+                format!("{:.1} / {:.1}", r.first_tile_median * 1e3, r.last_tenth_median * 1e3),
                 format!("{:.2}", r.fps),
                 format!("{:.2}", r.speedup),
                 format!("{:.2}", r.efficiency),
@@ -617,6 +679,8 @@ fn markdown(rep: &Report) -> String {
             "setup",
             "N",
             "s/frame",
+            "latency s",
+            "first tile / last tenth ms",
             "fps",
             "speedup",
             "eff.",
@@ -635,10 +699,10 @@ fn markdown(rep: &Report) -> String {
     out
 }
 
-type GroupKey = (u32, u32, String, String, Option<u32>);
+type GroupKey = (u32, u32, String, String, Option<u32>, usize);
 
 fn group_key(r: &Row) -> GroupKey {
-    (r.width, r.height, r.transport.clone(), r.compression.clone(), r.rate_mbit)
+    (r.width, r.height, r.transport.clone(), r.compression.clone(), r.rate_mbit, r.pipeline)
 }
 
 fn groups(rows: &[Row]) -> Vec<GroupKey> {
@@ -658,7 +722,8 @@ fn group_label(r: &Row) -> String {
         Some(m) => format!(", {m} Mbit/s"),
         None => ", loopback".into(),
     };
-    format!("{}×{} {}/{}{rate}", r.width, r.height, r.transport, r.compression)
+    let open = if r.pipeline > 1 { format!(", {} open", r.pipeline) } else { String::new() };
+    format!("{}×{} {}/{}{rate}{open}", r.width, r.height, r.transport, r.compression)
 }
 
 /// The speedup plot: isin per configuration, the paper, ideal.
@@ -701,10 +766,15 @@ mod tests {
             transport: "tcp".into(),
             compression: "raw".into(),
             rate_mbit: Some(100),
+            pipeline: 1,
             slaves: n,
             frames: 4,
             sec_median: 1.0 / (n as f64 * eff),
             sec_p95: 1.0,
+            latency_median: 1.0,
+            latency_p95: 1.0,
+            first_tile_median: 0.01,
+            last_tenth_median: 0.01,
             fps: 1.0,
             speedup: n as f64 * eff,
             efficiency: eff,
@@ -751,6 +821,7 @@ mod tests {
                 cfs_period_us: Some(6000),
                 cfs_quota_us: Some(1000),
                 tile: 32,
+                pipeline: vec![1],
                 loadavg_before: "1".into(),
                 loadavg_after: "1".into(),
                 unix_time: 0,
