@@ -15,7 +15,9 @@
 //!   load balancing rather than a static split).
 //! - **Enough tiles for the cluster.** A frame is cut into tiles of
 //!   [`SchedulerConfig::tile_size`], halved (down to 16 px) while that would
-//!   give fewer than 8 tiles per render thread in the cluster.
+//!   give fewer than 8 tiles per render thread in the cluster — except a
+//!   queued frame (pipelining, below): its end is filled by the next frame's
+//!   tiles, so it keeps the full edge and the per-tile round trips stay few.
 //! - **Smaller tiles at the end.** When fewer tiles remain queued than the
 //!   cluster has threads, the next tile is split in four (down to
 //!   [`SchedulerConfig::min_tile_size`]) so the frame does not wait on one big tile.
@@ -376,7 +378,9 @@ impl Scheduler {
     ) -> Result<(), SchedulerError> {
         self.check_new(frame, width, height)?;
         self.abandon_frame();
-        self.push_frame(now, frame, width, height);
+        let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
+        let edge = frame_tile_size(&self.config, width, height, threads);
+        self.push_frame(now, frame, width, height, edge);
         Ok(())
     }
 
@@ -399,7 +403,9 @@ impl Scheduler {
             return Err(SchedulerError::TooManyFrames(self.config.max_open_frames));
         }
         self.frames.retain(|f| !f.done);
-        self.push_frame(now, frame, width, height);
+        // Full-size tiles: the cluster-sized edge is for the end of a frame,
+        // which the next queued frame fills (and the last one is split at its end).
+        self.push_frame(now, frame, width, height, self.config.tile_size);
         Ok(())
     }
 
@@ -522,9 +528,7 @@ impl Scheduler {
         Ok(())
     }
 
-    fn push_frame(&mut self, now: Duration, frame: FrameId, width: u32, height: u32) {
-        let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
-        let edge = frame_tile_size(&self.config, width, height, threads);
+    fn push_frame(&mut self, now: Duration, frame: FrameId, width: u32, height: u32, edge: u32) {
         let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
             .into_iter()
             .map(|tile| TileRec {

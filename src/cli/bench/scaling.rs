@@ -72,6 +72,11 @@ pub struct ScalingArgs {
     /// Cores shared by the slaves: each gets CPU_TOTAL / N_max of a core (default: all cores).
     #[arg(long)]
     cpu_total: Option<f64>,
+    /// CFS weight (`cpu.shares`) of each emulated PC's cgroup and of the master's
+    /// (a plain process weighs 1024): a heavy weight keeps other load on the
+    /// machine from taking the PCs' quota (they still never get more than it).
+    #[arg(long, default_value_t = 8192)]
+    cpu_weight: u64,
     /// Timed frames per run at 320×240 (larger images: fewer, in proportion, at least 4).
     #[arg(long, default_value_t = 16)]
     frames: usize,
@@ -171,6 +176,9 @@ struct Meta {
     /// Frames kept requested at once, per group (`--pipeline`).
     #[serde(default)]
     pipeline: Vec<usize>,
+    /// CFS weight of the PCs' and the master's cgroups (`--cpu-weight`).
+    #[serde(default)]
+    cpu_weight: Option<u64>,
     loadavg_before: String,
     loadavg_after: String,
     unix_time: u64,
@@ -291,13 +299,20 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     } else {
         Vec::new()
     };
+    let master_cgroup = if use_lab { Some(CpuCgroup::unlimited("master")?) } else { None };
+    for cg in cgroups.iter().chain(&master_cgroup) {
+        cg.set_weight(args.cpu_weight)?;
+    }
     if let Some(cg) = cgroups.first() {
         println!(
-            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {} in total",
+            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {} in total; \
+             CPU weight {} (a plain process: {})",
             cg.share(),
             cg.quota_us,
             cg.period_us,
-            cpu_total
+            cpu_total,
+            args.cpu_weight,
+            netlab::cgroup::PLAIN_WEIGHT
         );
     }
     let loadavg_before = loadavg();
@@ -341,11 +356,12 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                         };
                         let what =
                             format!("{w}x{h} {transport}/{compression}, {n} slaves, pipeline {pipeline}");
-                        let r = match run_once(lab.as_ref(), &cgroups, &spec) {
+                        let cgs = (master_cgroup.as_ref(), cgroups.as_slice());
+                        let r = match run_once(lab.as_ref(), cgs, &spec) {
                             Ok(r) => r,
                             Err(e) => {
                                 println!("{what} failed, trying once more: {e:#}");
-                                run_once(lab.as_ref(), &cgroups, &spec).with_context(|| what.clone())?
+                                run_once(lab.as_ref(), cgs, &spec).with_context(|| what.clone())?
                             }
                         };
                         // Speedup against the smallest N, taken as linear up to there.
@@ -383,6 +399,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
         drop(lab.take());
     }
     drop(cgroups);
+    drop(master_cgroup);
     let unix_time =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     let first = cgroups_meta(use_lab, share);
@@ -400,6 +417,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             cfs_quota_us: first.map(|f| f.1),
             tile: args.tile,
             pipeline: pipelines.clone(),
+            cpu_weight: use_lab.then_some(args.cpu_weight),
             loadavg_before,
             loadavg_after: loadavg(),
             unix_time,
@@ -418,13 +436,18 @@ fn cgroups_meta(use_lab: bool, share: f64) -> Option<(u64, u64)> {
     use_lab.then(|| netlab::cgroup::period_for_share(share))
 }
 
-/// Starts a master and `spec.n` slaves, replays the cameras, stops them.
-fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow::Result<RunResult> {
+/// Starts a master and `spec.n` slaves (in the master's and the slaves'
+/// cgroups when given), replays the cameras, stops them.
+fn run_once(
+    lab: Option<&Lab>,
+    (master_cgroup, cgroups): (Option<&CpuCgroup>, &[CpuCgroup]),
+    spec: &RunSpec,
+) -> anyhow::Result<RunResult> {
     let token = auth::generate_token()?;
     let master_ns = lab.map(|l| l.master().ns.clone());
     let listen = lab.map_or("127.0.0.1:0".to_string(), |l| format!("{}:0", l.master().addr));
     let (master, ticket) =
-        start_master(master_ns.as_deref(), spec.scene, &listen, &token, &spec.master_extra)?;
+        start_master(master_ns.as_deref(), master_cgroup, spec.scene, &listen, &token, &spec.master_extra)?;
     let mut slaves: Vec<ChildGuard> = Vec::new();
     for i in 0..spec.n {
         let ns = lab.and_then(|l| l.slave(i)).map(|h| h.ns.as_str());
@@ -595,7 +618,10 @@ fn markdown(rep: &Report) -> String {
         m.path,
         if m.lab { "yes" } else { "no (loopback)" },
         match (m.slave_share_of_a_core, m.cfs_quota_us, m.cfs_period_us) {
-            (Some(s), Some(q), Some(p)) => format!(", each slave {s:.3} of a core (quota {q} µs / {p} µs)"),
+            (Some(s), Some(q), Some(p)) => format!(
+                ", each slave {s:.3} of a core (quota {q} µs / {p} µs{})",
+                m.cpu_weight.map(|w| format!(", CPU weight {w}")).unwrap_or_default()
+            ),
             _ => String::new(),
         },
         m.tile,
@@ -822,6 +848,7 @@ mod tests {
                 cfs_quota_us: Some(1000),
                 tile: 32,
                 pipeline: vec![1],
+                cpu_weight: Some(8192),
                 loadavg_before: "1".into(),
                 loadavg_after: "1".into(),
                 unix_time: 0,

@@ -398,6 +398,19 @@ fn a_large_cluster_gets_smaller_tiles() {
 }
 
 #[test]
+fn queued_frames_keep_the_full_tile_edge_on_a_large_cluster() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    let ids: Vec<SlaveId> = (0..12).map(|_| sim.join(1, 1)).collect();
+    sim.queue(1, 320, 240);
+    sim.queue(2, 320, 240);
+    let first = sim.slaves[&ids[0]].queue.front().map(|(_, job)| job.tile).expect("work assigned");
+    assert_eq!(first.w, 32, "a pipelined frame's end is filled by the next: no cluster-sized edge");
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
+    sim.assert_exact_cover(1);
+    sim.assert_exact_cover(2);
+}
+
+#[test]
 fn idle_slave_duplicates_the_straggler_and_first_result_wins() {
     let mut sim = Sim::new(cfg());
     let fast = sim.join(1, 1);
@@ -586,8 +599,8 @@ fn queued_frame_goes_out_as_the_older_one_drains() {
 fn pipelined_replay_keeps_slaves_busy_through_frame_ends() {
     let config = SchedulerConfig { duplicate_stragglers: false, ..cfg() };
     let (slaves, frames) = (12, 8);
-    let barrier = replay(slaves, frames, 160, 120, 0, config.clone());
-    let piped = replay(slaves, frames, 160, 120, 1, config);
+    let barrier = replay(slaves, frames, 320, 240, 0, config.clone());
+    let piped = replay(slaves, frames, 320, 240, 1, config);
     // The same work in less time, with fewer idle lanes: the tail of each
     // frame is filled with tiles of the next.
     assert!(piped.now < barrier.now, "pipelined {:?} vs one at a time {:?}", piped.now, barrier.now);
