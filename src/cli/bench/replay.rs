@@ -68,6 +68,24 @@ impl Replay {
     }
 }
 
+/// A requested frame not completed yet.
+struct Pending {
+    request: u64,
+    /// Index into the cameras.
+    index: usize,
+    requested: Instant,
+    first_tile: Option<Instant>,
+    nine_tenths: Option<Instant>,
+    /// Pixels received so far.
+    pixels: usize,
+}
+
+impl Pending {
+    fn new(request: u64, index: usize, requested: Instant) -> Self {
+        Self { request, index, requested, first_tile: None, nine_tenths: None, pixels: 0 }
+    }
+}
+
 /// Replays `cameras` at `settings`, keeping up to `open` frames requested and
 /// not completed. With `open` = 1 each frame is requested when the previous one
 /// completed (a frame barrier); above, frames are queued at the master
@@ -82,9 +100,7 @@ pub async fn replay(
 ) -> anyhow::Result<Replay> {
     let open = open.max(1);
     let pixels = settings.width as usize * settings.height as usize;
-    // (request number, index into cameras, timing so far, pixels received)
-    let mut pending: VecDeque<(u64, usize, Instant, Option<Instant>, Option<Instant>, usize)> =
-        VecDeque::new();
+    let mut pending: VecDeque<Pending> = VecDeque::new();
     let mut timings: Vec<Option<FrameTiming>> = vec![None; cameras.len()];
     let mut next = 0;
     let start = Instant::now();
@@ -97,34 +113,38 @@ pub async fn replay(
     };
     while next < cameras.len() && pending.len() < open {
         let at = Instant::now();
-        let r = send(cameras[next]).await.context("viewer actor stopped")?;
-        pending.push_back((r, next, at, None, None, 0));
+        let request = send(cameras[next]).await.context("viewer actor stopped")?;
+        pending.push_back(Pending::new(request, next, at));
         next += 1;
     }
     while !pending.is_empty() {
         let ev = events.recv().await.context("viewer connection closed")?;
         match ev {
             ViewerEvent::Tile { request, tile, .. } => {
-                let Some(p) = pending.iter_mut().find(|p| p.0 == request) else { continue };
+                let Some(p) = pending.iter_mut().find(|p| p.request == request) else { continue };
                 let now = Instant::now();
-                p.3.get_or_insert(now);
-                p.5 += tile.pixel_count();
-                if p.4.is_none() && p.5 * 10 >= pixels * 9 {
-                    p.4 = Some(now);
+                p.first_tile.get_or_insert(now);
+                p.pixels += tile.pixel_count();
+                if p.nine_tenths.is_none() && p.pixels * 10 >= pixels * 9 {
+                    p.nine_tenths = Some(now);
                 }
             }
             ViewerEvent::FrameDone { request, stats } => {
-                let Some(i) = pending.iter().position(|p| p.0 == request) else { continue };
-                let Some((_, idx, requested, first_tile, nine_tenths, got)) = pending.remove(i) else {
-                    continue;
-                };
+                let Some(i) = pending.iter().position(|p| p.request == request) else { continue };
+                let Some(p) = pending.remove(i) else { continue };
+                let (idx, got) = (p.index, p.pixels);
                 anyhow::ensure!(got == pixels, "frame {idx} done with {got} of {pixels} pixels delivered");
-                timings[idx] =
-                    Some(FrameTiming { requested, first_tile, nine_tenths, done: Instant::now(), stats });
+                timings[idx] = Some(FrameTiming {
+                    requested: p.requested,
+                    first_tile: p.first_tile,
+                    nine_tenths: p.nine_tenths,
+                    done: Instant::now(),
+                    stats,
+                });
                 if next < cameras.len() {
                     let at = Instant::now();
-                    let r = send(cameras[next]).await.context("viewer actor stopped")?;
-                    pending.push_back((r, next, at, None, None, 0));
+                    let request = send(cameras[next]).await.context("viewer actor stopped")?;
+                    pending.push_back(Pending::new(request, next, at));
                     next += 1;
                 }
             }

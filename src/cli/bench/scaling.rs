@@ -80,6 +80,11 @@ pub struct ScalingArgs {
     /// Timed frames per run at 320×240 (larger images: fewer, in proportion, at least 4).
     #[arg(long, default_value_t = 16)]
     frames: usize,
+    /// Runs of every slave count per configuration, alternating (1, 12, 1, 12, …);
+    /// their frames are pooled (medians over all of them), so that a change of
+    /// load on the shared machine during a sweep weighs on every N alike.
+    #[arg(long, default_value_t = 1)]
+    repeat: usize,
     /// Tile edge in pixels (`isin master --tile`).
     #[arg(long, default_value_t = 32)]
     tile: u32,
@@ -179,6 +184,9 @@ struct Meta {
     /// CFS weight of the PCs' and the master's cgroups (`--cpu-weight`).
     #[serde(default)]
     cpu_weight: Option<u64>,
+    /// Alternating runs per slave count, pooled (`--repeat`).
+    #[serde(default = "one")]
+    repeat: usize,
     loadavg_before: String,
     loadavg_after: String,
     unix_time: u64,
@@ -224,8 +232,69 @@ struct RunResult {
     last_tenth: Vec<f64>,
     bytes_in: Vec<u64>,
     duplicated: u64,
-    before: Snapshot,
-    after: Snapshot,
+    /// Counters from the first frame's request to the last one's completion.
+    delta: Delta,
+}
+
+/// What the counters of a [`Snapshot`] moved by over a run (summed over repeats).
+#[derive(Default)]
+struct Delta {
+    wall: f64,
+    master_cpu: f64,
+    render: Vec<SchedStat>,
+    throttled: Vec<f64>,
+    iface: Option<IfCounters>,
+}
+
+impl Delta {
+    fn between(before: &Snapshot, after: &Snapshot) -> Delta {
+        Delta {
+            wall: (after.at - before.at).as_secs_f64(),
+            master_cpu: after.master_cpu - before.master_cpu,
+            render: after.render.iter().zip(&before.render).map(|(a, b)| a.since(b)).collect(),
+            throttled: after
+                .throttled_us
+                .iter()
+                .zip(&before.throttled_us)
+                .map(|(a, b)| (a - b) / 1e6)
+                .collect(),
+            iface: match (&before.iface, &after.iface) {
+                (Some(b), Some(a)) => Some(a.since(b)),
+                _ => None,
+            },
+        }
+    }
+}
+
+impl RunResult {
+    /// Pools a repeat of the same run into this one: samples side by side,
+    /// counters summed.
+    fn absorb(&mut self, o: RunResult) {
+        self.secs.extend(o.secs);
+        self.latency.extend(o.latency);
+        self.first_tile.extend(o.first_tile);
+        self.last_tenth.extend(o.last_tenth);
+        self.bytes_in.extend(o.bytes_in);
+        self.duplicated += o.duplicated;
+        let (d, e) = (&mut self.delta, o.delta);
+        d.wall += e.wall;
+        d.master_cpu += e.master_cpu;
+        for (a, b) in d.render.iter_mut().zip(&e.render) {
+            (a.run, a.wait) = (a.run + b.run, a.wait + b.wait);
+        }
+        for (a, b) in d.throttled.iter_mut().zip(&e.throttled) {
+            *a += b;
+        }
+        d.iface = match (d.iface, e.iface) {
+            (Some(a), Some(b)) => Some(IfCounters {
+                rx_bytes: a.rx_bytes + b.rx_bytes,
+                tx_bytes: a.tx_bytes + b.tx_bytes,
+                rx_packets: a.rx_packets + b.rx_packets,
+                tx_packets: a.tx_packets + b.tx_packets,
+            }),
+            _ => None,
+        };
+    }
 }
 
 /// Runs `isin bench scaling`.
@@ -340,57 +409,74 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                     compressions.iter().flat_map(|c| pipelines.iter().map(move |p| (c, p)))
                 {
                     let mut group: Vec<Row> = Vec::new();
-                    for &n in &slave_counts {
-                        let mut master_extra = modes::master_args(transport, compression);
-                        master_extra.extend(["--tile".to_string(), args.tile.to_string()]);
-                        master_extra.extend(args.master_args.iter().cloned());
-                        let spec = RunSpec {
-                            scene: &scene_arg,
-                            transport,
-                            compression,
-                            n,
-                            settings_size: (w, h),
-                            cameras: &cameras,
-                            pipeline,
-                            master_extra,
-                        };
-                        let what =
-                            format!("{w}x{h} {transport}/{compression}, {n} slaves, pipeline {pipeline}");
-                        let cgs = (master_cgroup.as_ref(), cgroups.as_slice());
-                        let r = match run_once(lab.as_ref(), cgs, &spec) {
-                            Ok(r) => r,
-                            Err(e) => {
-                                println!("{what} failed, trying once more: {e:#}");
-                                run_once(lab.as_ref(), cgs, &spec).with_context(|| what.clone())?
+                    // Repeats alternate the slave counts (1, 12, 1, 12, …), so that
+                    // a change of load on the machine weighs on every N alike.
+                    let mut pooled: Vec<RunResult> = Vec::new();
+                    for repeat in 0..args.repeat.max(1) {
+                        let mut specs: Vec<RunSpec> = Vec::new();
+                        for &n in &slave_counts {
+                            let mut master_extra = modes::master_args(transport, compression);
+                            master_extra.extend(["--tile".to_string(), args.tile.to_string()]);
+                            master_extra.extend(args.master_args.iter().cloned());
+                            let spec = RunSpec {
+                                scene: &scene_arg,
+                                transport,
+                                compression,
+                                n,
+                                settings_size: (w, h),
+                                cameras: &cameras,
+                                pipeline,
+                                master_extra,
+                            };
+                            let what =
+                                format!("{w}x{h} {transport}/{compression}, {n} slaves, pipeline {pipeline}");
+                            let cgs = (master_cgroup.as_ref(), cgroups.as_slice());
+                            let r = match run_once(lab.as_ref(), cgs, &spec) {
+                                Ok(r) => r,
+                                Err(e) => {
+                                    println!("{what} failed, trying once more: {e:#}");
+                                    run_once(lab.as_ref(), cgs, &spec).with_context(|| what.clone())?
+                                }
+                            };
+                            specs.push(spec);
+                            match pooled.get_mut(specs.len() - 1) {
+                                Some(p) => p.absorb(r),
+                                None => pooled.push(r),
                             }
-                        };
-                        // Speedup against the smallest N, taken as linear up to there.
-                        let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
-                        let row = make_row(&spec, rate, cgroups.first().map(CpuCgroup::share), &r, base);
-                        println!(
-                            "{w}x{h} {transport}/{compression} open {pipeline} N={n:>2}: {:.3} s/frame (p95 {:.3}), \
+                        }
+                        if repeat + 1 < args.repeat {
+                            continue;
+                        }
+                        for (spec, r) in specs.iter().zip(&pooled) {
+                            let n = spec.n;
+                            // Speedup against the smallest N, taken as linear up to there.
+                            let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
+                            let row = make_row(spec, rate, cgroups.first().map(CpuCgroup::share), r, base);
+                            println!(
+                                "{w}x{h} {transport}/{compression} open {pipeline} N={n:>2}: {:.3} s/frame (p95 {:.3}), \
                              latency {:.3} s (p95 {:.3}), first tile {:.1} ms, last tenth {:.1} ms, {:.2} fps, \
                              speedup {:.2}, efficiency {:.2}, {:.0} kB/frame, master CPU {:.2}, slaves idle {:.0} %, \
                              crowded {:.0} %{}",
-                            row.sec_median,
-                            row.sec_p95,
-                            row.latency_median,
-                            row.latency_p95,
-                            row.first_tile_median * 1e3,
-                            row.last_tenth_median * 1e3,
-                            row.fps,
-                            row.speedup,
-                            row.efficiency,
-                            row.bytes_per_frame / 1e3,
-                            row.master_cpu,
-                            row.slave_idle * 100.0,
-                            row.slave_crowded * 100.0,
-                            row.bottleneck
-                                .as_ref()
-                                .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
-                                .unwrap_or_default()
-                        );
-                        group.push(row);
+                                row.sec_median,
+                                row.sec_p95,
+                                row.latency_median,
+                                row.latency_p95,
+                                row.first_tile_median * 1e3,
+                                row.last_tenth_median * 1e3,
+                                row.fps,
+                                row.speedup,
+                                row.efficiency,
+                                row.bytes_per_frame / 1e3,
+                                row.master_cpu,
+                                row.slave_idle * 100.0,
+                                row.slave_crowded * 100.0,
+                                row.bottleneck
+                                    .as_ref()
+                                    .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
+                                    .unwrap_or_default()
+                            );
+                            group.push(row);
+                        }
                     }
                     rows.extend(group);
                 }
@@ -418,6 +504,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             tile: args.tile,
             pipeline: pipelines.clone(),
             cpu_weight: use_lab.then_some(args.cpu_weight),
+            repeat: args.repeat.max(1),
             loadavg_before,
             loadavg_after: loadavg(),
             unix_time,
@@ -488,8 +575,7 @@ fn run_once(
                         last_tenth: r.last_tenth(),
                         bytes_in: r.frames.iter().map(|f| f.stats.bytes_in).collect(),
                         duplicated: r.frames.iter().map(|f| u64::from(f.stats.duplicated)).sum(),
-                        before,
-                        after,
+                        delta: Delta::between(&before, &after),
                     })
                 })
             })
@@ -501,24 +587,18 @@ fn run_once(
 fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult, base: Option<f64>) -> Row {
     let n = spec.n;
     let frames = r.secs.len();
-    let wall = (r.after.at - r.before.at).as_secs_f64().max(1e-9);
+    let wall = r.delta.wall.max(1e-9);
     let sec_median = median(&r.secs);
     let speedup = base.map_or(n as f64, |b| b / sec_median.max(1e-9));
     let efficiency = speedup / n as f64;
     let bytes_per_frame = r.bytes_in.iter().sum::<u64>() as f64 / frames.max(1) as f64;
-    let iface = match (&r.before.iface, &r.after.iface) {
-        (Some(b), Some(a)) => Some(a.since(b)),
-        _ => None,
-    };
+    let iface = r.delta.iface;
     let link_utilisation = match (iface, rate) {
         (Some(c), Some(rate)) => Some(c.rx_bytes as f64 * 8.0 / wall / (f64::from(rate) * 1e6)),
         _ => None,
     };
-    let master_cpu = (r.after.master_cpu - r.before.master_cpu) / wall;
-    let render: Vec<SchedStat> =
-        r.after.render.iter().zip(&r.before.render).map(|(a, b)| a.since(b)).collect();
-    let throttled: Vec<f64> =
-        r.after.throttled_us.iter().zip(&r.before.throttled_us).map(|(a, b)| (a - b) / 1e6).collect();
+    let master_cpu = r.delta.master_cpu / wall;
+    let (render, throttled) = (&r.delta.render, &r.delta.throttled);
     let mean = |f: &dyn Fn(usize) -> f64| (0..render.len()).map(f).sum::<f64>() / render.len().max(1) as f64;
     let slave_idle = mean(&|i| (1.0 - (render[i].run + render[i].wait) / wall).max(0.0));
     let slave_quota_use = share.map(|s| mean(&|i| render[i].run / (s * wall)));
@@ -612,10 +692,11 @@ fn markdown(rep: &Report) -> String {
     let m = &rep.meta;
     let mut out = String::new();
     out.push_str(&format!(
-        "Scene `{}`, {} evenly spaced cameras of `{}`; lab: {}{}; tile {} px; load average {} → {}.\n\n",
+        "Scene `{}`, {} frames (evenly spaced cameras of `{}`, {} run(s) per N pooled); lab: {}{}; tile {} px; load average {} → {}.\n\n",
         m.scene,
         rep.rows.first().map_or(0, |r| r.frames),
         m.path,
+        m.repeat,
         if m.lab { "yes" } else { "no (loopback)" },
         match (m.slave_share_of_a_core, m.cfs_quota_us, m.cfs_period_us) {
             (Some(s), Some(q), Some(p)) => format!(
@@ -849,6 +930,7 @@ mod tests {
                 tile: 32,
                 pipeline: vec![1],
                 cpu_weight: Some(8192),
+                repeat: 1,
                 loadavg_before: "1".into(),
                 loadavg_after: "1".into(),
                 unix_time: 0,
