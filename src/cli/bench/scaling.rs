@@ -139,11 +139,23 @@ pub struct Row {
     /// Median seconds a frame took to deliver its last tenth of pixels (its tail).
     #[serde(default)]
     last_tenth_median: f64,
+    /// Frames per second over the whole replay (throughput).
     fps: f64,
-    /// Median seconds per frame at N = 1 ÷ at N.
+    /// Throughput against the smallest N (taken as linear up to there): frames
+    /// per second at N ÷ at N = 1. The same cameras at every N, so this is the
+    /// ratio of the replay's total times.
     speedup: f64,
     /// Speedup ÷ N.
     efficiency: f64,
+    /// Median seconds per frame at N = 1 ÷ at N (the definition before
+    /// pipelining: with frames pipelined, an interval between completions is
+    /// not one frame's cost, and the median of intervals at N = 1 leaves out
+    /// the path's expensive frames that a pipeline spreads over its neighbours).
+    #[serde(default)]
+    speedup_median: f64,
+    /// `speedup_median` ÷ N.
+    #[serde(default)]
+    efficiency_median: f64,
     /// Bytes the master received per frame, counted by the transport (framing and heartbeats included).
     bytes_per_frame: f64,
     /// Bytes received per frame on the master's interface (Ethernet frames), when in the lab.
@@ -307,7 +319,17 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             if let Some(u) = r.slave_quota_use {
                 r.slave_crowded = (1.0 - u - r.slave_idle).clamp(0.0, 1.0);
             }
-            r.bottleneck = (r.slaves > 1 && r.efficiency < EFFICIENCY_BAR).then(|| bottleneck(r));
+        }
+        for key in groups(&report.rows) {
+            let mut g: Vec<Row> = report.rows.iter().filter(|r| group_key(r) == key).cloned().collect();
+            fill_speedups(&mut g);
+            for new in g {
+                if let Some(r) =
+                    report.rows.iter_mut().find(|r| group_key(r) == key && r.slaves == new.slaves)
+                {
+                    *r = new;
+                }
+            }
         }
         return write_outputs(&report, &args.out_dir, false);
     }
@@ -448,10 +470,11 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                             continue;
                         }
                         for (spec, r) in specs.iter().zip(&pooled) {
-                            let n = spec.n;
-                            // Speedup against the smallest N, taken as linear up to there.
-                            let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
-                            let row = make_row(spec, rate, cgroups.first().map(CpuCgroup::share), r, base);
+                            group.push(make_row(spec, rate, cgroups.first().map(CpuCgroup::share), r));
+                        }
+                        fill_speedups(&mut group);
+                        for row in &group {
+                            let n = row.slaves;
                             println!(
                                 "{w}x{h} {transport}/{compression} open {pipeline} N={n:>2}: {:.3} s/frame (p95 {:.3}), \
                              latency {:.3} s (p95 {:.3}), first tile {:.1} ms, last tenth {:.1} ms, {:.2} fps, \
@@ -475,7 +498,6 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                                     .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
                                     .unwrap_or_default()
                             );
-                            group.push(row);
                         }
                     }
                     rows.extend(group);
@@ -584,13 +606,28 @@ fn run_once(
     })
 }
 
-fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult, base: Option<f64>) -> Row {
+/// Speedups and efficiencies of a group's rows against its first (smallest N,
+/// taken as linear up to there), and the bottleneck where efficiency is short.
+fn fill_speedups(group: &mut [Row]) {
+    let Some(first) = group.first() else { return };
+    let n0 = first.slaves as f64;
+    // Frames per second of one slave, and seconds per frame on one slave.
+    let (fps_1, median_1) = (first.fps / n0, first.sec_median * n0);
+    for r in group.iter_mut() {
+        let n = r.slaves as f64;
+        r.speedup = r.fps / fps_1.max(1e-12);
+        r.efficiency = r.speedup / n;
+        r.speedup_median = median_1 / r.sec_median.max(1e-12);
+        r.efficiency_median = r.speedup_median / n;
+        r.bottleneck = (r.slaves > 1 && r.efficiency < EFFICIENCY_BAR).then(|| bottleneck(r));
+    }
+}
+
+fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult) -> Row {
     let n = spec.n;
     let frames = r.secs.len();
     let wall = r.delta.wall.max(1e-9);
     let sec_median = median(&r.secs);
-    let speedup = base.map_or(n as f64, |b| b / sec_median.max(1e-9));
-    let efficiency = speedup / n as f64;
     let bytes_per_frame = r.bytes_in.iter().sum::<u64>() as f64 / frames.max(1) as f64;
     let iface = r.delta.iface;
     let link_utilisation = match (iface, rate) {
@@ -612,7 +649,7 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         }
     };
     let duplicated_per_frame = r.duplicated as f64 / frames.max(1) as f64;
-    let mut row = Row {
+    Row {
         width: spec.settings_size.0,
         height: spec.settings_size.1,
         transport: spec.transport.to_string(),
@@ -628,8 +665,10 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         first_tile_median: median(&r.first_tile),
         last_tenth_median: median(&r.last_tenth),
         fps: frames as f64 / r.secs.iter().sum::<f64>().max(1e-9),
-        speedup,
-        efficiency,
+        speedup: 0.0,
+        efficiency: 0.0,
+        speedup_median: 0.0,
+        efficiency_median: 0.0,
         bytes_per_frame,
         iface_bytes_per_frame: iface.map(|c| c.rx_bytes as f64 / frames.max(1) as f64),
         link_utilisation,
@@ -639,11 +678,7 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         slave_crowded,
         duplicated_per_frame,
         bottleneck: None,
-    };
-    if n > 1 && efficiency < EFFICIENCY_BAR {
-        row.bottleneck = Some(bottleneck(&row));
     }
-    row
 }
 
 /// Names the resource that kept a run below the efficiency bar, from its measurements.
@@ -769,6 +804,7 @@ fn markdown(rep: &Report) -> String {
                 format!("{:.2}", r.fps),
                 format!("{:.2}", r.speedup),
                 format!("{:.2}", r.efficiency),
+                format!("{:.2}", r.efficiency_median),
                 format!("{:.0}", r.bytes_per_frame / 1e3),
                 fmt_opt(r.iface_bytes_per_frame, |b| format!("{:.0}", b / 1e3)),
                 fmt_opt(r.link_utilisation, |u| format!("{:.1} %", u * 100.0)),
@@ -791,6 +827,7 @@ fn markdown(rep: &Report) -> String {
             "fps",
             "speedup",
             "eff.",
+            "eff. (median s/frame)",
             "kB/frame (transport)",
             "kB/frame (interface)",
             "master link",
@@ -885,6 +922,8 @@ mod tests {
             fps: 1.0,
             speedup: n as f64 * eff,
             efficiency: eff,
+            speedup_median: n as f64 * eff,
+            efficiency_median: eff,
             bytes_per_frame: 230e3,
             iface_bytes_per_frame: Some(240e3),
             link_utilisation: Some(0.1),
@@ -911,6 +950,26 @@ mod tests {
         let mut r = row(12, 0.6);
         r.master_cpu = 0.95;
         assert!(bottleneck(&r).contains("master CPU"), "{}", bottleneck(&r));
+    }
+
+    #[test]
+    fn speedup_is_throughput_against_the_first_row_and_the_median_one_is_kept() {
+        let mut g = vec![row(1, 1.0), row(12, 1.0)];
+        (g[0].fps, g[0].sec_median) = (1.0, 0.9);
+        (g[1].fps, g[1].sec_median) = (10.8, 0.1);
+        g[1].slave_idle = 0.3;
+        fill_speedups(&mut g);
+        assert!((g[1].speedup - 10.8).abs() < 1e-9 && (g[1].efficiency - 0.9).abs() < 1e-9);
+        assert!((g[1].speedup_median - 9.0).abs() < 1e-9 && (g[1].efficiency_median - 0.75).abs() < 1e-9);
+        assert!(g[1].bottleneck.is_none(), "0.9 meets the bar");
+        g[1].fps = 10.0;
+        fill_speedups(&mut g);
+        assert!(
+            g[1].bottleneck.as_deref().is_some_and(|b| b.contains("scheduling")),
+            "{:?}",
+            g[1].bottleneck
+        );
+        assert_eq!((g[0].speedup, g[0].efficiency), (1.0, 1.0));
     }
 
     #[test]
