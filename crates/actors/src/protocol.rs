@@ -16,8 +16,9 @@ use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 
 /// Version of the protocol spoken by this build; peers must match exactly.
-/// (2: tile codecs negotiated at join; tiles name their codec.)
-pub const PROTOCOL_VERSION: u16 = 2;
+/// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may
+/// queue frames behind the open one, [`Message::QueueFrame`].)
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// Default largest frame accepted from an authenticated peer (scene bundles
 /// with meshes and textures are the big ones).
@@ -287,6 +288,19 @@ pub enum Message {
         /// Human-readable message.
         message: String,
     },
+    /// Viewer → master: render a frame after the frames already requested,
+    /// without superseding them (a replayed camera path keeps the next frame
+    /// queued so that slaves roll from one frame straight into the next). Each
+    /// frame is answered with its own tiles and `FrameDone`; a later
+    /// [`Message::FrameRequest`] supersedes queued frames too.
+    QueueFrame {
+        /// The viewer's own number for the request, echoed in the replies.
+        request: u64,
+        /// Camera to render with.
+        camera: Camera,
+        /// Resolution, samples and the rest.
+        settings: RenderSettings,
+    },
 }
 
 impl Message {
@@ -307,6 +321,7 @@ impl Message {
             Message::FrameDone { .. } => "FrameDone",
             Message::Heartbeat => "Heartbeat",
             Message::Error { .. } => "Error",
+            Message::QueueFrame { .. } => "QueueFrame",
         }
     }
 }
@@ -430,6 +445,11 @@ mod tests {
             Message::Ready { hash: [6; 32] },
             Message::FrameRequest {
                 request: 3,
+                camera: Camera::default(),
+                settings: RenderSettings::default(),
+            },
+            Message::QueueFrame {
+                request: 4,
                 camera: Camera::default(),
                 settings: RenderSettings::default(),
             },
