@@ -354,7 +354,8 @@ fn small_and_empty_trees() {
 /// A fixed workload for counting instructions (ignored by default): the
 /// bunny's 1024×768 camera packets (or shadow packets from their hits) traced
 /// as packets or as single rays, chosen by `PACKET_RAYS` = `primary8`
-/// (default), `primary`, `shadow8`, `shadow` or `none` (setup only);
+/// (default), `primary`, `shadow8`, `shadow`, `shadow4` (the first four rays of
+/// each shadow packet through `occluded4`) or `none` (setup only);
 /// `PACKET_MESH` picks another mesh.
 ///
 /// `PACKET_RAYS=primary valgrind --tool=callgrind target/debug/deps/packet-… packet_workload --ignored`
@@ -369,8 +370,20 @@ fn packet_workload() {
     let kind = std::env::var("PACKET_RAYS").unwrap_or_else(|_| "primary8".into());
     let packets = if kind.starts_with("shadow") { shadow_packets(&b, &bvh, &camera, 1) } else { camera };
     let start = std::time::Instant::now();
+    let mut rays = packets.len() * PACKET_LANES;
     let hits: usize = if kind == "none" {
         0 // setup only, to subtract from instruction counts
+    } else if kind == "shadow4" {
+        // The first four rays of each packet through `occluded4`.
+        rays = packets.len() * 4;
+        packets
+            .iter()
+            .map(|(r, a, z)| {
+                let (r4, a4, z4) =
+                    ([r[0], r[1], r[2], r[3]], [a[0], a[1], a[2], a[3]], [z[0], z[1], z[2], z[3]]);
+                bvh.occluded4(&r4, a4, z4, 0b1111).count_ones() as usize
+            })
+            .sum()
     } else if kind.ends_with('8') {
         packets
             .iter()
@@ -392,6 +405,5 @@ fn packet_workload() {
             .count()
     };
     let secs = start.elapsed().as_secs_f64();
-    let rays = packets.len() * PACKET_LANES;
     println!("{kind}: {rays} rays, {hits} hits, {:.2} Mrays/s", rays as f64 / secs * 1e-6);
 }

@@ -6,7 +6,7 @@
 //!   the same bytes).
 //! * `blocks` — leaf triangles in structure-of-arrays blocks of four, tested
 //!   with one SSE Möller–Trumbore (bit-identical to the scalar test).
-//! * `packet` — any-hit for up to four rays at once.
+//! * `packet` — any-hit for up to four rays at once (on top of `packet8`).
 //! * `packet8` — nearest and any hit for packets of eight rays (camera rays,
 //!   shadow rays from one point to an area light) that traverse the tree once
 //!   per packet, with the same answer for every ray as the single-ray queries.
@@ -186,8 +186,7 @@ impl Bvh {
     /// to an area light's corners): bit `j` of the result is set when ray `j`,
     /// selected by bit `j` of `active`, hits something with
     /// `t_min[j] < t < t_max[j]`. Exactly `occluded(&rays[j], t_min[j], t_max[j])`
-    /// for every active ray; the rays share node visits. Measured on the bunny's
-    /// corner packets it is still slower than four single queries (0.8×).
+    /// for every active ray: [`Bvh::occluded8`] with four lanes empty.
     pub fn occluded4(&self, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
         packet::occluded4(self, rays, t_min, t_max, active)
     }
