@@ -123,7 +123,7 @@ mod avx {
 
     use super::{LANES, Packet};
     use crate::bvh::Bvh;
-    use crate::bvh::blocks::TriBlock;
+    use crate::bvh::blocks::{RaySse, TriBlock, hits_sse};
     use crate::bvh::wide::{ROBUST_EXIT, Stack, W, WideNode, leaf_range};
     use crate::geometry::Ray;
     use crate::shapes::Hit;
@@ -443,6 +443,25 @@ mod avx {
         }
     }
 
+    /// All bits set in lane `j` only.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn lane_mask(j: usize) -> __m256 {
+        const MASKS: [[i32; LANES]; LANES] = {
+            let mut m = [[0; LANES]; LANES];
+            let mut j = 0;
+            while j < LANES {
+                m[j][j] = -1;
+                j += 1;
+            }
+            m
+        };
+        // SAFETY: the caller guarantees AVX; the load reads the 32 bytes of a row.
+        unsafe { _mm256_castsi256_ps(_mm256_loadu_si256(MASKS[j].as_ptr().cast())) }
+    }
+
     /// Largest lane.
     ///
     /// # Safety
@@ -612,12 +631,22 @@ mod avx {
                     }
                     let (first, count) = leaf_range(node.child[k]);
                     let block = &blocks[(first / 4) as usize];
-                    let mut hit = _mm256_setzero_ps();
-                    for lane in (first % 4)..(first % 4 + count) {
-                        let (ok, t, _, _) = triangle(block, lane as usize, &l);
-                        hit = _mm256_or_ps(hit, _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, l.t_max)));
-                    }
-                    let done = _mm256_and_ps(hit, rays);
+                    let alone = _mm256_movemask_ps(rays) as u32;
+                    let done = if alone.is_power_of_two() {
+                        // One ray: the single-ray four-triangle test.
+                        let j = alone.trailing_zeros() as usize;
+                        let lanes = ((1u32 << count) - 1) << (first % 4);
+                        let h = hits_sse(block, &RaySse::new(&p.rays[j]), p.t_min[j], p.t_max[j], lanes);
+                        if h.mask != 0 { lane_mask(j) } else { _mm256_setzero_ps() }
+                    } else {
+                        let mut hit = _mm256_setzero_ps();
+                        for lane in (first % 4)..(first % 4 + count) {
+                            let (ok, t, _, _) = triangle(block, lane as usize, &l);
+                            hit =
+                                _mm256_or_ps(hit, _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, l.t_max)));
+                        }
+                        _mm256_and_ps(hit, rays)
+                    };
                     if _mm256_movemask_ps(done) != 0 {
                         open = _mm256_andnot_ps(done, open);
                         if _mm256_movemask_ps(open) == 0 {
