@@ -202,6 +202,30 @@ impl Bvh {
     /// right answer. Rays whose direction components differ in sign on some axis,
     /// have a zero or non-finite component or a non-finite origin, a machine
     /// without AVX and [`Bvh::set_simd`]`(false)` fall back to single-ray queries.
+    ///
+    /// ```
+    /// use isin_tracer::bvh::{Bvh, PACKET_LANES};
+    /// use isin_tracer::geometry::Ray;
+    /// use isin_tracer::shapes::Triangle;
+    /// use isin_tracer::Vec3;
+    ///
+    /// let v = [Vec3::new(-9.0, 0.0, -9.0), Vec3::new(9.0, 0.0, -9.0), Vec3::new(0.0, 0.0, 9.0)];
+    /// let floor = Triangle { v };
+    /// let bvh = Bvh::build(&[floor]);
+    /// // A 4×2 block of pixels seen from one eye; bit j of `active` selects ray j
+    /// // (clear the bits of pixels outside the tile).
+    /// let eye = Vec3::new(0.0, 2.0, 5.0);
+    /// let rays: [Ray; PACKET_LANES] = std::array::from_fn(|j| {
+    ///     let (px, py) = ((j % 4) as f32, (j / 4) as f32);
+    ///     Ray::new(eye, Vec3::new(px * 0.01, -0.5 - py * 0.01, -1.0).normalize())
+    /// });
+    /// let hits = bvh.intersect8(&rays, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], 0xff);
+    /// for (j, hit) in hits.iter().enumerate() {
+    ///     // The same bits as the single-ray query.
+    ///     assert_eq!(*hit, bvh.intersect(&rays[j], 0.0, f32::INFINITY));
+    ///     assert!(hit.is_some());
+    /// }
+    /// ```
     pub fn intersect8(
         &self,
         rays: &[Ray; PACKET_LANES],
