@@ -369,6 +369,11 @@ fn packet_workload() {
     let camera = camera_packets(&b, b.center() + Vec3::new(0.2, 0.25, 0.75) * b.diagonal(), 1024, 768);
     let kind = std::env::var("PACKET_RAYS").unwrap_or_else(|_| "primary8".into());
     let packets = if kind.starts_with("shadow") { shadow_packets(&b, &bvh, &camera, 1) } else { camera };
+    let cpu_ns = || -> Option<u64> {
+        // This thread's CPU time (Linux), robust to other load on the machine.
+        std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+    };
+    let cpu0 = cpu_ns();
     let start = std::time::Instant::now();
     let mut rays = packets.len() * PACKET_LANES;
     let hits: usize = if kind == "none" {
@@ -405,5 +410,9 @@ fn packet_workload() {
             .count()
     };
     let secs = start.elapsed().as_secs_f64();
-    println!("{kind}: {rays} rays, {hits} hits, {:.2} Mrays/s", rays as f64 / secs * 1e-6);
+    let cpu = match (cpu0, cpu_ns()) {
+        (Some(a), Some(b)) if b > a => format!(", {:.2} Mrays per CPU-s", rays as f64 / (b - a) as f64 * 1e3),
+        _ => String::new(),
+    };
+    println!("{kind}: {rays} rays, {hits} hits, {:.2} Mrays/s{cpu}", rays as f64 / secs * 1e-6);
 }
