@@ -25,8 +25,12 @@ fn bits(h: &Option<Hit>) -> Option<(u32, u32, u32, u32)> {
 /// Camera packets: 4×2 pixel blocks of a `width × height` pinhole camera with
 /// its eye at `eye`, looking at the box centre, with a vertical FOV of 45°.
 fn camera_packets(b: &Aabb, eye: Vec3, width: usize, height: usize) -> Vec<Packet> {
-    let c = b.center();
-    let w = (c - eye).normalize();
+    camera_packets_at(eye, b.center(), width, height)
+}
+
+/// [`camera_packets`] looking at `target`.
+fn camera_packets_at(eye: Vec3, target: Vec3, width: usize, height: usize) -> Vec<Packet> {
+    let w = (target - eye).normalize();
     let u = w.cross(Vec3::Y).normalize();
     let v = u.cross(w);
     let th = math::tan(22.5f32.to_radians());
@@ -354,8 +358,9 @@ fn small_and_empty_trees() {
 /// A fixed workload for counting instructions (ignored by default): the
 /// bunny's 1024×768 camera packets (or shadow packets from their hits) traced
 /// as packets or as single rays, chosen by `PACKET_RAYS` = `primary8`
-/// (default), `primary`, `shadow8`, `shadow` or `none` (setup only);
-/// `PACKET_MESH` picks another mesh.
+/// (default), `primary`, `shadow8`, `shadow`, `shadow4` (the first four rays of
+/// each shadow packet through `occluded4`) or `none` (setup only);
+/// `PACKET_MESH` picks another mesh (Sponza is seen from inside, as in the bench).
 ///
 /// `PACKET_RAYS=primary valgrind --tool=callgrind target/debug/deps/packet-… packet_workload --ignored`
 #[test]
@@ -365,12 +370,34 @@ fn packet_workload() {
     let Some(tris) = load_mesh(&mesh) else { return };
     let bvh = Bvh::build(&tris);
     let b = bounds_of(&tris);
-    let camera = camera_packets(&b, b.center() + Vec3::new(0.2, 0.25, 0.75) * b.diagonal(), 1024, 768);
+    let camera = if mesh.contains("sponza") {
+        // The bench's view from inside the atrium.
+        camera_packets_at(Vec3::new(-14.0, 3.0, 0.0), Vec3::new(10.0, 5.0, 0.0), 1024, 768)
+    } else {
+        camera_packets(&b, b.center() + Vec3::new(0.2, 0.25, 0.75) * b.diagonal(), 1024, 768)
+    };
     let kind = std::env::var("PACKET_RAYS").unwrap_or_else(|_| "primary8".into());
     let packets = if kind.starts_with("shadow") { shadow_packets(&b, &bvh, &camera, 1) } else { camera };
+    let cpu_ns = || -> Option<u64> {
+        // This thread's CPU time (Linux), robust to other load on the machine.
+        std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+    };
+    let cpu0 = cpu_ns();
     let start = std::time::Instant::now();
+    let mut rays = packets.len() * PACKET_LANES;
     let hits: usize = if kind == "none" {
         0 // setup only, to subtract from instruction counts
+    } else if kind == "shadow4" {
+        // The first four rays of each packet through `occluded4`.
+        rays = packets.len() * 4;
+        packets
+            .iter()
+            .map(|(r, a, z)| {
+                let (r4, a4, z4) =
+                    ([r[0], r[1], r[2], r[3]], [a[0], a[1], a[2], a[3]], [z[0], z[1], z[2], z[3]]);
+                bvh.occluded4(&r4, a4, z4, 0b1111).count_ones() as usize
+            })
+            .sum()
     } else if kind.ends_with('8') {
         packets
             .iter()
@@ -392,6 +419,9 @@ fn packet_workload() {
             .count()
     };
     let secs = start.elapsed().as_secs_f64();
-    let rays = packets.len() * PACKET_LANES;
-    println!("{kind}: {rays} rays, {hits} hits, {:.2} Mrays/s", rays as f64 / secs * 1e-6);
+    let cpu = match (cpu0, cpu_ns()) {
+        (Some(a), Some(b)) if b > a => format!(", {:.2} Mrays per CPU-s", rays as f64 / (b - a) as f64 * 1e3),
+        _ => String::new(),
+    };
+    println!("{kind}: {rays} rays, {hits} hits, {:.2} Mrays/s{cpu}", rays as f64 / secs * 1e-6);
 }

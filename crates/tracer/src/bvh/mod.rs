@@ -6,7 +6,7 @@
 //!   the same bytes).
 //! * `blocks` — leaf triangles in structure-of-arrays blocks of four, tested
 //!   with one SSE Möller–Trumbore (bit-identical to the scalar test).
-//! * `packet` — any-hit for up to four rays at once.
+//! * `packet` — any-hit for up to four rays at once (on top of `packet8`).
 //! * `packet8` — nearest and any hit for packets of eight rays (camera rays,
 //!   shadow rays from one point to an area light) that traverse the tree once
 //!   per packet, with the same answer for every ray as the single-ray queries.
@@ -186,8 +186,7 @@ impl Bvh {
     /// to an area light's corners): bit `j` of the result is set when ray `j`,
     /// selected by bit `j` of `active`, hits something with
     /// `t_min[j] < t < t_max[j]`. Exactly `occluded(&rays[j], t_min[j], t_max[j])`
-    /// for every active ray; the rays share node visits. Measured on the bunny's
-    /// corner packets it is still slower than four single queries (0.8×).
+    /// for every active ray: [`Bvh::occluded8`] with four lanes empty.
     pub fn occluded4(&self, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
         packet::occluded4(self, rays, t_min, t_max, active)
     }
@@ -203,6 +202,30 @@ impl Bvh {
     /// right answer. Rays whose direction components differ in sign on some axis,
     /// have a zero or non-finite component or a non-finite origin, a machine
     /// without AVX and [`Bvh::set_simd`]`(false)` fall back to single-ray queries.
+    ///
+    /// ```
+    /// use isin_tracer::bvh::{Bvh, PACKET_LANES};
+    /// use isin_tracer::geometry::Ray;
+    /// use isin_tracer::shapes::Triangle;
+    /// use isin_tracer::Vec3;
+    ///
+    /// let v = [Vec3::new(-9.0, 0.0, -9.0), Vec3::new(9.0, 0.0, -9.0), Vec3::new(0.0, 0.0, 9.0)];
+    /// let floor = Triangle { v };
+    /// let bvh = Bvh::build(&[floor]);
+    /// // A 4×2 block of pixels seen from one eye; bit j of `active` selects ray j
+    /// // (clear the bits of pixels outside the tile).
+    /// let eye = Vec3::new(0.0, 2.0, 5.0);
+    /// let rays: [Ray; PACKET_LANES] = std::array::from_fn(|j| {
+    ///     let (px, py) = ((j % 4) as f32, (j / 4) as f32);
+    ///     Ray::new(eye, Vec3::new(px * 0.01, -0.5 - py * 0.01, -1.0).normalize())
+    /// });
+    /// let hits = bvh.intersect8(&rays, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], 0xff);
+    /// for (j, hit) in hits.iter().enumerate() {
+    ///     // The same bits as the single-ray query.
+    ///     assert_eq!(*hit, bvh.intersect(&rays[j], 0.0, f32::INFINITY));
+    ///     assert!(hit.is_some());
+    /// }
+    /// ```
     pub fn intersect8(
         &self,
         rays: &[Ray; PACKET_LANES],

@@ -123,7 +123,7 @@ mod avx {
 
     use super::{LANES, Packet};
     use crate::bvh::Bvh;
-    use crate::bvh::blocks::TriBlock;
+    use crate::bvh::blocks::{RaySse, TriBlock, hits_sse};
     use crate::bvh::wide::{ROBUST_EXIT, Stack, W, WideNode, leaf_range};
     use crate::geometry::Ray;
     use crate::shapes::Hit;
@@ -172,22 +172,21 @@ mod avx {
         let first = p.active.trailing_zeros() as usize;
         // Inactive lanes copy an active ray, so that they do not widen the bounds.
         let src = |j: usize| if full || p.active & (1 << j) != 0 { j } else { first };
-        let rays: [Ray; LANES] = if full { *p.rays } else { std::array::from_fn(|j| p.rays[src(j)]) };
+        let picked: [Ray; LANES];
+        let rays = if full {
+            p.rays
+        } else {
+            picked = std::array::from_fn(|j| p.rays[src(j)]);
+            &picked
+        };
         let t_min: [f32; LANES] = if full { p.t_min } else { std::array::from_fn(|j| p.t_min[src(j)]) };
         let t_max: [f32; LANES] = if full { p.t_max } else { std::array::from_fn(|j| p.t_max[src(j)]) };
-        let (mut o, mut d) = ([[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3]);
-        for (j, r) in rays.iter().enumerate() {
-            for a in 0..3 {
-                o[a][j] = r.origin[a];
-                d[a][j] = r.dir[a];
-            }
-        }
         let bits: [i32; LANES] = std::array::from_fn(|j| -(((p.active >> j) & 1) as i32));
-        // SAFETY: the caller guarantees AVX; the loads read 32-byte arrays.
+        // SAFETY: the caller guarantees AVX; the loads read 32-byte arrays
+        // and (in `transpose`) the 192 bytes of `rays`.
         unsafe {
             let v = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
-            let o = [v(&o[0]), v(&o[1]), v(&o[2])];
-            let d = [v(&d[0]), v(&d[1]), v(&d[2])];
+            let (o, d) = transpose(rays);
             // `1 / d` per lane: the IEEE division `WideRay::new` (`recip`) does.
             let one = _mm256_set1_ps(1.0);
             let inv = [_mm256_div_ps(one, d[0]), _mm256_div_ps(one, d[1]), _mm256_div_ps(one, d[2])];
@@ -211,8 +210,7 @@ mod avx {
                 return None;
             }
             let neg = [signs[0] == 0xff, signs[1] == 0xff, signs[2] == 0xff];
-            let lo = |x: __m256| _mm256_set1_ps(hmin(x));
-            let hi = |x: __m256| _mm256_set1_ps(hmax(x));
+            let (lo, hi) = (|x: __m256| splat_min(x), |x: __m256| splat_max(x));
             let (o_lo, o_hi) = ([lo(o[0]), lo(o[1]), lo(o[2])], [hi(o[0]), hi(o[1]), hi(o[2])]);
             let pick = |a: usize, near: bool| if neg[a] == near { o_lo[a] } else { o_hi[a] };
             Some(Lanes {
@@ -227,8 +225,103 @@ mod avx {
                 o_far: [pick(0, false), pick(1, false), pick(2, false)],
                 inv_lo: [lo(inv[0]), lo(inv[1]), lo(inv[2])],
                 inv_hi: [hi(inv[0]), hi(inv[1]), hi(inv[2])],
-                t_min_lo: hmin(t_min),
+                t_min_lo: _mm256_cvtss_f32(splat_min(t_min)),
             })
+        }
+    }
+
+    /// The origins and directions of `rays`, one ray per lane.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn transpose(rays: &[Ray; LANES]) -> ([__m256; 3], [__m256; 3]) {
+        use std::mem::{offset_of, size_of};
+        let packed = offset_of!(Ray, origin) == 0 && offset_of!(Ray, dir) == 12 && size_of::<Ray>() == 24;
+        if !packed {
+            let (mut o, mut d) = ([[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3]);
+            for (j, r) in rays.iter().enumerate() {
+                for a in 0..3 {
+                    o[a][j] = r.origin[a];
+                    d[a][j] = r.dir[a];
+                }
+            }
+            // SAFETY: the caller guarantees AVX; the loads read 32-byte arrays.
+            return unsafe {
+                let v = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
+                ([v(&o[0]), v(&o[1]), v(&o[2])], [v(&d[0]), v(&d[1]), v(&d[2])])
+            };
+        }
+        // SAFETY: the caller guarantees AVX. `rays` is 8 × 24 bytes of f32
+        // (`packed`: origin x y z, then dir x y z); the 16-byte loads at float
+        // offsets 6k and 6k + 2 (k < 8) end at most at float 48, its end.
+        unsafe {
+            let f = rays.as_ptr().cast::<f32>();
+            let [ox, oy, oz, dx] = transpose4([pair(f, 0, 0), pair(f, 1, 0), pair(f, 2, 0), pair(f, 3, 0)]);
+            let [_, _, dy, dz] = transpose4([pair(f, 0, 2), pair(f, 1, 2), pair(f, 2, 2), pair(f, 3, 2)]);
+            ([ox, oy, oz], [dx, dy, dz])
+        }
+    }
+
+    /// Floats `6k + at .. 6k + at + 4` of `f` in the low half, those of
+    /// `6(k + 4) + at ..` in the high half.
+    ///
+    /// # Safety
+    /// The CPU must support AVX and `f` must hold `6(k + 4) + at + 4` floats.
+    #[inline(always)]
+    unsafe fn pair(f: *const f32, k: usize, at: usize) -> __m256 {
+        // SAFETY: the caller guarantees AVX and the length.
+        unsafe {
+            let lo = _mm256_castps128_ps256(_mm_loadu_ps(f.add(6 * k + at)));
+            _mm256_insertf128_ps::<1>(lo, _mm_loadu_ps(f.add(6 * (k + 4) + at)))
+        }
+    }
+
+    /// 4 × 4 transposes within each 128-bit half: lane `j` of row `i` of the
+    /// result is lane `i` of row `j` of `a` (in the same half).
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn transpose4(a: [__m256; 4]) -> [__m256; 4] {
+        // SAFETY: the caller guarantees AVX.
+        unsafe {
+            let (t0, t1) = (_mm256_unpacklo_ps(a[0], a[1]), _mm256_unpackhi_ps(a[0], a[1]));
+            let (t2, t3) = (_mm256_unpacklo_ps(a[2], a[3]), _mm256_unpackhi_ps(a[2], a[3]));
+            [
+                _mm256_shuffle_ps::<0x44>(t0, t2),
+                _mm256_shuffle_ps::<0xee>(t0, t2),
+                _mm256_shuffle_ps::<0x44>(t1, t3),
+                _mm256_shuffle_ps::<0xee>(t1, t3),
+            ]
+        }
+    }
+
+    /// The smallest lane of `v` in every lane.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn splat_min(v: __m256) -> __m256 {
+        // SAFETY: the caller guarantees AVX.
+        unsafe {
+            let m = _mm256_min_ps(v, _mm256_permute2f128_ps::<1>(v, v));
+            let m = _mm256_min_ps(m, _mm256_permute_ps::<0b0100_1110>(m));
+            _mm256_min_ps(m, _mm256_permute_ps::<0b1011_0001>(m))
+        }
+    }
+
+    /// The largest lane of `v` in every lane.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn splat_max(v: __m256) -> __m256 {
+        // SAFETY: the caller guarantees AVX.
+        unsafe {
+            let m = _mm256_max_ps(v, _mm256_permute2f128_ps::<1>(v, v));
+            let m = _mm256_max_ps(m, _mm256_permute_ps::<0b0100_1110>(m));
+            _mm256_max_ps(m, _mm256_permute_ps::<0b1011_0001>(m))
         }
     }
 
@@ -350,6 +443,25 @@ mod avx {
         }
     }
 
+    /// All bits set in lane `j` only.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn lane_mask(j: usize) -> __m256 {
+        const MASKS: [[i32; LANES]; LANES] = {
+            let mut m = [[0; LANES]; LANES];
+            let mut j = 0;
+            while j < LANES {
+                m[j][j] = -1;
+                j += 1;
+            }
+            m
+        };
+        // SAFETY: the caller guarantees AVX; the load reads the 32 bytes of a row.
+        unsafe { _mm256_castsi256_ps(_mm256_loadu_si256(MASKS[j].as_ptr().cast())) }
+    }
+
     /// Largest lane.
     ///
     /// # Safety
@@ -361,21 +473,6 @@ mod avx {
             let m = _mm_max_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
             let m = _mm_max_ps(m, _mm_movehl_ps(m, m));
             let m = _mm_max_ss(m, _mm_shuffle_ps::<1>(m, m));
-            _mm_cvtss_f32(m)
-        }
-    }
-
-    /// Smallest lane.
-    ///
-    /// # Safety
-    /// The CPU must support AVX.
-    #[inline(always)]
-    unsafe fn hmin(v: __m256) -> f32 {
-        // SAFETY: the caller guarantees AVX.
-        unsafe {
-            let m = _mm_min_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
-            let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
-            let m = _mm_min_ss(m, _mm_shuffle_ps::<1>(m, m));
             _mm_cvtss_f32(m)
         }
     }
@@ -534,12 +631,22 @@ mod avx {
                     }
                     let (first, count) = leaf_range(node.child[k]);
                     let block = &blocks[(first / 4) as usize];
-                    let mut hit = _mm256_setzero_ps();
-                    for lane in (first % 4)..(first % 4 + count) {
-                        let (ok, t, _, _) = triangle(block, lane as usize, &l);
-                        hit = _mm256_or_ps(hit, _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, l.t_max)));
-                    }
-                    let done = _mm256_and_ps(hit, rays);
+                    let alone = _mm256_movemask_ps(rays) as u32;
+                    let done = if alone.is_power_of_two() {
+                        // One ray: the single-ray four-triangle test.
+                        let j = alone.trailing_zeros() as usize;
+                        let lanes = ((1u32 << count) - 1) << (first % 4);
+                        let h = hits_sse(block, &RaySse::new(&p.rays[j]), p.t_min[j], p.t_max[j], lanes);
+                        if h.mask != 0 { lane_mask(j) } else { _mm256_setzero_ps() }
+                    } else {
+                        let mut hit = _mm256_setzero_ps();
+                        for lane in (first % 4)..(first % 4 + count) {
+                            let (ok, t, _, _) = triangle(block, lane as usize, &l);
+                            hit =
+                                _mm256_or_ps(hit, _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, l.t_max)));
+                        }
+                        _mm256_and_ps(hit, rays)
+                    };
                     if _mm256_movemask_ps(done) != 0 {
                         open = _mm256_andnot_ps(done, open);
                         if _mm256_movemask_ps(open) == 0 {
