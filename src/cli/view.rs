@@ -85,6 +85,12 @@ pub struct WindowArgs {
     /// Close the window when the playback is over.
     #[arg(long, requires = "play")]
     pub exit_after_play: bool,
+    /// With --play: stay this many milliseconds on each camera after its first
+    /// pass is on screen (the still view is sharpened and refined meanwhile),
+    /// so that every move supersedes passes in flight — the latency of the
+    /// first move after looking around. 0: move on at once.
+    #[arg(long, value_name = "MS", default_value_t = 0, requires = "play")]
+    pub play_dwell: u64,
 }
 
 impl Default for WindowArgs {
@@ -102,6 +108,7 @@ impl Default for WindowArgs {
             print_frames: false,
             play: None,
             exit_after_play: false,
+            play_dwell: 0,
         }
     }
 }
@@ -223,6 +230,7 @@ pub fn run_with_source(
     if let Some(path) = &window.play {
         let path = CameraPath::load(path)?;
         session.play(path.frames.iter().map(|f| f.camera()));
+        session.set_playback_dwell(Duration::from_millis(window.play_dwell));
     }
     let print_frames = window.print_frames;
     let playing = window.play.is_some();
@@ -278,7 +286,7 @@ pub fn run_with_source(
     };
     let result = isin_viewer::run(&mut session, options);
     if playing {
-        print_playback_summary(&moving.borrow());
+        print_playback_summary(&moving.borrow(), window.play_dwell > 0);
     }
     if let Some(saved) = session.save_recording() {
         let path = saved.context("cannot save the camera path")?;
@@ -288,8 +296,8 @@ pub fn run_with_source(
 }
 
 /// Prints latency and frame-rate figures of a playback: every moving pass shown
-/// after the first, i.e. one per camera move.
-fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
+/// after the first, i.e. one per camera move (no frame rate when it dwelled).
+fn print_playback_summary(shown: &[(Instant, FrameReport)], dwelled: bool) {
     let latencies: Vec<Duration> = shown.iter().filter_map(|(_, r)| r.latency).collect();
     let renders: Vec<Duration> = shown.iter().skip(1).map(|(_, r)| r.render_time).collect();
     let lat = Summary::of(&latencies);
@@ -299,6 +307,8 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
         _ => 0.0,
     };
     let fps = if span > 0.0 { (shown.len() - 1) as f64 / span } else { 0.0 };
+    let fps =
+        if dwelled { "(dwelling: no frame rate)".to_string() } else { format!("{fps:.1} fps while moving") };
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     // Sizes of the moving frames (every move after the starting view).
     let mut divisors: Vec<(Divisor, (u32, u32))> =
@@ -313,7 +323,7 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
     };
     println!(
         "playback: {} moves  motion-to-photon median {:.1} ms  p95 {:.1} ms  render median {:.1} ms  \
-         p95 {:.1} ms  {:.1} fps while moving{}",
+         p95 {:.1} ms  {}{}",
         lat.count,
         ms(lat.median),
         ms(lat.p95),

@@ -186,6 +186,10 @@ pub struct Session {
     /// Playback state: `Some(false)` while playing, `Some(true)` once the last
     /// camera's first pass completed.
     played: Option<bool>,
+    /// How long a playback dwells on each camera after its first pass.
+    dwell: Duration,
+    /// When the next playback camera is due (during a dwell).
+    playback_due: Option<Instant>,
 }
 
 impl Session {
@@ -219,6 +223,8 @@ impl Session {
             error: None,
             playback: VecDeque::new(),
             played: None,
+            dwell: Duration::ZERO,
+            playback_due: None,
         }
     }
 
@@ -236,6 +242,40 @@ impl Session {
         if let Some(first) = self.playback.pop_front() {
             self.camera = first;
             self.played = Some(false);
+        }
+    }
+
+    /// Makes a playback dwell `dwell` on each camera after its first pass is
+    /// complete (the still view is refined meanwhile) before applying the
+    /// next: each move then supersedes refinement passes in flight, as a user
+    /// who looks around and moves on does. Zero (the default) moves on at once.
+    pub fn set_playback_dwell(&mut self, dwell: Duration) {
+        self.dwell = dwell;
+    }
+
+    /// When the next camera of a dwelling playback is due, if one is waiting:
+    /// the window must call [`Session::tick`] then.
+    pub fn next_due(&self) -> Option<Instant> {
+        self.playback_due
+    }
+
+    /// Applies a playback camera whose dwell is over at `now` (its input time
+    /// is when it was due). Returns true when it did.
+    pub fn tick(&mut self, now: Instant) -> bool {
+        match self.playback_due {
+            Some(due) if now >= due => {
+                self.playback_due = None;
+                self.next_playback_camera(due);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn next_playback_camera(&mut self, at: Instant) {
+        match self.playback.pop_front() {
+            Some(next) => self.set_camera(next, at),
+            None => self.played = Some(true),
         }
     }
 
@@ -464,9 +504,10 @@ impl Session {
                     self.in_flight = None;
                     changed = true;
                     if f.pass == 0 && self.played == Some(false) {
-                        match self.playback.pop_front() {
-                            Some(next) => self.set_camera(next, now),
-                            None => self.played = Some(true),
+                        if self.dwell.is_zero() || self.playback.is_empty() {
+                            self.next_playback_camera(now);
+                        } else {
+                            self.playback_due = Some(now + self.dwell);
                         }
                     }
                     let next = f.pass + 1;
@@ -765,6 +806,52 @@ mod tests {
         assert_eq!(fake.count(), 4, "three moving frames, then refinement of the last camera");
         let views: Vec<(u32, u32)> = s.take_completed(t).iter().map(|r| (r.view, r.pass)).collect();
         assert_eq!(views, [(0, 0), (1, 0), (2, 0)]);
+    }
+
+    #[test]
+    fn a_dwelling_playback_refines_each_camera_then_moves_on_when_due() {
+        let fake = Fake::default();
+        let settings = RenderSettings { width: 2, height: 2, light_samples: 4, ..Default::default() };
+        let config = SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default(),
+        };
+        let mut s = Session::new(Box::new(fake.clone()), config);
+        let cams: Vec<Camera> = (0..2)
+            .map(|i| {
+                let mut c = Camera::default();
+                c.advance(i as f32 + 1.0);
+                c
+            })
+            .collect();
+        s.play(cams.clone());
+        s.set_playback_dwell(Duration::from_millis(300));
+        s.start();
+        let t0 = Instant::now();
+        fake.deliver(&fake.last(), 1);
+        s.pump(t0);
+        let due = s.next_due().expect("the next camera waits for the dwell");
+        assert_eq!(due, t0 + Duration::from_millis(300));
+        // Meanwhile the still view is refined.
+        let refine = fake.last();
+        assert_eq!((refine.camera, refine.settings.spp), (cams[0], 4));
+        assert!(!s.tick(t0 + Duration::from_millis(299)), "not due yet");
+        s.flush();
+        assert_eq!(fake.count(), 2);
+        // When due, the next camera supersedes the refinement in flight, and its
+        // latency runs from the moment it was due.
+        assert!(s.tick(due + Duration::from_millis(7)));
+        s.flush();
+        let moved = fake.last();
+        assert_eq!((moved.camera, moved.settings.spp), (cams[1], 1));
+        assert_eq!(s.next_due(), None);
+        fake.deliver(&moved, 2);
+        s.pump(due + Duration::from_millis(40));
+        assert!(s.playback_finished(), "the last camera needs no dwell");
+        let reports = s.take_completed(due + Duration::from_millis(50));
+        assert_eq!(reports.last().and_then(|r| r.latency), Some(Duration::from_millis(50)));
     }
 
     #[test]

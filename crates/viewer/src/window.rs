@@ -346,18 +346,25 @@ impl ApplicationHandler<Wake> for App<'_> {
                 self.session.move_steps(mv, steps, now);
             }
         }
+        // A dwelling playback's next camera, when due.
+        self.session.tick(now);
         // While a move key is down the motion goes on: no still passes yet.
         self.session.hold(!self.held.is_empty());
         // One request per batch of input events.
         self.session.flush();
-        if !self.held.is_empty() {
-            event_loop.set_control_flow(ControlFlow::WaitUntil(now + Duration::from_millis(5)));
+        let wake = if !self.held.is_empty() {
+            Some(now + Duration::from_millis(5))
         } else if self.show_status && self.session.active(now) {
             // Keep the status line's counters ticking while frames are rendered.
-            event_loop.set_control_flow(ControlFlow::WaitUntil(Instant::now() + Duration::from_millis(250)));
+            Some(Instant::now() + Duration::from_millis(250))
         } else {
-            event_loop.set_control_flow(ControlFlow::Wait);
-        }
+            None
+        };
+        let wake = match (wake, self.session.next_due()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        event_loop.set_control_flow(wake.map_or(ControlFlow::Wait, ControlFlow::WaitUntil));
     }
 
     fn new_events(&mut self, _: &ActiveEventLoop, cause: winit::event::StartCause) {
