@@ -139,6 +139,7 @@ impl FrameSource for LocalSource {
             tiles_per_slave: tiles.iter().map(|(&k, &v)| (k, v)).collect(),
             bytes_received: self.counters.bytes.load(Ordering::Relaxed),
             transport: "in-process".into(),
+            workers: Vec::new(),
         }
     }
 }

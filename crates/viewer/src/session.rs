@@ -611,10 +611,26 @@ impl Session {
             first += &format!("  {}x{} (1/{}", r.size.0, r.size.1, r.divisor);
             first += if self.controller.is_dynamic() { " auto)" } else { ")" };
         }
-        let tiles: Vec<String> = status.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
+        let dead = |id: u32| status.workers.iter().any(|w| w.id == id && !w.alive);
+        let tiles: Vec<String> = status
+            .tiles_per_slave
+            .iter()
+            .map(|&(id, n)| if dead(id) { format!("{id}:{n}(dead)") } else { format!("{id}:{n}") })
+            .collect();
+        let slaves = if status.workers.is_empty() {
+            format!("{} slaves", status.live_slaves)
+        } else {
+            let threads: u32 = status.workers.iter().filter(|w| w.alive).map(|w| w.threads).sum();
+            let gone = status.workers.len() - status.live_slaves.min(status.workers.len());
+            let mut s = format!("{} live slaves ({threads} threads)", status.live_slaves);
+            if gone > 0 {
+                s += &format!(", {gone} dead");
+            }
+            s
+        };
         let mut lines = vec![
             first,
-            format!("{} slaves  {:.2} MB/s  {}", status.live_slaves, rate / 1e6, status.transport),
+            format!("{slaves}  {:.2} MB/s  {}", rate / 1e6, status.transport),
             format!("tiles {}", tiles.join(" ")),
         ];
         if let Some(e) = &self.error {
@@ -632,7 +648,7 @@ impl Session {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::TileUpdate;
+    use crate::source::{TileUpdate, Worker};
     use std::sync::{Arc, Mutex};
 
     /// A source that records requests and lets the test deliver tiles.
@@ -640,6 +656,8 @@ mod tests {
     struct Fake {
         requests: Arc<Mutex<Vec<FrameRequest>>>,
         events: Arc<Mutex<VecDeque<SourceEvent>>>,
+        /// What `status` answers (default: one slave over "fake").
+        status: Arc<Mutex<Option<SourceStatus>>>,
     }
 
     impl FrameSource for Fake {
@@ -651,7 +669,11 @@ mod tests {
             self.events.lock().unwrap().pop_front()
         }
         fn status(&self) -> SourceStatus {
-            SourceStatus { live_slaves: 1, transport: "fake".into(), ..Default::default() }
+            self.status.lock().unwrap().clone().unwrap_or_else(|| SourceStatus {
+                live_slaves: 1,
+                transport: "fake".into(),
+                ..Default::default()
+            })
         }
     }
 
@@ -1042,5 +1064,29 @@ mod tests {
         let lines = s.status_lines(now).join("\n");
         assert!(lines.contains("1 fps"), "{lines}");
         assert!(lines.contains("1 slaves") && lines.contains("fake"), "{lines}");
+    }
+
+    #[test]
+    fn status_lines_show_a_clusters_slaves_threads_and_dead_ones() {
+        let fake = Fake::default();
+        let worker = |id: u32, alive: bool| Worker { id, name: format!("w#{id}"), threads: 2, alive };
+        *fake.status.lock().unwrap() = Some(SourceStatus {
+            live_slaves: 2,
+            tiles_per_slave: vec![(3, 40), (5, 0), (7, 12)],
+            workers: vec![worker(3, true), worker(5, true), worker(7, false)],
+            transport: "quic".into(),
+            bytes_received: 0,
+        });
+        let settings = RenderSettings { width: 4, height: 2, ..Default::default() };
+        let config = SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default(),
+        };
+        let mut s = Session::new(Box::new(fake), config);
+        let lines = s.status_lines(Instant::now());
+        assert_eq!(lines[1], "2 live slaves (4 threads), 1 dead  0.00 MB/s  quic");
+        assert_eq!(lines[2], "tiles 3:40 5:0 7:12(dead)");
     }
 }
