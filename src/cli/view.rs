@@ -60,7 +60,7 @@ pub struct WindowArgs {
     #[arg(long, default_value_t = 64)]
     pub max_spp: u32,
     /// While moving, always render at 1/N of the resolution in each direction
-    /// (shown enlarged; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
+    /// (shown enlarged, bilinear; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
     /// N is chosen from the measured frame times to hold --target-fps.
     /// A still view is sharpened and refined at full resolution.
     #[arg(long, value_name = "N")]

@@ -7,7 +7,7 @@
 //!
 //! 1. [`PassKind::Moving`]: fast mode ([`Quality::moving_spp`] samples,
 //!    [`Quality::moving_light_samples`] shadow rays) at a lower resolution,
-//!    shown enlarged. The divisor comes from [`Quality::moving`]: fixed, or
+//!    shown enlarged (bilinear). The divisor comes from [`Quality::moving`]: fixed, or
 //!    chosen by a [`Controller`] from the measured times of recent fast passes
 //!    so that moving frames hold a target frame rate. The very first view
 //!    (nothing has moved yet) starts at full resolution.
