@@ -40,6 +40,7 @@ Keys:
   F12 / P                   save a screenshot PNG (the rendered image)
   O / Tab                   tile-ownership overlay (tile borders coloured per slave)
   H                         status text (fps, frame time, slaves, tiles, bytes/s, transport)
+  + / -                     double / halve the move and strafe steps
   Escape                    quit
 A held move key keeps moving, in frames made as small as needed to hold --target-fps; a still
 view is redrawn at full resolution, then refined until --max-spp samples per pixel.";
@@ -85,6 +86,19 @@ pub struct WindowArgs {
     /// Close the window when the playback is over.
     #[arg(long, requires = "play")]
     pub exit_after_play: bool,
+    /// Scene units one forward/back or strafe key press moves (the paper's
+    /// `k`; default: 1/40 of the scene's size). `+` / `-` change it while flying.
+    #[arg(long, value_name = "K", value_parser = parse_positive)]
+    pub move_step: Option<f32>,
+    /// Degrees one turn key press (yaw, pitch, roll) rotates.
+    #[arg(long, value_name = "DEG", default_value_t = 3.0, value_parser = parse_positive)]
+    pub turn_step: f32,
+    /// Degrees the view turns per pixel of mouse drag.
+    #[arg(long, value_name = "DEG", default_value_t = 0.2, value_parser = parse_positive)]
+    pub look_speed: f32,
+    /// Steps per second while a move key is held down.
+    #[arg(long, value_name = "N", default_value_t = 15.0, value_parser = parse_positive)]
+    pub key_rate: f32,
     /// With --play: stay this many milliseconds on each camera after its first
     /// pass is on screen (the still view is sharpened and refined meanwhile),
     /// so that every move supersedes passes in flight — the latency of the
@@ -109,6 +123,10 @@ impl Default for WindowArgs {
             play: None,
             exit_after_play: false,
             play_dwell: 0,
+            move_step: None,
+            turn_step: 3.0,
+            look_speed: 0.2,
+            key_rate: 15.0,
         }
     }
 }
@@ -222,7 +240,7 @@ pub fn run_with_source(
         Some(d) => MovingResolution::Fixed(d),
         None => MovingResolution::dynamic(window.target_fps),
     };
-    let config = SessionConfig { settings, quality, controls: Controls::for_scene_extent(extent), camera };
+    let config = SessionConfig { settings, quality, controls: controls_for(window, extent), camera };
     let mut session = Session::new(source, config);
     if let Some(path) = &window.record {
         session.record_to(Recorder::new(path.clone(), settings.width, settings.height));
@@ -334,6 +352,27 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)], dwelled: bool) {
     );
 }
 
+/// The navigation speeds: steps sized for a scene of `extent`, overridden by
+/// the command line.
+fn controls_for(window: &WindowArgs, extent: f32) -> Controls {
+    let mut c = Controls::for_scene_extent(extent);
+    if let Some(k) = window.move_step {
+        (c.move_step, c.strafe_step) = (k, k);
+    }
+    c.turn_step = window.turn_step.to_radians();
+    c.look_per_pixel = window.look_speed.to_radians();
+    c.repeat_rate = window.key_rate;
+    c
+}
+
+/// Parses a positive, finite number.
+fn parse_positive(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!("expected a positive number, not {s:?}")),
+    }
+}
+
 /// Parses `--target-fps`: a positive, finite number.
 fn parse_fps(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
@@ -356,6 +395,31 @@ mod tests {
     #[test]
     fn default_window_args_match_an_empty_command_line() {
         assert_eq!(Wrapper::parse_from(["isin"]).window, WindowArgs::default());
+    }
+
+    #[test]
+    fn navigation_speeds_come_from_the_scene_unless_given() {
+        let default = controls_for(&WindowArgs::default(), 40.0);
+        assert_eq!(default, Controls::for_scene_extent(40.0), "defaults: the library's, sized for the scene");
+        let w = Wrapper::parse_from([
+            "isin",
+            "--move-step",
+            "0.25",
+            "--turn-step",
+            "10",
+            "--look-speed",
+            "0.5",
+            "--key-rate",
+            "30",
+        ])
+        .window;
+        let c = controls_for(&w, 40.0);
+        assert_eq!((c.move_step, c.strafe_step, c.repeat_rate), (0.25, 0.25, 30.0));
+        assert!((c.turn_step - 10f32.to_radians()).abs() < 1e-7);
+        assert!((c.look_per_pixel - 0.5f32.to_radians()).abs() < 1e-7);
+        for bad in [["--move-step", "0"], ["--turn-step", "-1"], ["--key-rate", "inf"]] {
+            assert!(Wrapper::try_parse_from(["isin", bad[0], bad[1]]).is_err(), "{bad:?}");
+        }
     }
 
     #[test]

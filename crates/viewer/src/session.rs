@@ -325,6 +325,12 @@ impl Session {
         &self.config.controls
     }
 
+    /// Multiplies the move and strafe steps by `factor` (the `+` / `-` keys).
+    pub fn scale_speed(&mut self, factor: f32) {
+        self.config.controls.scale_steps(factor);
+        tracing::info!("move step {:.3} scene units", self.config.controls.move_step);
+    }
+
     /// True while the latest camera's first (fast) pass is not complete yet:
     /// continuous motion waits for it, so frames finish while moving.
     pub fn moving_frame_pending(&self) -> bool {

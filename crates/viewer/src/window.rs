@@ -257,6 +257,8 @@ impl App<'_> {
             },
             Command::ToggleOverlay => self.overlay = !self.overlay,
             Command::ToggleStatus => self.show_status = !self.show_status,
+            Command::Faster => self.session.scale_speed(2.0),
+            Command::Slower => self.session.scale_speed(0.5),
             Command::Quit => event_loop.exit(),
         }
         self.request_redraw();
