@@ -75,7 +75,7 @@ pub struct WindowArgs {
     pub screenshot_dir: PathBuf,
     /// Print a line "frame N complete: ..." on stdout as each pass is shown
     /// (for scripts and tests); with a cluster, also a "status: ..." line
-    /// (live slaves, tiles per slave, bytes received, transport).
+    /// (live slaves, tiles per slave, bytes received, transport, dead slaves).
     #[arg(long)]
     pub print_frames: bool,
     /// Play a camera path back in the window (each camera as soon as the
@@ -286,9 +286,10 @@ pub fn run_with_source(
                     let s = status();
                     let tiles: Vec<String> =
                         s.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
+                    let dead = s.workers.iter().filter(|w| !w.alive).count();
                     let _ = writeln!(
                         out,
-                        "status: {} live slaves  tiles {}  {} bytes received  transport {}",
+                        "status: {} live slaves  tiles {}  {} bytes received  transport {}  dead {dead}",
                         s.live_slaves,
                         tiles.join(" "),
                         s.bytes_received,

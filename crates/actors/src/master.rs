@@ -318,6 +318,7 @@ impl Master {
                             "reassigned {reassigned} tiles of dead slaves to {name}"
                         );
                     }
+                    tracing::trace!(slave, frame, "assigning {} tiles", tiles.len());
                     let msg = Message::TileAssignment(TileAssignment {
                         frame,
                         camera: spec.camera,
@@ -431,6 +432,7 @@ impl Master {
                 self.drain();
             }
             (PeerState::Slave, Message::TileResult(r)) => {
+                tracing::trace!(slave = id, frame = r.frame, tile = r.id, "tile result");
                 let Some(rect) = self.sched.tile(r.frame, r.id) else {
                     // Not the current frame: stale, drop quietly.
                     self.sched.handle_heartbeat(now, id);

@@ -118,6 +118,8 @@ pub fn run(session: &mut Session, options: ViewerOptions) -> Result<(), ViewerEr
         cursor: None,
         overlay: false,
         held: HeldMoves::default(),
+        last_present: None,
+        redraw_due: None,
     };
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Window(e.to_string()))?;
     match app.error {
@@ -150,7 +152,17 @@ struct App<'a> {
     overlay: bool,
     show_status: bool,
     held: HeldMoves,
+    /// When the window was last drawn.
+    last_present: Option<Instant>,
+    /// A redraw put off to keep to [`MIN_PRESENT_INTERVAL`].
+    redraw_due: Option<Instant>,
 }
+
+/// Shortest time between two redraws for tiles that arrive while a pass is
+/// rendered (a completed pass is shown at once). Each redraw scales and
+/// presents the whole image; redrawing for every tile cost the window thread
+/// as much CPU as a render thread during refinement passes.
+pub const MIN_PRESENT_INTERVAL: Duration = Duration::from_millis(33);
 
 impl App<'_> {
     fn fail(&mut self, event_loop: &ActiveEventLoop, error: ViewerError) {
@@ -222,6 +234,8 @@ impl App<'_> {
         }
         gfx.window.pre_present_notify();
         buffer.present().map_err(err)?;
+        self.last_present = Some(Instant::now());
+        self.redraw_due = None;
         for report in self.session.take_completed(Instant::now()) {
             (self.options.on_event)(&ViewerEvent::FramePresented(report));
         }
@@ -288,8 +302,21 @@ impl ApplicationHandler<Wake> for App<'_> {
     fn user_event(&mut self, _: &ActiveEventLoop, _: Wake) {
         // Re-arm before draining so tiles landing meanwhile wake us again.
         self.waker.rearm();
-        if self.session.pump(Instant::now()) {
-            self.request_redraw();
+        let now = Instant::now();
+        if !self.session.pump(now) {
+            return;
+        }
+        // A completed pass goes on screen at once (it ends a motion-to-photon
+        // measurement); tiles of a pass in progress at most every MIN_PRESENT_INTERVAL.
+        let next = self.last_present.map(|t| t + MIN_PRESENT_INTERVAL);
+        match next {
+            Some(at) if now < at && !self.session.has_unreported() => {
+                self.redraw_due.get_or_insert(at);
+            }
+            _ => {
+                self.redraw_due = None;
+                self.request_redraw();
+            }
         }
     }
 
@@ -362,16 +389,20 @@ impl ApplicationHandler<Wake> for App<'_> {
         } else {
             None
         };
-        let wake = match (wake, self.session.next_due()) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        };
+        let wake = [wake, self.session.next_due(), self.redraw_due].into_iter().flatten().min();
         event_loop.set_control_flow(wake.map_or(ControlFlow::Wait, ControlFlow::WaitUntil));
     }
 
     fn new_events(&mut self, _: &ActiveEventLoop, cause: winit::event::StartCause) {
-        // The status line's timer (held keys' timer redraws when tiles land).
-        if matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) && self.held.is_empty() {
+        if !matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) {
+            return;
+        }
+        // A put-off redraw whose time came.
+        if self.redraw_due.is_some_and(|at| Instant::now() >= at) {
+            self.redraw_due = None;
+            self.request_redraw();
+        } else if self.held.is_empty() {
+            // The status line's timer (held keys' timer redraws when tiles land).
             self.request_redraw();
         }
     }
