@@ -19,6 +19,9 @@ pub const PERIOD_US: u64 = 5_000;
 /// Smallest quota the kernel accepts, µs.
 pub const MIN_QUOTA_US: u64 = 1_000;
 
+/// The CFS weight (`cpu.shares`) of a plain process at nice 0, and of a new cgroup.
+pub const PLAIN_WEIGHT: u64 = 1024;
+
 /// Checks that cgroup v1 CPU quotas can be set here.
 pub fn probe() -> Result<(), String> {
     let root = Path::new(CPU_ROOT);
@@ -71,6 +74,35 @@ impl CpuCgroup {
         cg.write("cpu.cfs_quota_us", &quota.to_string())?;
         (cg.period_us, cg.quota_us) = (period, quota);
         Ok(cg)
+    }
+
+    /// Creates `PREFIX` + `name` with no quota (for the master: its CPU is not
+    /// limited, only weighted, see [`CpuCgroup::set_weight`]).
+    pub fn unlimited(name: &str) -> anyhow::Result<CpuCgroup> {
+        let name = format!("{PREFIX}{name}");
+        let dir = Path::new(CPU_ROOT).join(&name);
+        if dir.exists() {
+            remove(&name);
+        }
+        std::fs::create_dir(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        super::register_cgroup(&name);
+        let cg = CpuCgroup { name, dir, period_us: 0, quota_us: 0 };
+        cg.write("cpu.cfs_quota_us", "-1")?;
+        Ok(cg)
+    }
+
+    /// Sets the cgroup's CFS weight (`cpu.shares`; a plain process weighs
+    /// [`PLAIN_WEIGHT`]). A heavy weight makes a runnable process of the cgroup
+    /// win the CPU against other load on the machine — the quota still caps it
+    /// — so that an emulated PC gets its share of a core as a real one would.
+    pub fn set_weight(&self, shares: u64) -> anyhow::Result<()> {
+        self.write("cpu.shares", &shares.clamp(2, 262_144).to_string())
+    }
+
+    /// The cgroup's CFS weight (`cpu.shares`), if readable.
+    #[cfg(test)]
+    pub fn weight(&self) -> Option<u64> {
+        std::fs::read_to_string(self.dir.join("cpu.shares")).ok()?.trim().parse().ok()
     }
 
     fn write(&self, file: &str, value: &str) -> anyhow::Result<()> {
@@ -192,6 +224,9 @@ mod tests {
         child.wait().unwrap();
         assert!(used < 0.2, "quota 0.1 core, used {used:.2}");
         assert!(nr > 0, "the busy loop should have been throttled");
+        assert_eq!(cg.weight(), Some(PLAIN_WEIGHT));
+        cg.set_weight(8 * PLAIN_WEIGHT).unwrap();
+        assert_eq!(cg.weight(), Some(8 * PLAIN_WEIGHT));
         drop(cg);
         assert!(!list().contains(&format!("{PREFIX}test-quota")));
     }

@@ -132,8 +132,13 @@ pub struct Master {
     epoch: Instant,
     next_peer: u64,
     peers: HashMap<u64, Peer>,
-    frame: Option<FrameSpec>,
+    /// Open frames, oldest first (more than one when a viewer queues frames).
+    frames: Vec<FrameSpec>,
     next_frame: FrameId,
+    /// Bytes received when the last frame completed: a pipelined frame counts
+    /// the bytes from there (or from its request, if later), not those of the
+    /// frame before it.
+    bytes_in_at_last_done: u64,
     scene_hash: SceneHash,
     scene_sync: Arc<Vec<u8>>,
     last_heartbeat: Duration,
@@ -157,8 +162,9 @@ impl Master {
             epoch: Instant::now(),
             next_peer: 1,
             peers: HashMap::new(),
-            frame: None,
+            frames: Vec::new(),
             next_frame: 1,
+            bytes_in_at_last_done: 0,
             scene_hash,
             scene_sync,
             last_heartbeat: Duration::ZERO,
@@ -274,10 +280,10 @@ impl Master {
                     self.sched.handle_disconnect(now, id);
                 }
                 PeerState::Viewer => {
-                    if self.frame.as_ref().is_some_and(|f| f.viewer == id) {
-                        self.sched.abandon_frame();
-                        self.frame = None;
+                    for f in self.frames.iter().filter(|f| f.viewer == id) {
+                        self.sched.abandon(f.id);
                     }
+                    self.frames.retain(|f| f.viewer != id);
                 }
                 PeerState::AwaitHello { .. } | PeerState::Syncing { .. } => {}
             }
@@ -309,7 +315,7 @@ impl Master {
         while let Some(out) = self.sched.poll_output(now) {
             match out {
                 Output::Assign { slave, frame, tiles, reassigned } => {
-                    let Some(spec) = self.frame.as_ref().filter(|f| f.id == frame) else { continue };
+                    let Some(spec) = self.frames.iter().find(|f| f.id == frame) else { continue };
                     if reassigned > 0 {
                         let name = self.peers.get(&slave).map_or("?", |p| p.name.as_str());
                         tracing::info!(
@@ -339,12 +345,16 @@ impl Master {
                     }
                 }
                 Output::FrameDone { frame, mut stats } => {
-                    if let Some(spec) = self.frame.as_ref().filter(|f| f.id == frame) {
-                        stats.bytes_in = self.wire().bytes_received.saturating_sub(spec.bytes_in_at_start);
+                    let received = self.wire().bytes_received;
+                    if let Some(spec) = self.frames.iter().find(|f| f.id == frame) {
+                        let from = spec.bytes_in_at_start.max(self.bytes_in_at_last_done);
+                        stats.bytes_in = received.saturating_sub(from);
                     }
+                    self.bytes_in_at_last_done = received;
                     self.status.frames_done += 1;
                     self.status.last_frame = Some(stats.clone());
-                    if let Some(spec) = self.frame.take_if(|f| f.id == frame) {
+                    let spec = self.frames.iter().position(|f| f.id == frame).map(|i| self.frames.remove(i));
+                    if let Some(spec) = spec {
                         tracing::info!(
                             frame,
                             "frame done in {:.1} ms: {} tiles, {} moved, {} duplicated, {} requeued",
@@ -450,7 +460,7 @@ impl Master {
                 };
                 match self.sched.handle_result(now, id, r.frame, r.id) {
                     ResultOutcome::Accepted { tile } => {
-                        if let Some(spec) = self.frame.as_ref().filter(|f| f.id == r.frame) {
+                        if let Some(spec) = self.frames.iter().find(|f| f.id == r.frame) {
                             let slave_name = self.peers.get(&id).map(|p| p.name.clone()).unwrap_or_default();
                             let viewer_decodes =
                                 self.peers.get(&spec.viewer).is_some_and(|v| v.decodes.contains(&r.codec));
@@ -478,24 +488,10 @@ impl Master {
                 self.sched.handle_heartbeat(now, id);
             }
             (PeerState::Viewer, Message::FrameRequest { request, camera, settings }) => {
-                if let Err(e) = validate_request(&camera, &settings) {
-                    return self.send(id, &Message::Error { message: e });
-                }
-                let frame = self.next_frame;
-                self.next_frame += 1;
-                if let Err(e) = self.sched.submit_frame(now, frame, settings.width, settings.height) {
-                    return self.send(id, &Message::Error { message: e.to_string() });
-                }
-                if let Some(old) = self.frame.as_ref().filter(|f| f.viewer != id) {
-                    let message = format!("request {} superseded by another viewer's request", old.request);
-                    self.send(old.viewer, &Message::Error { message });
-                }
-                self.status.frames_requested += 1;
-                let bytes_in_at_start = self.wire().bytes_received;
-                self.frame =
-                    Some(FrameSpec { id: frame, bytes_in_at_start, camera, settings, viewer: id, request });
-                tracing::debug!(frame, request, "frame requested {}x{}", settings.width, settings.height);
-                self.drain();
+                self.request_frame(id, request, camera, settings, false);
+            }
+            (PeerState::Viewer, Message::QueueFrame { request, camera, settings }) => {
+                self.request_frame(id, request, camera, settings, true);
             }
             (PeerState::Viewer, Message::Heartbeat) => {}
             (_, Message::Error { message }) => {
@@ -506,6 +502,44 @@ impl Master {
                 self.refuse(id, format!("unexpected {kind} message"));
             }
         }
+    }
+
+    /// A viewer's frame request: supersedes the open frames, or with `queue`
+    /// waits behind them (the scheduler pipelines it).
+    fn request_frame(
+        &mut self,
+        id: u64,
+        request: u64,
+        camera: Camera,
+        settings: RenderSettings,
+        queue: bool,
+    ) {
+        let now = self.now();
+        if let Err(e) = validate_request(&camera, &settings) {
+            return self.send(id, &Message::Error { message: e });
+        }
+        let frame = self.next_frame;
+        self.next_frame += 1;
+        let (w, h) = (settings.width, settings.height);
+        let started = if queue {
+            self.sched.queue_frame(now, frame, w, h)
+        } else {
+            self.sched.submit_frame(now, frame, w, h)
+        };
+        if let Err(e) = started {
+            return self.send(id, &Message::Error { message: e.to_string() });
+        }
+        if !queue {
+            for old in std::mem::take(&mut self.frames).into_iter().filter(|f| f.viewer != id) {
+                let message = format!("request {} superseded by another viewer's request", old.request);
+                self.send(old.viewer, &Message::Error { message });
+            }
+        }
+        self.status.frames_requested += 1;
+        let bytes_in_at_start = self.wire().bytes_received;
+        self.frames.push(FrameSpec { id: frame, bytes_in_at_start, camera, settings, viewer: id, request });
+        tracing::debug!(frame, request, queue, "frame requested {w}x{h}");
+        self.drain();
     }
 
     fn on_tick(&mut self) {

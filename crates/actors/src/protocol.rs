@@ -16,9 +16,10 @@ use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 
 /// Version of the protocol spoken by this build; peers must match exactly.
-/// (2: tile codecs negotiated at join; tiles name their codec. 3: the master
+/// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may
+/// queue frames behind the open one, [`Message::QueueFrame`]. 4: the master
 /// tells viewers its slaves, [`Message::Slaves`].)
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// Most slaves a [`Message::Slaves`] may list; a longer list is refused while
 /// it is decoded, before it is allocated.
@@ -349,6 +350,19 @@ pub enum Message {
         /// Human-readable message.
         message: String,
     },
+    /// Viewer → master: render a frame after the frames already requested,
+    /// without superseding them (a replayed camera path keeps the next frame
+    /// queued so that slaves roll from one frame straight into the next). Each
+    /// frame is answered with its own tiles and `FrameDone`; a later
+    /// [`Message::FrameRequest`] supersedes queued frames too.
+    QueueFrame {
+        /// The viewer's own number for the request, echoed in the replies.
+        request: u64,
+        /// Camera to render with.
+        camera: Camera,
+        /// Resolution, samples and the rest.
+        settings: RenderSettings,
+    },
 }
 
 impl Message {
@@ -370,6 +384,7 @@ impl Message {
             Message::Slaves { .. } => "Slaves",
             Message::Heartbeat => "Heartbeat",
             Message::Error { .. } => "Error",
+            Message::QueueFrame { .. } => "QueueFrame",
         }
     }
 }
@@ -502,6 +517,11 @@ mod tests {
             Message::Ready { hash: [6; 32] },
             Message::FrameRequest {
                 request: 3,
+                camera: Camera::default(),
+                settings: RenderSettings::default(),
+            },
+            Message::QueueFrame {
+                request: 4,
                 camera: Camera::default(),
                 settings: RenderSettings::default(),
             },

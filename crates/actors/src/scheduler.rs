@@ -15,7 +15,9 @@
 //!   load balancing rather than a static split).
 //! - **Enough tiles for the cluster.** A frame is cut into tiles of
 //!   [`SchedulerConfig::tile_size`], halved (down to 16 px) while that would
-//!   give fewer than 8 tiles per render thread in the cluster.
+//!   give fewer than 8 tiles per render thread in the cluster — except a
+//!   queued frame (pipelining, below): its end is filled by the next frame's
+//!   tiles, so it keeps the full edge and the per-tile round trips stay few.
 //! - **Smaller tiles at the end.** When fewer tiles remain queued than the
 //!   cluster has threads, the next tile is split in four (down to
 //!   [`SchedulerConfig::min_tile_size`]) so the frame does not wait on one big tile.
@@ -32,8 +34,15 @@
 //! - **Liveness.** Every message from a slave counts as a heartbeat; one silent
 //!   for [`SchedulerConfig::heartbeat_timeout`] is declared dead, as is one whose
 //!   connection closed, and its tiles go back to the front of the queue.
-//! - **Superseding.** A newer frame replaces the open one; the old frame's
-//!   tiles are cancelled and its late results are reported [`ResultOutcome::Stale`].
+//! - **Superseding.** A newer frame ([`Scheduler::submit_frame`]) replaces the
+//!   open ones; the old frames' tiles are cancelled and their late results are
+//!   reported [`ResultOutcome::Stale`].
+//! - **Pipelining.** A frame queued with [`Scheduler::queue_frame`] waits behind
+//!   the open ones instead: its tiles go out as soon as the older frames have
+//!   none left to hand out, so no slave idles through the end of one frame
+//!   (a replayed camera path). The end-of-frame measures above (no queues,
+//!   smaller tiles, moving and duplicating tiles) apply only to the end of
+//!   the last open frame. Each frame still completes on its own.
 //!
 //! Polling order for a driver: after any `handle_*` call (and on every timer
 //! tick, after [`Scheduler::handle_timeout`]), drain [`Scheduler::poll_output`].
@@ -59,6 +68,9 @@ pub struct SchedulerConfig {
     pub heartbeat_timeout: Duration,
     /// Whether idle slaves may duplicate straggling tiles.
     pub duplicate_stragglers: bool,
+    /// Most frames open at once: the one being rendered plus those queued
+    /// behind it with [`Scheduler::queue_frame`].
+    pub max_open_frames: u32,
 }
 
 impl Default for SchedulerConfig {
@@ -69,6 +81,7 @@ impl Default for SchedulerConfig {
             queue_depth: 2,
             heartbeat_timeout: Duration::from_secs(5),
             duplicate_stragglers: true,
+            max_open_frames: 4,
         }
     }
 }
@@ -155,6 +168,9 @@ pub enum SchedulerError {
     /// Zero-sized image.
     #[error("empty image {0}x{1}")]
     Empty(u32, u32),
+    /// [`Scheduler::queue_frame`] with this many frames open already.
+    #[error("{0} frames already open: wait for one to complete before queueing another")]
+    TooManyFrames(u32),
 }
 
 /// A slave as the scheduler sees it.
@@ -181,10 +197,23 @@ struct SlaveState {
     name: String,
     threads: u32,
     last_seen: Duration,
-    in_flight: BTreeSet<TileId>,
+    /// Tiles it holds, of any open frame.
+    in_flight: BTreeSet<(FrameId, TileId)>,
     tiles_done: u64,
     pixels_done: u64,
     wasted: u64,
+}
+
+impl SlaveState {
+    /// Takes every tile of `frame` this slave holds.
+    fn take_frame(&mut self, frame: FrameId) -> Vec<TileId> {
+        let tiles: Vec<TileId> =
+            self.in_flight.range((frame, 0)..=(frame, TileId::MAX)).map(|&(_, t)| t).collect();
+        for t in &tiles {
+            self.in_flight.remove(&(frame, *t));
+        }
+        tiles
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -223,7 +252,9 @@ struct FrameState {
 pub struct Scheduler {
     config: SchedulerConfig,
     slaves: BTreeMap<SlaveId, SlaveState>,
-    frame: Option<FrameState>,
+    /// Open frames, oldest first; the newest may be a completed one (kept so
+    /// that late copies of its tiles count as duplicates, not stale).
+    frames: VecDeque<FrameState>,
     last_frame: Option<FrameId>,
     outputs: VecDeque<Output>,
 }
@@ -234,7 +265,14 @@ impl Scheduler {
         let mut config = config;
         config.tile_size = config.tile_size.max(1);
         config.min_tile_size = config.min_tile_size.clamp(1, config.tile_size);
-        Self { config, slaves: BTreeMap::new(), frame: None, last_frame: None, outputs: VecDeque::new() }
+        config.max_open_frames = config.max_open_frames.max(1);
+        Self {
+            config,
+            slaves: BTreeMap::new(),
+            frames: VecDeque::new(),
+            last_frame: None,
+            outputs: VecDeque::new(),
+        }
     }
 
     // ---- getters -------------------------------------------------------
@@ -244,14 +282,21 @@ impl Scheduler {
         &self.config
     }
 
-    /// The open frame, if any (a completed frame is not open).
+    /// The oldest open frame, if any (a completed frame is not open).
     pub fn open_frame(&self) -> Option<FrameId> {
-        self.frame.as_ref().filter(|f| !f.done).map(|f| f.id)
+        self.frames.iter().find(|f| !f.done).map(|f| f.id)
     }
 
-    /// The rectangle of tile `id` of `frame`, if it is the current frame's.
+    /// Every open frame, oldest first: the one being rendered, then those
+    /// queued behind it ([`Scheduler::queue_frame`]).
+    pub fn open_frames(&self) -> Vec<FrameId> {
+        self.frames.iter().filter(|f| !f.done).map(|f| f.id).collect()
+    }
+
+    /// The rectangle of tile `id` of `frame`, if `frame` is still known
+    /// (open, or the latest completed one).
     pub fn tile(&self, frame: FrameId, id: TileId) -> Option<Tile> {
-        let f = self.frame.as_ref().filter(|f| f.id == frame)?;
+        let f = self.frames.iter().find(|f| f.id == frame)?;
         f.tiles.get(id as usize).map(|r| r.tile)
     }
 
@@ -322,7 +367,8 @@ impl Scheduler {
         }
     }
 
-    /// Starts a frame of `width × height`, superseding any open frame.
+    /// Starts a frame of `width × height`, superseding every open frame (the
+    /// one being rendered and any queued behind it).
     pub fn submit_frame(
         &mut self,
         now: Duration,
@@ -330,51 +376,59 @@ impl Scheduler {
         width: u32,
         height: u32,
     ) -> Result<(), SchedulerError> {
-        if width == 0 || height == 0 {
-            return Err(SchedulerError::Empty(width, height));
-        }
-        if let Some(current) = self.last_frame.filter(|&c| frame <= c) {
-            return Err(SchedulerError::NotNewer { new: frame, current });
-        }
+        self.check_new(frame, width, height)?;
         self.abandon_frame();
         let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
         let edge = frame_tile_size(&self.config, width, height, threads);
-        let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
-            .into_iter()
-            .map(|tile| TileRec {
-                tile,
-                state: TileState::Queued,
-                holders: Vec::new(),
-                assigned_at: now,
-                requeued: false,
-            })
-            .collect();
-        self.frame = Some(FrameState {
-            id: frame,
-            queue: (0..tiles.len() as TileId).collect(),
-            tiles,
-            remaining_pixels: width as u64 * height as u64,
-            started: now,
-            done: false,
-            turnaround_sum: Duration::ZERO,
-            turnaround_n: 0,
-            stats: FrameStats::default(),
-        });
-        self.last_frame = Some(frame);
+        self.push_frame(now, frame, width, height, edge);
         Ok(())
     }
 
-    /// Drops the open frame (its requester went away): slaves are told to
-    /// cancel its tiles.
+    /// Queues a frame of `width × height` behind the open ones instead of
+    /// superseding them: its tiles go out as soon as the older frames have no
+    /// tile left to hand out, so slaves roll from one frame straight into the
+    /// next (a replayed camera path). Frames still complete one by one, each
+    /// with its own [`Output::FrameDone`]. At most
+    /// [`SchedulerConfig::max_open_frames`] frames may be open.
+    pub fn queue_frame(
+        &mut self,
+        now: Duration,
+        frame: FrameId,
+        width: u32,
+        height: u32,
+    ) -> Result<(), SchedulerError> {
+        self.check_new(frame, width, height)?;
+        let open = self.frames.iter().filter(|f| !f.done).count();
+        if open >= self.config.max_open_frames as usize {
+            return Err(SchedulerError::TooManyFrames(self.config.max_open_frames));
+        }
+        self.frames.retain(|f| !f.done);
+        // Full-size tiles: the cluster-sized edge is for the end of a frame,
+        // which the next queued frame fills (and the last one is split at its end).
+        self.push_frame(now, frame, width, height, self.config.tile_size);
+        Ok(())
+    }
+
+    /// Drops every open frame (its requester went away, or a newer request
+    /// supersedes it): slaves are told to cancel their tiles.
     pub fn abandon_frame(&mut self) {
-        let Some(f) = self.frame.take() else { return };
+        let ids: Vec<FrameId> = self.frames.iter().map(|f| f.id).collect();
+        for id in ids {
+            self.abandon(id);
+        }
+    }
+
+    /// Drops `frame` alone (open or queued): slaves are told to cancel its tiles.
+    pub fn abandon(&mut self, frame: FrameId) {
+        let Some(i) = self.frames.iter().position(|f| f.id == frame) else { return };
+        let Some(f) = self.frames.remove(i) else { return };
         if f.done {
             return;
         }
         for (&id, s) in self.slaves.iter_mut() {
-            if !s.in_flight.is_empty() {
-                let tiles = std::mem::take(&mut s.in_flight).into_iter().collect();
-                self.outputs.push_back(Output::Cancel { slave: id, frame: f.id, tiles });
+            let tiles = s.take_frame(frame);
+            if !tiles.is_empty() {
+                self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
             }
         }
     }
@@ -388,12 +442,12 @@ impl Scheduler {
         tile: TileId,
     ) -> ResultOutcome {
         self.handle_heartbeat(now, slave);
-        let Some(f) = self.frame.as_mut().filter(|f| f.id == frame) else {
+        let Some(f) = self.frames.iter_mut().find(|f| f.id == frame) else {
             self.waste(slave);
             return ResultOutcome::Stale;
         };
         if let Some(s) = self.slaves.get_mut(&slave) {
-            s.in_flight.remove(&tile);
+            s.in_flight.remove(&(frame, tile));
         }
         let Some(rec) = f.tiles.get_mut(tile as usize) else {
             self.waste(slave);
@@ -422,7 +476,7 @@ impl Scheduler {
                 continue;
             }
             if let Some(s) = self.slaves.get_mut(&other)
-                && s.in_flight.remove(&tile)
+                && s.in_flight.remove(&(frame, tile))
             {
                 self.outputs.push_back(Output::Cancel { slave: other, frame, tiles: vec![tile] });
             }
@@ -440,11 +494,14 @@ impl Scheduler {
             let stats = f.stats.clone();
             self.outputs.push_back(Output::FrameDone { frame, stats });
             for (&id, s) in self.slaves.iter_mut() {
-                if !s.in_flight.is_empty() {
-                    let tiles = std::mem::take(&mut s.in_flight).into_iter().collect();
+                let tiles = s.take_frame(frame);
+                if !tiles.is_empty() {
                     self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
                 }
             }
+            // Keep a completed frame only while it is the newest one.
+            let newest = self.frames.back().map(|f| f.id);
+            self.frames.retain(|f| !f.done || Some(f.id) == newest);
         }
         ResultOutcome::Accepted { tile: rect }
     }
@@ -461,6 +518,41 @@ impl Scheduler {
 
     // ---- internals ------------------------------------------------------
 
+    fn check_new(&self, frame: FrameId, width: u32, height: u32) -> Result<(), SchedulerError> {
+        if width == 0 || height == 0 {
+            return Err(SchedulerError::Empty(width, height));
+        }
+        if let Some(current) = self.last_frame.filter(|&c| frame <= c) {
+            return Err(SchedulerError::NotNewer { new: frame, current });
+        }
+        Ok(())
+    }
+
+    fn push_frame(&mut self, now: Duration, frame: FrameId, width: u32, height: u32, edge: u32) {
+        let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
+            .into_iter()
+            .map(|tile| TileRec {
+                tile,
+                state: TileState::Queued,
+                holders: Vec::new(),
+                assigned_at: now,
+                requeued: false,
+            })
+            .collect();
+        self.frames.push_back(FrameState {
+            id: frame,
+            queue: (0..tiles.len() as TileId).collect(),
+            tiles,
+            remaining_pixels: width as u64 * height as u64,
+            started: now,
+            done: false,
+            turnaround_sum: Duration::ZERO,
+            turnaround_n: 0,
+            stats: FrameStats::default(),
+        });
+        self.last_frame = Some(frame);
+    }
+
     fn waste(&mut self, slave: SlaveId) {
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.wasted += 1;
@@ -470,25 +562,29 @@ impl Scheduler {
     fn kill(&mut self, slave: SlaveId, cause: DeathCause) {
         let Some(s) = self.slaves.remove(&slave) else { return };
         let mut requeued = 0;
-        if let Some(f) = self.frame.as_mut().filter(|f| !f.done) {
+        for f in self.frames.iter_mut().filter(|f| !f.done) {
+            let mut n = 0;
             // Back to the front, in their original order.
-            for &tile in s.in_flight.iter().rev() {
+            for &(_, tile) in s.in_flight.range((f.id, 0)..=(f.id, TileId::MAX)).rev() {
                 let Some(rec) = f.tiles.get_mut(tile as usize) else { continue };
                 rec.holders.retain(|&h| h != slave);
                 if rec.state == TileState::InFlight && rec.holders.is_empty() {
                     rec.state = TileState::Queued;
                     rec.requeued = true;
                     f.queue.push_front(tile);
-                    requeued += 1;
+                    n += 1;
                 }
             }
-            f.stats.requeued += requeued;
+            f.stats.requeued += n;
+            requeued += n;
         }
         self.outputs.push_back(Output::SlaveDead { slave, name: s.name, cause, requeued });
     }
 
     fn schedule(&mut self, now: Duration) {
-        let Some(f) = self.frame.as_mut().filter(|f| !f.done) else { return };
+        if self.frames.iter().all(|f| f.done) {
+            return;
+        }
         let cfg = &self.config;
         let total_threads: usize = self.slaves.values().map(|s| s.threads as usize).sum();
         // Least-loaded slaves first, then round-robin one tile at a time.
@@ -497,64 +593,83 @@ impl Scheduler {
             let s = &self.slaves[id];
             (s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize, *id)
         });
-        let mut batches: BTreeMap<SlaveId, Vec<TileJob>> = BTreeMap::new();
-        let mut reassigned: BTreeMap<SlaveId, u32> = BTreeMap::new();
+        let mut batches: BTreeMap<(SlaveId, FrameId), Vec<TileJob>> = BTreeMap::new();
+        let mut reassigned: BTreeMap<(SlaveId, FrameId), u32> = BTreeMap::new();
         'rounds: loop {
             let mut progressed = false;
             for id in &order {
                 let s = self.slaves.get_mut(id).expect("ordered ids are live");
-                let depth = if f.queue.len() > total_threads { cfg.queue_depth } else { 0 };
+                // Tiles still to hand out, of every open frame: a frame queued
+                // behind this one means it has no end (no tail) to prepare for.
+                let queued: usize = self.frames.iter().filter(|f| !f.done).map(|f| f.queue.len()).sum();
+                let depth = if queued > total_threads { cfg.queue_depth } else { 0 };
                 if s.in_flight.len() >= (s.threads + depth) as usize {
                     continue;
                 }
-                let Some(tile) = next_tile(f, cfg, total_threads) else { break 'rounds };
+                let Some((fi, tile)) = next_open_tile(&mut self.frames, cfg, total_threads) else {
+                    break 'rounds;
+                };
+                let f = &mut self.frames[fi];
                 let rec = &mut f.tiles[tile as usize];
                 rec.state = TileState::InFlight;
                 rec.holders.push(*id);
                 rec.assigned_at = now;
                 if std::mem::take(&mut rec.requeued) {
-                    *reassigned.entry(*id).or_default() += 1;
+                    *reassigned.entry((*id, f.id)).or_default() += 1;
                 }
-                s.in_flight.insert(tile);
-                batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
+                s.in_flight.insert((f.id, tile));
+                batches.entry((*id, f.id)).or_default().push(TileJob { id: tile, tile: rec.tile });
                 progressed = true;
             }
             if !progressed {
                 break;
             }
         }
-        if f.queue.is_empty() {
-            move_waiting_tiles(&mut self.slaves, f, &order, now, &mut batches, &mut self.outputs);
+        let all_handed_out = self.frames.iter().filter(|f| !f.done).all(|f| f.queue.is_empty());
+        if all_handed_out {
+            move_waiting_tiles(
+                &mut self.slaves,
+                &mut self.frames,
+                &order,
+                now,
+                &mut batches,
+                &mut self.outputs,
+            );
         }
-        if cfg.duplicate_stragglers && f.queue.is_empty() && f.turnaround_n > 0 {
-            let mean = f.turnaround_sum / f.turnaround_n;
+        if cfg.duplicate_stragglers && all_handed_out {
             for id in &order {
                 let s = self.slaves.get_mut(id).expect("ordered ids are live");
                 while s.in_flight.len() < s.threads as usize {
-                    let straggler = f
-                        .tiles
+                    // The oldest tile out longer than its frame's mean turnaround.
+                    let straggler = self
+                        .frames
                         .iter()
                         .enumerate()
-                        .filter(|(_, r)| {
-                            r.state == TileState::InFlight
-                                && r.holders.len() == 1
-                                && !r.holders.contains(id)
-                                && now.saturating_sub(r.assigned_at) > mean
+                        .filter(|(_, f)| !f.done && f.turnaround_n > 0)
+                        .flat_map(|(fi, f)| {
+                            let mean = f.turnaround_sum / f.turnaround_n;
+                            f.tiles.iter().enumerate().filter_map(move |(t, r)| {
+                                let late = r.state == TileState::InFlight
+                                    && r.holders.len() == 1
+                                    && !r.holders.contains(id)
+                                    && now.saturating_sub(r.assigned_at) > mean;
+                                late.then_some((r.assigned_at, fi, t as TileId))
+                            })
                         })
-                        .min_by_key(|(_, r)| r.assigned_at)
-                        .map(|(i, _)| i as TileId);
-                    let Some(tile) = straggler else { break };
+                        .min();
+                    let Some((_, fi, tile)) = straggler else { break };
+                    let f = &mut self.frames[fi];
                     let rec = &mut f.tiles[tile as usize];
                     rec.holders.push(*id);
-                    s.in_flight.insert(tile);
+                    s.in_flight.insert((f.id, tile));
                     f.stats.duplicated += 1;
-                    batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
+                    batches.entry((*id, f.id)).or_default().push(TileJob { id: tile, tile: rec.tile });
                 }
             }
         }
-        for (slave, tiles) in batches {
-            let reassigned = reassigned.get(&slave).copied().unwrap_or(0);
-            self.outputs.push_back(Output::Assign { slave, frame: f.id, tiles, reassigned });
+        for ((slave, frame), tiles) in batches {
+            let reassigned = reassigned.get(&(slave, frame)).copied().unwrap_or(0);
+            self.outputs.push_back(Output::Assign { slave, frame, tiles, reassigned });
         }
     }
 }
@@ -585,10 +700,10 @@ fn frame_tile_size(cfg: &SchedulerConfig, width: u32, height: u32, threads: u32)
 /// slave to cancel it.
 fn move_waiting_tiles(
     slaves: &mut BTreeMap<SlaveId, SlaveState>,
-    f: &mut FrameState,
+    frames: &mut VecDeque<FrameState>,
     order: &[SlaveId],
     now: Duration,
-    batches: &mut BTreeMap<SlaveId, Vec<TileJob>>,
+    batches: &mut BTreeMap<(SlaveId, FrameId), Vec<TileJob>>,
     outputs: &mut VecDeque<Output>,
 ) {
     for id in order {
@@ -606,29 +721,65 @@ fn move_waiting_tiles(
             let newest = vs
                 .in_flight
                 .iter()
-                .copied()
-                .filter(|&t| {
-                    f.tiles
-                        .get(t as usize)
-                        .is_some_and(|r| r.state == TileState::InFlight && r.holders.as_slice() == [victim])
+                .filter_map(|&(frame, t)| {
+                    let fi = frames.iter().position(|f| f.id == frame && !f.done)?;
+                    let r = frames[fi].tiles.get(t as usize)?;
+                    let sole = r.state == TileState::InFlight && r.holders.as_slice() == [victim];
+                    sole.then_some((r.assigned_at, frame, t, fi))
                 })
-                .max_by_key(|&t| (f.tiles[t as usize].assigned_at, t));
-            let Some(tile) = newest else { return };
-            vs.in_flight.remove(&tile);
-            outputs.push_back(Output::Cancel { slave: victim, frame: f.id, tiles: vec![tile] });
+                .max();
+            let Some((_, frame, tile, fi)) = newest else { return };
+            vs.in_flight.remove(&(frame, tile));
+            outputs.push_back(Output::Cancel { slave: victim, frame, tiles: vec![tile] });
+            let f = &mut frames[fi];
             let rec = &mut f.tiles[tile as usize];
             rec.holders = vec![*id];
             rec.assigned_at = now;
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
-            s.in_flight.insert(tile);
-            batches.entry(*id).or_default().push(TileJob { id: tile, tile: rec.tile });
+            s.in_flight.insert((frame, tile));
+            batches.entry((*id, frame)).or_default().push(TileJob { id: tile, tile: rec.tile });
         }
     }
 }
 
-/// Takes the next queued tile, splitting it first when little work is left.
-fn next_tile(f: &mut FrameState, cfg: &SchedulerConfig, total_threads: usize) -> Option<TileId> {
+/// Takes the next tile to hand out: from the oldest open frame that has one
+/// queued. Returns the frame's index in `frames` and the tile.
+fn next_open_tile(
+    frames: &mut VecDeque<FrameState>,
+    cfg: &SchedulerConfig,
+    total_threads: usize,
+) -> Option<(usize, TileId)> {
+    // Tiles queued in frames behind each one: with enough of them, the end of
+    // a frame is not the end of the work, and its tiles need no splitting.
+    let mut behind = 0usize;
+    let mut after: Vec<usize> = vec![0; frames.len()];
+    for (i, f) in frames.iter().enumerate().rev() {
+        after[i] = behind;
+        if !f.done {
+            behind += f.queue.len();
+        }
+    }
+    for (i, f) in frames.iter_mut().enumerate() {
+        if f.done {
+            continue;
+        }
+        if let Some(tile) = next_tile(f, cfg, total_threads, after[i]) {
+            return Some((i, tile));
+        }
+    }
+    None
+}
+
+/// Takes the next queued tile of `f`, splitting it first when little work is
+/// left (fewer tiles queued, here and in the `behind` tiles of later frames,
+/// than the cluster has threads).
+fn next_tile(
+    f: &mut FrameState,
+    cfg: &SchedulerConfig,
+    total_threads: usize,
+    behind: usize,
+) -> Option<TileId> {
     loop {
         let id = f.queue.pop_front()?;
         let rec = &f.tiles[id as usize];
@@ -637,7 +788,7 @@ fn next_tile(f: &mut FrameState, cfg: &SchedulerConfig, total_threads: usize) ->
         }
         let t = rec.tile;
         let splittable = t.w > cfg.min_tile_size || t.h > cfg.min_tile_size;
-        if splittable && f.queue.len() < total_threads {
+        if splittable && f.queue.len() + behind < total_threads {
             let children = split(t, cfg.min_tile_size);
             let requeued = rec.requeued;
             f.tiles[id as usize].state = TileState::Split;

@@ -5,10 +5,14 @@
 //! The actor never renders: each tile is a job on the pool, and the job sends
 //! its encoded result straight into the connection (a [`FrameSender`] works
 //! from any thread), so no per-tile round trip through the actor is awaited.
-//! Queued jobs of a superseded frame or a cancelled tile are skipped when their
-//! turn comes, and a job already rendering one stops between bands of rows
-//! ([`Renderer::render_cancellable`]): a move that supersedes a refinement
-//! pass waits for a few rows, not for whole tiles.
+//! Queued jobs of a cancelled tile (another slave won it, or its frame was
+//! superseded: the master cancels every tile of a superseded frame) are skipped
+//! when their turn comes, and a job already rendering one stops between bands
+//! of rows ([`Renderer::render_cancellable`]): a move that supersedes a
+//! refinement pass waits for a few rows, not for whole tiles. A newer frame's
+//! tiles do not make an older frame's stale by themselves: the master may
+//! pipeline frames, handing out the next frame's tiles while the older frame's
+//! are still queued here.
 
 use crate::auth::Ticket;
 use crate::client::{self, JoinError};
@@ -56,6 +60,12 @@ impl Default for SlaveOptions {
         }
     }
 }
+
+/// Frames a cancellation is remembered for: a queued job of a frame this much
+/// older than the newest assigned one is skipped outright (the master keeps
+/// far fewer frames open at once), and cancellations of older frames are
+/// forgotten.
+const CANCEL_MEMORY: u64 = 16;
 
 /// What a slave renders with: loads a shipped scene, renders a tile of it.
 /// [`Tracer`] is the real one; tests plug in cheap fakes.
@@ -377,8 +387,10 @@ impl<R: Renderer> SlaveActor<R> {
     fn assign(&mut self, a: TileAssignment) {
         if a.frame > self.latest.load(Ordering::Acquire) {
             self.latest.store(a.frame, Ordering::Release);
+            // Cancellations of tiles that were already rendered are never
+            // consumed by a job: forget those of frames long gone.
             if let Ok(mut c) = self.cancelled.lock() {
-                c.retain(|(f, _)| *f >= a.frame);
+                c.retain(|(f, _)| f.saturating_add(CANCEL_MEMORY) >= a.frame);
             }
         }
         let (w, h) = (a.settings.width, a.settings.height);
@@ -402,13 +414,13 @@ impl<R: Renderer> SlaveActor<R> {
             );
             let (frame, camera, settings, tile_codec) = (a.frame, a.camera, a.settings, self.codec);
             self.pool.spawn_fifo(move || {
-                // Skip (or stop, between rows) tiles of superseded frames,
-                // cancelled tiles, and the leftovers of a session whose
+                // Skip (or stop, between bands of rows) cancelled tiles, tiles
+                // of frames long gone, and the leftovers of a session whose
                 // connection is gone.
                 let stop = || {
                     sender.is_closed()
-                        || latest.load(Ordering::Acquire) > frame
-                        || cancelled.lock().map(|c| c.contains(&(frame, job.id))).unwrap_or(false)
+                        || latest.load(Ordering::Acquire) > frame.saturating_add(CANCEL_MEMORY)
+                        || cancelled.lock().map(|mut c| c.remove(&(frame, job.id))).unwrap_or(false)
                 };
                 let t0 = Instant::now();
                 let pixels = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {

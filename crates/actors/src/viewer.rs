@@ -78,6 +78,21 @@ pub struct RequestFrame {
     pub settings: RenderSettings,
 }
 
+/// Asks for a frame to be rendered after those already requested, without
+/// superseding them (answers with its request number, numbered like
+/// [`RequestFrame`]): a replayed camera path keeps the next frame queued at the
+/// master so that slaves roll from one frame straight into the next. Each
+/// frame comes back with its own tiles and `FrameDone`. The master keeps a few
+/// frames open at most; beyond that it answers with an error.
+#[derive(Message)]
+#[rtype(result = "u64")]
+pub struct QueueFrame {
+    /// Camera.
+    pub camera: Camera,
+    /// Resolution, samples and so on.
+    pub settings: RenderSettings,
+}
+
 /// Asks for a frame under the caller's own request number (e.g. a window's
 /// frame id), which its tiles and `FrameDone` will carry: nothing to count or
 /// map, so a GUI thread can post it with `do_send`. Numbers should increase;
@@ -121,9 +136,13 @@ impl Actor for ViewerActor {
 }
 
 impl ViewerActor {
-    fn request(&mut self, request: u64, camera: Camera, settings: RenderSettings) {
+    fn request(&mut self, request: u64, camera: Camera, settings: RenderSettings, queue: bool) {
         self.next_request = self.next_request.max(request);
-        let m = Message::FrameRequest { request, camera, settings };
+        let m = if queue {
+            Message::QueueFrame { request, camera, settings }
+        } else {
+            Message::FrameRequest { request, camera, settings }
+        };
         match protocol::encode(&m) {
             Ok(bytes) => {
                 let _ = self.sender.send(bytes);
@@ -140,7 +159,17 @@ impl Handler<RequestFrame> for ViewerActor {
 
     fn handle(&mut self, msg: RequestFrame, _: &mut Self::Context) -> u64 {
         let request = self.next_request + 1;
-        self.request(request, msg.camera, msg.settings);
+        self.request(request, msg.camera, msg.settings, false);
+        request
+    }
+}
+
+impl Handler<QueueFrame> for ViewerActor {
+    type Result = u64;
+
+    fn handle(&mut self, msg: QueueFrame, _: &mut Self::Context) -> u64 {
+        let request = self.next_request + 1;
+        self.request(request, msg.camera, msg.settings, true);
         request
     }
 }
@@ -149,7 +178,7 @@ impl Handler<RequestFrameAs> for ViewerActor {
     type Result = ();
 
     fn handle(&mut self, msg: RequestFrameAs, _: &mut Self::Context) {
-        self.request(msg.request, msg.camera, msg.settings);
+        self.request(msg.request, msg.camera, msg.settings, false);
     }
 }
 

@@ -372,3 +372,62 @@ async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
         assert_eq!(stats.per_slave.len(), 2, "both slaves rendered: {:?}", stats.per_slave);
     }
 }
+
+#[actix::test]
+async fn queued_frames_are_pipelined_and_each_comes_back_exact_in_order() {
+    let t = MemTransport::new();
+    let (master, ticket) = start_master(&t, "tok").await;
+    spawn_slave(&t, &ticket, "a", Arc::default());
+    spawn_slave(&t, &ticket, "b", Arc::default());
+    wait_slaves(&master, 2).await;
+    let (v, _, mut events) = viewer::connect(&t, &ticket, "replay").await.unwrap();
+    let (w, h) = (160u32, 96u32);
+    let cams: Vec<Camera> = (0..3)
+        .map(|i| {
+            let mut c = Camera::default();
+            c.eye.z += i as f32;
+            c
+        })
+        .collect();
+    // All three queued at once: the slaves get the tiles of frame k + 1 while
+    // frame k's are still queued on them, and must render both.
+    let mut requests = Vec::new();
+    for &camera in &cams {
+        requests.push(v.send(viewer::QueueFrame { camera, settings: settings(w, h) }).await.unwrap());
+    }
+    let mut frames: BTreeMap<u64, Vec<u8>> =
+        requests.iter().map(|&r| (r, vec![0; (w * h * 3) as usize])).collect();
+    let mut done = Vec::new();
+    let collect = async {
+        while done.len() < requests.len() {
+            match events.recv().await.expect("viewer hears back") {
+                viewer::ViewerEvent::Tile { request, tile, pixels, .. } => {
+                    let f = frames.get_mut(&request).expect("a tile of a requested frame");
+                    for row in 0..tile.h {
+                        let src = (row * tile.w * 3) as usize;
+                        let dst = (((tile.y + row) * w + tile.x) * 3) as usize;
+                        f[dst..dst + (tile.w * 3) as usize]
+                            .copy_from_slice(&pixels[src..src + (tile.w * 3) as usize]);
+                    }
+                }
+                viewer::ViewerEvent::FrameDone { request, .. } => done.push(request),
+                other => panic!("{other:?}"),
+            }
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(30), collect).await.expect("every queued frame completes");
+    let mut sorted = done.clone();
+    sorted.sort_unstable();
+    assert_eq!(sorted, requests, "one FrameDone per queued frame");
+    for (i, r) in requests.iter().enumerate() {
+        let f = &frames[r];
+        for y in 0..h {
+            for x in 0..w {
+                let p = ((y * w + x) * 3) as usize;
+                assert_eq!(f[p..p + 3], pixel(&cams[i], x, y), "frame {i} pixel {x},{y}");
+            }
+        }
+    }
+    let status = master.send(GetStatus).await.unwrap();
+    assert_eq!(status.frames_done, 3);
+}

@@ -7,6 +7,9 @@
 //!   looking at c (c = box centre, d = box diagonal), rays through pixel centres;
 //! * incoherent: 1M rays, origins uniform on the sphere of radius d around c, aimed
 //!   at uniform random points in the box;
+//! * primary8: the primary rays as isin's 8-ray packets ([`Bvh::intersect8`]) over
+//!   4×2 pixel tiles, as embree_bench's `rtcIntersect8` (isin only; compared with
+//!   Embree's packet figure by `scripts/bench_vs_embree.py`);
 //! * shadow: from every primary hit to a uniform random point on a square area light
 //!   (side d/4, centre c + (0.3 d, ·, 0.3 d) at height max.y + d/2), any-hit, with
 //!   t in (1e-4 d, 0.999 · distance).
@@ -666,6 +669,80 @@ fn bench_mesh(name: &str, mesh: &BenchMesh, view: View, isin_only: bool, report:
             (row.isin_best, row.isin_per_cpu) = (Some(m[0].1), m[0].2);
         }
     }
+
+    // isin's 8-ray packets on the same primary rays, 4×2 pixel tiles as
+    // embree_bench's rtcIntersect8 (compared with Embree's packet figure).
+    let packets = tile_packets(&primary, 1024, 768);
+    let single_hits = trace_once(&pools[1].1, &isin, &primary, Query::Nearest).1;
+    let packet_hits = trace_packets_once(&pools[1].1, &isin, &packets).1;
+    assert_eq!(single_hits, packet_hits, "{name}: packets and single rays hit as many rays");
+    report.notes.push(format!("{name} primary8: {} packets of 8 rays; hits {packet_hits}", packets.len()));
+    for (n, p) in &pools {
+        // Like the single-ray rows, a repetition lasts about REP_BUDGET: the
+        // packet set is traced `k` times in one (so the CPU-time ticks add up).
+        let probe = trace_packets_once(p, &isin, &packets).0;
+        let k = (REP_BUDGET.as_secs_f64() / probe.max(1e-6)).ceil().clamp(1.0, 100.0) as usize;
+        let run = || (0..k).map(|_| trace_packets_once(p, &isin, &packets).0).sum::<f64>();
+        let (median, best, per_cpu) = measure(REPS, primary.len() * k, run);
+        report_row(report, &format!("{name} primary8 {n}T"), Unit::MraysPerSec, median, None, None);
+        let row = report.rows.last_mut().expect("row just added");
+        (row.isin_best, row.isin_per_cpu) = (Some(best), per_cpu);
+    }
+}
+
+/// A packet of eight rays for [`Bvh::intersect8`].
+struct Packet8 {
+    rays: [Ray; 8],
+    t_min: [f32; 8],
+    t_max: [f32; 8],
+}
+
+/// Groups a row-major `width × height` ray set into 4×2 pixel tiles (rays `py * width + px`),
+/// in the order embree_bench traces its rtcIntersect8 packets.
+fn tile_packets(rays: &[BenchRay], width: usize, height: usize) -> Vec<Packet8> {
+    let mut out = Vec::with_capacity(rays.len() / 8);
+    for ty in (0..height).step_by(2) {
+        for tx in (0..width).step_by(4) {
+            let r = |k: usize| &rays[(ty + k / 4) * width + tx + k % 4];
+            out.push(Packet8 {
+                rays: std::array::from_fn(|k| r(k).ray),
+                t_min: std::array::from_fn(|k| r(k).t_min),
+                t_max: std::array::from_fn(|k| r(k).t_max),
+            });
+        }
+    }
+    out
+}
+
+/// Traces `packets` once with isin's packet query in `pool`; returns (seconds, hits).
+fn trace_packets_once(pool: &rayon::ThreadPool, bvh: &Bvh, packets: &[Packet8]) -> (f64, usize) {
+    let t0 = Instant::now();
+    let hits = pool.install(|| {
+        packets
+            .par_chunks(CHUNK / 8)
+            .map(|c| {
+                c.iter()
+                    .map(|p| {
+                        bvh.intersect8(&p.rays, p.t_min, p.t_max, 0xff).iter().filter(|h| h.is_some()).count()
+                    })
+                    .sum::<usize>()
+            })
+            .sum()
+    });
+    (t0.elapsed().as_secs_f64(), hits)
+}
+
+/// (Median, best, per CPU-second) Mrays/s of `reps` runs of `run` (which
+/// returns its seconds) over `rays` rays.
+fn measure(reps: usize, rays: usize, run: impl Fn() -> f64) -> (f64, f64, Option<f64>) {
+    let cpu0 = process_cpu_seconds();
+    let runs: Vec<f64> = (0..reps).map(|_| rays as f64 / run() * 1e-6).collect();
+    let per_cpu = match (cpu0, process_cpu_seconds()) {
+        (Some(a), Some(b)) if b > a => Some((rays * reps) as f64 / (b - a) * 1e-6),
+        _ => None,
+    };
+    let best = runs.iter().copied().fold(0.0, f64::max);
+    (median(runs), best, per_cpu)
 }
 
 fn machine() -> String {

@@ -51,7 +51,7 @@ use crate::lights::{AreaSampler, LightSample};
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
-use crate::sampling::{Sampler, ceil_sqrt, stratified_square_keyed};
+use crate::sampling::{Divisor, Sampler, Strata, ceil_sqrt};
 use crate::scene::Scene;
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
@@ -288,6 +288,8 @@ pub struct Integrator<'a> {
     light_samples: u32,
     /// Side of the stratum grid of one pixel's area-light samples.
     light_grid: u32,
+    /// Division by the number of strata, `light_grid²`.
+    light_strata: Divisor,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
     /// The first [`PREPARED_LIGHTS`] lights, prepared once
@@ -310,11 +312,13 @@ impl<'a> Integrator<'a> {
         for (slot, light) in prepared.iter_mut().zip(&scene.lights) {
             *slot = light.prepare_area();
         }
+        let light_grid = ceil_sqrt(per_pixel);
         Self {
             scene,
             max_depth,
             light_samples,
-            light_grid: ceil_sqrt(per_pixel),
+            light_grid,
+            light_strata: Divisor::new(light_grid * light_grid),
             adaptive_shadows: true,
             prepared,
         }
@@ -338,22 +342,46 @@ impl<'a> Integrator<'a> {
     #[inline]
     #[cfg(test)]
     fn light_sample(&self, j: u32, sampler: &Sampler) -> Vec2 {
-        self.light_sample_keyed(j, sampler.bits(0), sampler)
+        self.light_sample_in(&self.light_set(sampler), j, sampler)
     }
 
-    /// [`Integrator::light_sample`] with the set's permutation key
-    /// (`sampler.bits(0)`) hoisted out of the caller's loop.
+    /// The pixel's stratified set of area-light samples drawn from `sampler`,
+    /// prepared once for all the samples a shading point takes from it.
     #[inline]
-    fn light_sample_keyed(&self, j: u32, key: u32, sampler: &Sampler) -> Vec2 {
-        stratified_square_keyed(j % (self.light_grid * self.light_grid), self.light_grid, key, sampler)
+    fn light_set(&self, sampler: &Sampler) -> Strata {
+        Strata::new(self.light_grid, sampler.bits(0))
+    }
+
+    /// Point `j` of the set `set` drawn from `sampler` (see [`Integrator::light_set`]).
+    #[inline]
+    fn light_sample_in(&self, set: &Strata, j: u32, sampler: &Sampler) -> Vec2 {
+        set.point(self.light_strata.rem(j), sampler)
     }
 
     /// Radiance (linear RGB) arriving along the camera ray `ray`, whose cone
     /// and random numbers are given.
     #[inline]
     pub fn trace(&self, ray: &Ray, cone: RayCone, sample: &SampleId, counts: &mut RayCounts) -> Vec3 {
+        self.trace_hit(ray, self.scene.intersect(ray, 0.0, f32::INFINITY), cone, sample, counts)
+    }
+
+    /// [`Integrator::trace`] for a camera ray whose nearest hit the caller
+    /// already found (e.g. with a packet query that gives exactly
+    /// `scene.intersect(ray, 0.0, f32::INFINITY)`).
+    #[inline]
+    pub fn trace_hit(
+        &self,
+        ray: &Ray,
+        hit: Option<Hit>,
+        cone: RayCone,
+        sample: &SampleId,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
         counts.primary += 1;
-        self.radiance(ray, cone, 0, Vec3::ONE, sample, counts)
+        match hit {
+            Some(hit) => self.shade(ray, &hit, cone, 0, Vec3::ONE, sample, counts),
+            None => self.scene.background,
+        }
     }
 
     /// Radiance along `ray` at recursion depth `depth`; `weight` is the
@@ -367,10 +395,26 @@ impl<'a> Integrator<'a> {
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
+        match self.scene.intersect(ray, 0.0, f32::INFINITY) {
+            Some(hit) => self.shade(ray, &hit, cone, depth, weight, sample, counts),
+            None => self.scene.background,
+        }
+    }
+
+    /// Radiance leaving `hit`, the nearest hit of `ray`, towards the ray's origin.
+    #[allow(clippy::too_many_arguments)]
+    fn shade(
+        &self,
+        ray: &Ray,
+        hit: &Hit,
+        cone: RayCone,
+        depth: u32,
+        weight: Vec3,
+        sample: &SampleId,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
         let scene = self.scene;
-        let Some(hit) = scene.intersect(ray, 0.0, f32::INFINITY) else {
-            return scene.background;
-        };
+        let hit = *hit;
         let sp = SurfacePoint::new(scene, ray, &hit);
         let cone_width = cone.width_at(hit.t);
         let material = scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
@@ -524,9 +568,9 @@ impl<'a> Integrator<'a> {
                 self.area_adaptive(sp, &lobe, &area, counts)
             } else {
                 let mut sum = Vec3::ZERO;
-                let key = light_sampler.bits(0);
+                let set = self.light_set(&light_sampler);
                 for j in 0..n {
-                    let u = self.light_sample_keyed(first.wrapping_add(j), key, &light_sampler);
+                    let u = self.light_sample_in(&set, first.wrapping_add(j), &light_sampler);
                     let Some((c, ls)) = prepared.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
                         continue;
                     };
@@ -563,9 +607,9 @@ impl<'a> Integrator<'a> {
         let scene = self.scene;
         let n = area.n as usize;
         let mut us = [Vec2::ZERO; ADAPTIVE_MAX];
-        let key = area.sampler.bits(0);
+        let set = self.light_set(&area.sampler);
         for (j, u) in us[..n].iter_mut().enumerate() {
-            *u = self.light_sample_keyed(area.first.wrapping_add(j as u32), key, &area.sampler);
+            *u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
         }
         let tests = spread_tests(&us[..n]);
         let mut tested = [Vec3::ZERO; ADAPTIVE_TESTS];

@@ -14,7 +14,9 @@
 //! machines produces the same bytes. The `_stats` variants also count the rays
 //! traced, for Mrays/s figures.
 
+use crate::bvh::PACKET_LANES;
 use crate::cameras::Camera;
+use crate::geometry::Ray;
 use crate::integrator::{Integrator, RayCone, RayCounts, SampleId};
 use crate::math;
 use crate::sampling::{Sampler, ceil_sqrt, stratified_square};
@@ -239,20 +241,28 @@ pub fn render_tile_stats(
 }
 
 /// Tracing choices that are not part of the scene description: the defaults
-/// are what [`render_tile`] uses; the others exist for reference images and
-/// tests.
+/// are what [`render_tile`] uses; the others exist for reference images,
+/// benchmarks and tests. None of them changes a pixel except
+/// `adaptive_shadows`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TraceOptions {
     /// Trace area-light shadow rays adaptively (see
     /// [`Integrator::with_adaptive_shadows`]); on by default.
     pub adaptive_shadows: bool,
+    /// Trace camera rays in packets of a 4×2 block of pixels
+    /// ([`crate::Bvh::intersect8`], the same hits as single rays); on by default.
+    pub packets: bool,
 }
 
 impl Default for TraceOptions {
     fn default() -> Self {
-        Self { adaptive_shadows: true }
+        Self { adaptive_shadows: true, packets: true }
     }
 }
+
+/// Pixels of one camera-ray packet: a block `PACKET_W` wide and
+/// `PACKET_LANES / PACKET_W` high.
+const PACKET_W: u32 = 4;
 
 /// [`render_tile_stats`] with explicit [`TraceOptions`].
 pub fn render_tile_with(
@@ -262,7 +272,7 @@ pub fn render_tile_with(
     tile: Tile,
     options: &TraceOptions,
 ) -> (Vec<u8>, RayCounts) {
-    let mut out = Vec::with_capacity(tile.pixel_count() * 3);
+    let mut out = vec![0u8; tile.pixel_count() * 3];
     let mut counts = RayCounts::default();
     let integrator = Integrator::new(scene, settings).with_adaptive_shadows(options.adaptive_shadows);
     let spp = settings.spp.max(1);
@@ -272,17 +282,68 @@ pub fn render_tile_with(
     let spread = camera.pixel_spread(settings.width) / ceil_sqrt(spp) as f32;
     let cone = RayCone::primary(spread);
     let inv_spp = 1.0 / spp as f32;
-    for y in tile.y..tile.y + tile.h {
-        for x in tile.x..tile.x + tile.w {
-            let pixel = Sampler::pixel(x, y, settings.seed);
-            let mut sum = Vec3::ZERO;
-            for s in 0..spp {
-                let o = pixel_offset(x, y, s, spp, settings.seed);
-                let ray = camera.ray((x as f32 + o.x) / w, (y as f32 + o.y) / h);
-                sum += integrator.trace(&ray, cone, &SampleId { pixel, index: s }, &mut counts);
+    let seed = settings.seed;
+    let camera_ray = |x: u32, y: u32, s: u32| {
+        let o = pixel_offset(x, y, s, spp, seed);
+        camera.ray((x as f32 + o.x) / w, (y as f32 + o.y) / h)
+    };
+    let mut put = |x: u32, y: u32, sum: Vec3| {
+        let c = sum * inv_spp;
+        let at = (((y - tile.y) * tile.w + (x - tile.x)) * 3) as usize;
+        out[at..at + 3].copy_from_slice(&[
+            encode_srgb8_fast(c.x),
+            encode_srgb8_fast(c.y),
+            encode_srgb8_fast(c.z),
+        ]);
+    };
+    if !options.packets {
+        for y in tile.y..tile.y + tile.h {
+            for x in tile.x..tile.x + tile.w {
+                let pixel = Sampler::pixel(x, y, seed);
+                let mut sum = Vec3::ZERO;
+                for s in 0..spp {
+                    let sample = SampleId { pixel, index: s };
+                    sum += integrator.trace(&camera_ray(x, y, s), cone, &sample, &mut counts);
+                }
+                put(x, y, sum);
             }
-            let c = sum * inv_spp;
-            out.extend_from_slice(&[encode_srgb8_fast(c.x), encode_srgb8_fast(c.y), encode_srgb8_fast(c.z)]);
+        }
+        return (out, counts);
+    }
+    // Each pixel sums its samples in the same order as above, and a packet
+    // finds exactly the single-ray hits, so the bytes are the same.
+    let lane_xy = |bx: u32, by: u32, lane: u32| (bx + lane % PACKET_W, by + lane / PACKET_W);
+    for by in (tile.y..tile.y + tile.h).step_by((PACKET_LANES as u32 / PACKET_W) as usize) {
+        for bx in (tile.x..tile.x + tile.w).step_by(PACKET_W as usize) {
+            let mut active = 0u8;
+            let mut pixels = [Sampler::pixel(0, 0, 0); PACKET_LANES];
+            for lane in 0..PACKET_LANES as u32 {
+                let (x, y) = lane_xy(bx, by, lane);
+                if x < tile.x + tile.w && y < tile.y + tile.h {
+                    active |= 1 << lane;
+                    pixels[lane as usize] = Sampler::pixel(x, y, seed);
+                }
+            }
+            let lanes = || (0..PACKET_LANES as u32).filter(move |l| active & (1 << l) != 0);
+            let mut sums = [Vec3::ZERO; PACKET_LANES];
+            for s in 0..spp {
+                let mut rays = [Ray::new(Vec3::ZERO, Vec3::Z); PACKET_LANES];
+                for lane in lanes() {
+                    let (x, y) = lane_xy(bx, by, lane);
+                    rays[lane as usize] = camera_ray(x, y, s);
+                }
+                let hits =
+                    scene.bvh.intersect8(&rays, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], active);
+                for lane in lanes() {
+                    let l = lane as usize;
+                    let sample = SampleId { pixel: pixels[l], index: s };
+                    sums[l] += integrator.trace_hit(&rays[l], hits[l], cone, &sample, &mut counts);
+                }
+            }
+            for lane in lanes() {
+                let (x, y) = lane_xy(bx, by, lane);
+                put(x, y, sums[lane as usize]);
+            }
         }
     }
     (out, counts)
@@ -401,7 +462,7 @@ mod tests {
         let scene = shadow_test_scene();
         let s = scene.settings;
         let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
-        let exhaustive = TraceOptions { adaptive_shadows: false };
+        let exhaustive = TraceOptions { adaptive_shadows: false, ..TraceOptions::default() };
         let (a, ca) = render_tile_with(&scene, &scene.camera, &s, tile, &TraceOptions::default());
         let (e, ce) = render_tile_with(&scene, &scene.camera, &s, tile, &exhaustive);
         assert_eq!((ca.primary, ca.secondary), (ce.primary, ce.secondary));

@@ -74,41 +74,103 @@ impl Sampler {
 /// maps `i` in `0..len` to a distinct value in `0..len`, chosen by `key`.
 /// Needs no memory; cycle-walks when `len` is not a power of two.
 #[inline]
-pub fn permute(mut i: u32, len: u32, key: u32) -> u32 {
-    if len <= 1 {
-        return 0;
+pub fn permute(i: u32, len: u32, key: u32) -> u32 {
+    Permutation::new(len, key).apply(i)
+}
+
+/// [`permute`] for one `(len, key)`, with the per-set work (the walk mask and
+/// the final offset `key mod len`) done once: the same values, cheaper when a
+/// set of samples shares its permutation.
+#[derive(Clone, Copy, Debug)]
+pub struct Permutation {
+    len: u32,
+    key: u32,
+    /// `len − 1` with every bit below its highest set.
+    mask: u32,
+    /// `key mod len`.
+    offset: u32,
+}
+
+impl Permutation {
+    /// The permutation of `0..len` chosen by `key`.
+    #[inline]
+    pub fn new(len: u32, key: u32) -> Self {
+        let mut w = len.saturating_sub(1);
+        w |= w >> 1;
+        w |= w >> 2;
+        w |= w >> 4;
+        w |= w >> 8;
+        w |= w >> 16;
+        let offset = if len > 1 { key % len } else { 0 };
+        Permutation { len, key, mask: w, offset }
     }
-    let p = key;
-    let mut w = len - 1;
-    w |= w >> 1;
-    w |= w >> 2;
-    w |= w >> 4;
-    w |= w >> 8;
-    w |= w >> 16;
-    loop {
-        i ^= p;
-        i = i.wrapping_mul(0xe170_893d);
-        i ^= p >> 16;
-        i ^= (i & w) >> 4;
-        i ^= p >> 8;
-        i = i.wrapping_mul(0x0929_eb3f);
-        i ^= p >> 23;
-        i ^= (i & w) >> 1;
-        i = i.wrapping_mul(1 | (p >> 27));
-        i = i.wrapping_mul(0x6935_fa69);
-        i ^= (i & w) >> 11;
-        i = i.wrapping_mul(0x74dc_b303);
-        i ^= (i & w) >> 2;
-        i = i.wrapping_mul(0x9e50_1cc3);
-        i ^= (i & w) >> 2;
-        i = i.wrapping_mul(0xc860_a3df);
-        i &= w;
-        i ^= i >> 5;
-        if i < len {
-            break;
+
+    /// The image of `i` (`i < len`).
+    #[inline]
+    pub fn apply(&self, mut i: u32) -> u32 {
+        let (len, p, w) = (self.len, self.key, self.mask);
+        if len <= 1 {
+            return 0;
         }
+        loop {
+            i ^= p;
+            i = i.wrapping_mul(0xe170_893d);
+            i ^= p >> 16;
+            i ^= (i & w) >> 4;
+            i ^= p >> 8;
+            i = i.wrapping_mul(0x0929_eb3f);
+            i ^= p >> 23;
+            i ^= (i & w) >> 1;
+            i = i.wrapping_mul(1 | (p >> 27));
+            i = i.wrapping_mul(0x6935_fa69);
+            i ^= (i & w) >> 11;
+            i = i.wrapping_mul(0x74dc_b303);
+            i ^= (i & w) >> 2;
+            i = i.wrapping_mul(0x9e50_1cc3);
+            i ^= (i & w) >> 2;
+            i = i.wrapping_mul(0xc860_a3df);
+            i &= w;
+            i ^= i >> 5;
+            if i < len {
+                break;
+            }
+        }
+        // (i + key) mod len with i < len: one conditional subtraction.
+        let r = i + self.offset;
+        if r >= len { r - len } else { r }
     }
-    ((i as u64 + p as u64) % len as u64) as u32
+}
+
+/// Exact division and remainder of any `u32` by a divisor fixed in advance,
+/// by multiplication (Lemire, Kaser & Kurz 2019): for loops that would
+/// otherwise divide by the same run-time value again and again.
+#[derive(Clone, Copy, Debug)]
+pub struct Divisor {
+    d: u32,
+    /// `⌈2⁶⁴ / d⌉` (0 for `d = 1`, which is handled apart).
+    m: u64,
+}
+
+impl Divisor {
+    /// Division by `d` (at least 1; 0 is treated as 1).
+    #[inline]
+    pub fn new(d: u32) -> Self {
+        let d = d.max(1);
+        let m = if d == 1 { 0 } else { u64::MAX / d as u64 + 1 };
+        Divisor { d, m }
+    }
+
+    /// `n / d`.
+    #[inline]
+    pub fn div(&self, n: u32) -> u32 {
+        if self.d == 1 { n } else { ((self.m as u128 * n as u128) >> 64) as u32 }
+    }
+
+    /// `n % d`.
+    #[inline]
+    pub fn rem(&self, n: u32) -> u32 {
+        n - self.div(n) * self.d
+    }
 }
 
 /// `⌈√n⌉`, exactly.
@@ -127,30 +189,45 @@ pub fn ceil_sqrt(n: u32) -> u32 {
 /// Sample `i` of `n` stratified, jittered samples over the unit square (see the
 /// module docs), drawn from `sampler`. All samples of one set must share the
 /// sampler. Dimension 0 of the sampler keys the permutation; dimensions
-/// `1 + 2i` and `2 + 2i` jitter sample `i`.
+/// `1 + 2i` and `2 + 2i` jitter sample `i`. [`Strata`] prepares a set once for
+/// many samples.
 #[inline]
 pub fn stratified_square(i: u32, n: u32, sampler: &Sampler) -> Vec2 {
-    stratified_square_grid(i, ceil_sqrt(n.max(1)), sampler)
+    Strata::new(ceil_sqrt(n.max(1)), sampler.bits(0)).point(i, sampler)
 }
 
-/// [`stratified_square`] with the grid side `m = ⌈√n⌉` computed by the caller.
-#[inline]
-pub fn stratified_square_grid(i: u32, m: u32, sampler: &Sampler) -> Vec2 {
-    stratified_square_keyed(i, m, sampler.bits(0), sampler)
+/// One set of stratified samples over an `m × m` grid ([`stratified_square`]),
+/// its permutation and divisions prepared once for all its samples.
+#[derive(Clone, Copy, Debug)]
+pub struct Strata {
+    perm: Permutation,
+    side: Divisor,
+    inv: f32,
 }
 
-/// [`stratified_square_grid`] with the permutation key `sampler.bits(0)`
-/// computed once by the caller for all samples of the set (same results).
-#[inline]
-pub fn stratified_square_keyed(i: u32, m: u32, key: u32, sampler: &Sampler) -> Vec2 {
-    let m = m.max(1);
-    let s = permute(i, m * m, key);
-    let (sx, sy) = (s % m, s / m);
-    let inv = 1.0 / m as f32;
-    let jx = sampler.get(1 + 2 * i);
-    let jy = sampler.get(2 + 2 * i);
-    // Clamp below 1: (m-1 + 0.99999994)/m can round up to exactly 1.
-    Vec2::new(((sx as f32 + jx) * inv).min(ONE_MINUS_EPS), ((sy as f32 + jy) * inv).min(ONE_MINUS_EPS))
+impl Strata {
+    /// The set on an `m × m` grid (`m ≥ 1`) whose strata are permuted by `key`
+    /// (`sampler.bits(0)` for [`stratified_square`]'s sets).
+    #[inline]
+    pub fn new(m: u32, key: u32) -> Self {
+        let m = m.max(1);
+        Strata { perm: Permutation::new(m * m, key), side: Divisor::new(m), inv: 1.0 / m as f32 }
+    }
+
+    /// Sample `i` of the set, jittered by `sampler` (dimensions `1 + 2i`, `2 + 2i`).
+    #[inline]
+    pub fn point(&self, i: u32, sampler: &Sampler) -> Vec2 {
+        let s = self.perm.apply(i);
+        let sy = self.side.div(s);
+        let sx = s - sy * self.side.d;
+        let jx = sampler.get(1 + 2 * i);
+        let jy = sampler.get(2 + 2 * i);
+        // Clamp below 1: (m-1 + 0.99999994)/m can round up to exactly 1.
+        Vec2::new(
+            ((sx as f32 + jx) * self.inv).min(ONE_MINUS_EPS),
+            ((sy as f32 + jy) * self.inv).min(ONE_MINUS_EPS),
+        )
+    }
 }
 
 /// The largest f32 below one.
@@ -185,6 +262,58 @@ mod tests {
                     assert!(j < len as usize);
                     assert!(!seen[j], "len {len} key {key}: {j} twice");
                     seen[j] = true;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn permutation_and_divisor_match_the_plain_arithmetic() {
+        fn reference(mut i: u32, len: u32, p: u32) -> u32 {
+            // Kensler's listing, with the final `(i + p) % len` in 64 bits.
+            let mut w = len - 1;
+            for s in [1, 2, 4, 8, 16] {
+                w |= w >> s;
+            }
+            loop {
+                i ^= p;
+                i = i.wrapping_mul(0xe170_893d);
+                i ^= p >> 16;
+                i ^= (i & w) >> 4;
+                i ^= p >> 8;
+                i = i.wrapping_mul(0x0929_eb3f);
+                i ^= p >> 23;
+                i ^= (i & w) >> 1;
+                i = i.wrapping_mul(1 | (p >> 27));
+                i = i.wrapping_mul(0x6935_fa69);
+                i ^= (i & w) >> 11;
+                i = i.wrapping_mul(0x74dc_b303);
+                i ^= (i & w) >> 2;
+                i = i.wrapping_mul(0x9e50_1cc3);
+                i ^= (i & w) >> 2;
+                i = i.wrapping_mul(0xc860_a3df);
+                i &= w;
+                i ^= i >> 5;
+                if i < len {
+                    return ((i as u64 + p as u64) % len as u64) as u32;
+                }
+            }
+        }
+        for len in [2u32, 3, 9, 16, 25, 100, 4096, 1 << 24] {
+            for key in [0u32, 1, 0xdead_beef, u32::MAX, 12345] {
+                let perm = Permutation::new(len, key);
+                for i in (0..len).step_by((len as usize / 300).max(1)) {
+                    assert_eq!(perm.apply(i), reference(i, len, key), "len {len} key {key} i {i}");
+                }
+            }
+        }
+        let mut n = 0x9e37_79b9u32;
+        for d in [1u32, 2, 3, 7, 10, 64, 4095, 65_537, u32::MAX] {
+            let div = Divisor::new(d);
+            for k in 0..2000u32 {
+                n = n.wrapping_mul(0x2c1b_3c6d).wrapping_add(0x297a_2d39);
+                for x in [n, k, u32::MAX - k] {
+                    assert_eq!((div.div(x), div.rem(x)), (x / d, x % d), "{x} / {d}");
                 }
             }
         }

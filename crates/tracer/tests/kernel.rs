@@ -232,9 +232,10 @@ impl isin_tracer::AssetSource for SceneDir {
 }
 
 /// The shipped paper scene renders the same bytes with the AVX, the SSE and
-/// the scalar box tests (mirrors, glass, area-light shadows: every query kind).
+/// the scalar box tests (mirrors, glass, area-light shadows: every query kind),
+/// and with camera rays traced in packets or one by one.
 #[test]
-fn paper_scene_renders_the_same_bytes_with_avx_sse_and_scalar() {
+fn paper_scene_renders_the_same_bytes_with_avx_sse_scalar_and_packets() {
     let scenes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
     let source = std::fs::read_to_string(scenes.join("paper.toml")).expect("scenes/paper.toml");
     let scene = isin_tracer::load_scene("paper.toml", &source, &mut SceneDir(scenes)).expect("loads");
@@ -248,4 +249,13 @@ fn paper_scene_renders_the_same_bytes_with_avx_sse_and_scalar() {
     assert!(a.iter().any(|&c| c != a[0]), "a picture, not a flat colour");
     assert!(a == render(&sse), "AVX and SSE renders differ");
     assert!(a == render(&scalar), "AVX and scalar renders differ");
+    let single = isin_tracer::render::TraceOptions { packets: false, ..Default::default() };
+    let one_by_one =
+        isin_tracer::render::render_frame_with(&scene, &scene.camera, &settings, 16, &single, &|_| {});
+    assert!(a == one_by_one.0.rgb, "packet and single-ray camera rays render differently");
+    // Supersampled, with tiles whose edges cut through packets.
+    let aa = isin_tracer::RenderSettings { width: 61, height: 43, spp: 4, ..scene.settings };
+    let packets = isin_tracer::render_frame(&scene, &scene.camera, &aa, 7, &|_| {}).rgb;
+    let single = isin_tracer::render::render_frame_with(&scene, &scene.camera, &aa, 7, &single, &|_| {});
+    assert!(packets == single.0.rgb, "supersampled packet and single-ray renders differ");
 }

@@ -146,7 +146,7 @@ pub(super) fn run_cluster(args: ClusterBenchArgs) -> anyhow::Result<()> {
 /// Starts a master and `n` slave processes; returns the guards and the ticket.
 fn start_cluster(scene: &str, n: usize, per: usize) -> anyhow::Result<(ChildGuard, Vec<ChildGuard>, Ticket)> {
     let token = auth::generate_token()?;
-    let (master, ticket) = start_master(None, scene, "127.0.0.1:0", &token, &[])?;
+    let (master, ticket) = start_master(None, None, scene, "127.0.0.1:0", &token, &[])?;
     let mut slaves = Vec::new();
     let per_s = per.to_string();
     for i in 0..n {

@@ -8,11 +8,13 @@
 //!   limits and packet loss;
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
 //!   and reading their CPU time; [`modes`]: the transport and compression
-//!   modes the benches run; [`report`]: statistics, tables and plots.
+//!   modes the benches run; [`report`]: statistics, tables and plots;
+//!   [`replay`]: replaying a camera path, one frame at a time or pipelined.
 
 mod cluster;
 pub mod modes;
 pub mod procs;
+pub mod replay;
 pub mod report;
 mod scaling;
 mod transports;

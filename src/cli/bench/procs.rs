@@ -86,9 +86,10 @@ impl Drop for ChildGuard {
 }
 
 /// Starts `isin master SCENE --listen LISTEN --token TOKEN EXTRA…` (in
-/// namespace `ns` when given) and reads its ticket.
+/// namespace `ns` and cgroup `cgroup` when given) and reads its ticket.
 pub fn start_master(
     ns: Option<&str>,
+    cgroup: Option<&CpuCgroup>,
     scene: &str,
     listen: &str,
     token: &str,
@@ -98,7 +99,8 @@ pub fn start_master(
     let mut args: Vec<String> =
         ["master", scene, "--listen", listen, "--token", token].iter().map(|s| s.to_string()).collect();
     args.extend_from_slice(extra);
-    let (master, mut out) = ChildGuard::spawn_cmd(netlab::netns::command(ns, None, &exe, &args))?;
+    let procs = cgroup.map(CpuCgroup::procs_file);
+    let (master, mut out) = ChildGuard::spawn_cmd(netlab::netns::command(ns, procs.as_deref(), &exe, &args))?;
     let mut ticket = None;
     for _ in 0..10 {
         let mut line = String::new();

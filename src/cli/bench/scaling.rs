@@ -7,7 +7,13 @@
 //! never have more CPU than the machine. The master sits in a namespace of its
 //! own behind one such cable; the viewer (this process) talks to it inside the
 //! master's namespace, like the paper's master showing frames on its screen.
-//! Frames are the cameras of a recorded path, requested one after another.
+//! Frames are the cameras of a recorded path, requested one after another —
+//! by default with the next frame queued at the master while one renders
+//! (`--pipeline 2`: slaves roll from one frame straight into the next, as a
+//! replaying viewer would have them), or with a barrier between frames
+//! (`--pipeline 1`: each requested when the previous one completed). Seconds
+//! per frame are the intervals between completions (throughput); the latency
+//! of each frame (request to completion) is reported beside them.
 //!
 //! Besides seconds per frame it measures where the time went, so that a run
 //! whose efficiency falls short names the saturated resource: the master's
@@ -18,6 +24,7 @@
 
 use super::modes;
 use super::procs::{ChildGuard, SchedStat, cpu_secs, start_master, start_slave, wait_joined};
+use super::replay;
 use super::report::{self, Series, median, quantile};
 use super::{loadavg, parse_list, parse_sizes};
 use crate::cli::cluster;
@@ -65,12 +72,27 @@ pub struct ScalingArgs {
     /// Cores shared by the slaves: each gets CPU_TOTAL / N_max of a core (default: all cores).
     #[arg(long)]
     cpu_total: Option<f64>,
+    /// CFS weight (`cpu.shares`) of each emulated PC's cgroup and of the master's
+    /// (a plain process weighs 1024): a heavy weight keeps other load on the
+    /// machine from taking the PCs' quota (they still never get more than it).
+    #[arg(long, default_value_t = 8192)]
+    cpu_weight: u64,
     /// Timed frames per run at 320×240 (larger images: fewer, in proportion, at least 4).
     #[arg(long, default_value_t = 16)]
     frames: usize,
+    /// Runs of every slave count per configuration, alternating (1, 12, 1, 12, …);
+    /// their frames are pooled (medians over all of them), so that a change of
+    /// load on the shared machine during a sweep weighs on every N alike.
+    #[arg(long, default_value_t = 1)]
+    repeat: usize,
     /// Tile edge in pixels (`isin master --tile`).
     #[arg(long, default_value_t = 32)]
     tile: u32,
+    /// Frames kept requested at the master at once, comma-separated: 1 requests
+    /// each frame when the previous one completed (a barrier between frames); 2
+    /// keeps the next frame queued behind the one rendering (pipelined replay).
+    #[arg(long, default_value = "2")]
+    pipeline: String,
     /// Extra argument for `isin master` (repeatable), e.g. `--master-arg=--no-duplicates`.
     #[arg(long = "master-arg", allow_hyphen_values = true)]
     master_args: Vec<String>,
@@ -98,16 +120,42 @@ pub struct Row {
     compression: String,
     /// Link rate, Mbit/s (`None` on loopback).
     rate_mbit: Option<u32>,
+    /// Frames kept requested at once (1: one at a time).
+    #[serde(default = "one")]
+    pipeline: usize,
     slaves: usize,
     frames: usize,
-    /// Seconds per frame: median and 95th percentile.
+    /// Seconds per frame (intervals between completions): median and 95th percentile.
     sec_median: f64,
     sec_p95: f64,
+    /// Seconds from a frame's request to its completion: median and 95th percentile.
+    #[serde(default)]
+    latency_median: f64,
+    #[serde(default)]
+    latency_p95: f64,
+    /// Median seconds from a request to its first tile (the cluster's ramp-up).
+    #[serde(default)]
+    first_tile_median: f64,
+    /// Median seconds a frame took to deliver its last tenth of pixels (its tail).
+    #[serde(default)]
+    last_tenth_median: f64,
+    /// Frames per second over the whole replay (throughput).
     fps: f64,
-    /// Median seconds per frame at N = 1 ÷ at N.
+    /// Throughput against the smallest N (taken as linear up to there): frames
+    /// per second at N ÷ at N = 1. The same cameras at every N, so this is the
+    /// ratio of the replay's total times.
     speedup: f64,
     /// Speedup ÷ N.
     efficiency: f64,
+    /// Median seconds per frame at N = 1 ÷ at N (the definition before
+    /// pipelining: with frames pipelined, an interval between completions is
+    /// not one frame's cost, and the median of intervals at N = 1 leaves out
+    /// the path's expensive frames that a pipeline spreads over its neighbours).
+    #[serde(default)]
+    speedup_median: f64,
+    /// `speedup_median` ÷ N.
+    #[serde(default)]
+    efficiency_median: f64,
     /// Bytes the master received per frame, counted by the transport (framing and heartbeats included).
     bytes_per_frame: f64,
     /// Bytes received per frame on the master's interface (Ethernet frames), when in the lab.
@@ -142,6 +190,15 @@ struct Meta {
     cfs_period_us: Option<u64>,
     cfs_quota_us: Option<u64>,
     tile: u32,
+    /// Frames kept requested at once, per group (`--pipeline`).
+    #[serde(default)]
+    pipeline: Vec<usize>,
+    /// CFS weight of the PCs' and the master's cgroups (`--cpu-weight`).
+    #[serde(default)]
+    cpu_weight: Option<u64>,
+    /// Alternating runs per slave count, pooled (`--repeat`).
+    #[serde(default = "one")]
+    repeat: usize,
     loadavg_before: String,
     loadavg_after: String,
     unix_time: u64,
@@ -171,16 +228,85 @@ struct RunSpec<'a> {
     n: usize,
     settings_size: (u32, u32),
     cameras: &'a [Camera],
+    pipeline: usize,
     master_extra: Vec<String>,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// Per-frame results and the counters around them.
 struct RunResult {
     secs: Vec<f64>,
+    latency: Vec<f64>,
+    first_tile: Vec<f64>,
+    last_tenth: Vec<f64>,
     bytes_in: Vec<u64>,
     duplicated: u64,
-    before: Snapshot,
-    after: Snapshot,
+    /// Counters from the first frame's request to the last one's completion.
+    delta: Delta,
+}
+
+/// What the counters of a [`Snapshot`] moved by over a run (summed over repeats).
+#[derive(Default)]
+struct Delta {
+    wall: f64,
+    master_cpu: f64,
+    render: Vec<SchedStat>,
+    throttled: Vec<f64>,
+    iface: Option<IfCounters>,
+}
+
+impl Delta {
+    fn between(before: &Snapshot, after: &Snapshot) -> Delta {
+        Delta {
+            wall: (after.at - before.at).as_secs_f64(),
+            master_cpu: after.master_cpu - before.master_cpu,
+            render: after.render.iter().zip(&before.render).map(|(a, b)| a.since(b)).collect(),
+            throttled: after
+                .throttled_us
+                .iter()
+                .zip(&before.throttled_us)
+                .map(|(a, b)| (a - b) / 1e6)
+                .collect(),
+            iface: match (&before.iface, &after.iface) {
+                (Some(b), Some(a)) => Some(a.since(b)),
+                _ => None,
+            },
+        }
+    }
+}
+
+impl RunResult {
+    /// Pools a repeat of the same run into this one: samples side by side,
+    /// counters summed.
+    fn absorb(&mut self, o: RunResult) {
+        self.secs.extend(o.secs);
+        self.latency.extend(o.latency);
+        self.first_tile.extend(o.first_tile);
+        self.last_tenth.extend(o.last_tenth);
+        self.bytes_in.extend(o.bytes_in);
+        self.duplicated += o.duplicated;
+        let (d, e) = (&mut self.delta, o.delta);
+        d.wall += e.wall;
+        d.master_cpu += e.master_cpu;
+        for (a, b) in d.render.iter_mut().zip(&e.render) {
+            (a.run, a.wait) = (a.run + b.run, a.wait + b.wait);
+        }
+        for (a, b) in d.throttled.iter_mut().zip(&e.throttled) {
+            *a += b;
+        }
+        d.iface = match (d.iface, e.iface) {
+            (Some(a), Some(b)) => Some(IfCounters {
+                rx_bytes: a.rx_bytes + b.rx_bytes,
+                tx_bytes: a.tx_bytes + b.tx_bytes,
+                rx_packets: a.rx_packets + b.rx_packets,
+                tx_packets: a.tx_packets + b.tx_packets,
+            }),
+            _ => None,
+        };
+    }
 }
 
 /// Runs `isin bench scaling`.
@@ -193,7 +319,17 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             if let Some(u) = r.slave_quota_use {
                 r.slave_crowded = (1.0 - u - r.slave_idle).clamp(0.0, 1.0);
             }
-            r.bottleneck = (r.slaves > 1 && r.efficiency < EFFICIENCY_BAR).then(|| bottleneck(r));
+        }
+        for key in groups(&report.rows) {
+            let mut g: Vec<Row> = report.rows.iter().filter(|r| group_key(r) == key).cloned().collect();
+            fill_speedups(&mut g);
+            for new in g {
+                if let Some(r) =
+                    report.rows.iter_mut().find(|r| group_key(r) == key && r.slaves == new.slaves)
+                {
+                    *r = new;
+                }
+            }
         }
         return write_outputs(&report, &args.out_dir, false);
     }
@@ -221,6 +357,8 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     modes::check_transports(&transports)?;
     modes::check_compressions(&compressions)?;
     let rates: Vec<u32> = parse_list(&args.rates)?;
+    let pipelines: Vec<usize> = parse_list(&args.pipeline)?;
+    anyhow::ensure!(pipelines.iter().all(|&p| (1..=4).contains(&p)), "--pipeline takes 1 to 4 frames");
     let scene_arg = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
     let path = isin_viewer::CameraPath::load(&args.path)?;
     anyhow::ensure!(!path.frames.is_empty(), "{} has no cameras", args.path.display());
@@ -252,13 +390,20 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     } else {
         Vec::new()
     };
+    let master_cgroup = if use_lab { Some(CpuCgroup::unlimited("master")?) } else { None };
+    for cg in cgroups.iter().chain(&master_cgroup) {
+        cg.set_weight(args.cpu_weight)?;
+    }
     if let Some(cg) = cgroups.first() {
         println!(
-            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {} in total",
+            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {} in total; \
+             CPU weight {} (a plain process: {})",
             cg.share(),
             cg.quota_us,
             cg.period_us,
-            cpu_total
+            cpu_total,
+            args.cpu_weight,
+            netlab::cgroup::PLAIN_WEIGHT
         );
     }
     let loadavg_before = loadavg();
@@ -282,51 +427,78 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             let cameras: Vec<Camera> =
                 (0..n_frames).map(|i| path.frames[i * path.frames.len() / n_frames].camera()).collect();
             for transport in &transports {
-                for compression in &compressions {
+                for (compression, &pipeline) in
+                    compressions.iter().flat_map(|c| pipelines.iter().map(move |p| (c, p)))
+                {
                     let mut group: Vec<Row> = Vec::new();
-                    for &n in &slave_counts {
-                        let mut master_extra = modes::master_args(transport, compression);
-                        master_extra.extend(["--tile".to_string(), args.tile.to_string()]);
-                        master_extra.extend(args.master_args.iter().cloned());
-                        let spec = RunSpec {
-                            scene: &scene_arg,
-                            transport,
-                            compression,
-                            n,
-                            settings_size: (w, h),
-                            cameras: &cameras,
-                            master_extra,
-                        };
-                        let what = format!("{w}x{h} {transport}/{compression}, {n} slaves");
-                        let r = match run_once(lab.as_ref(), &cgroups, &spec) {
-                            Ok(r) => r,
-                            Err(e) => {
-                                println!("{what} failed, trying once more: {e:#}");
-                                run_once(lab.as_ref(), &cgroups, &spec).with_context(|| what.clone())?
+                    // Repeats alternate the slave counts (1, 12, 1, 12, …), so that
+                    // a change of load on the machine weighs on every N alike.
+                    let mut pooled: Vec<RunResult> = Vec::new();
+                    for repeat in 0..args.repeat.max(1) {
+                        let mut specs: Vec<RunSpec> = Vec::new();
+                        for &n in &slave_counts {
+                            let mut master_extra = modes::master_args(transport, compression);
+                            master_extra.extend(["--tile".to_string(), args.tile.to_string()]);
+                            master_extra.extend(args.master_args.iter().cloned());
+                            let spec = RunSpec {
+                                scene: &scene_arg,
+                                transport,
+                                compression,
+                                n,
+                                settings_size: (w, h),
+                                cameras: &cameras,
+                                pipeline,
+                                master_extra,
+                            };
+                            let what =
+                                format!("{w}x{h} {transport}/{compression}, {n} slaves, pipeline {pipeline}");
+                            let cgs = (master_cgroup.as_ref(), cgroups.as_slice());
+                            let r = match run_once(lab.as_ref(), cgs, &spec) {
+                                Ok(r) => r,
+                                Err(e) => {
+                                    println!("{what} failed, trying once more: {e:#}");
+                                    run_once(lab.as_ref(), cgs, &spec).with_context(|| what.clone())?
+                                }
+                            };
+                            specs.push(spec);
+                            match pooled.get_mut(specs.len() - 1) {
+                                Some(p) => p.absorb(r),
+                                None => pooled.push(r),
                             }
-                        };
-                        // Speedup against the smallest N, taken as linear up to there.
-                        let base = group.first().map(|b: &Row| b.sec_median * b.slaves as f64);
-                        let row = make_row(&spec, rate, cgroups.first().map(CpuCgroup::share), &r, base);
-                        println!(
-                            "{w}x{h} {transport}/{compression} N={n:>2}: {:.3} s/frame (p95 {:.3}), {:.2} fps, \
+                        }
+                        if repeat + 1 < args.repeat {
+                            continue;
+                        }
+                        for (spec, r) in specs.iter().zip(&pooled) {
+                            group.push(make_row(spec, rate, cgroups.first().map(CpuCgroup::share), r));
+                        }
+                        fill_speedups(&mut group);
+                        for row in &group {
+                            let n = row.slaves;
+                            println!(
+                                "{w}x{h} {transport}/{compression} open {pipeline} N={n:>2}: {:.3} s/frame (p95 {:.3}), \
+                             latency {:.3} s (p95 {:.3}), first tile {:.1} ms, last tenth {:.1} ms, {:.2} fps, \
                              speedup {:.2}, efficiency {:.2}, {:.0} kB/frame, master CPU {:.2}, slaves idle {:.0} %, \
                              crowded {:.0} %{}",
-                            row.sec_median,
-                            row.sec_p95,
-                            row.fps,
-                            row.speedup,
-                            row.efficiency,
-                            row.bytes_per_frame / 1e3,
-                            row.master_cpu,
-                            row.slave_idle * 100.0,
-                            row.slave_crowded * 100.0,
-                            row.bottleneck
-                                .as_ref()
-                                .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
-                                .unwrap_or_default()
-                        );
-                        group.push(row);
+                                row.sec_median,
+                                row.sec_p95,
+                                row.latency_median,
+                                row.latency_p95,
+                                row.first_tile_median * 1e3,
+                                row.last_tenth_median * 1e3,
+                                row.fps,
+                                row.speedup,
+                                row.efficiency,
+                                row.bytes_per_frame / 1e3,
+                                row.master_cpu,
+                                row.slave_idle * 100.0,
+                                row.slave_crowded * 100.0,
+                                row.bottleneck
+                                    .as_ref()
+                                    .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
+                                    .unwrap_or_default()
+                            );
+                        }
                     }
                     rows.extend(group);
                 }
@@ -335,6 +507,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
         drop(lab.take());
     }
     drop(cgroups);
+    drop(master_cgroup);
     let unix_time =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     let first = cgroups_meta(use_lab, share);
@@ -351,6 +524,9 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             cfs_period_us: first.map(|f| f.0),
             cfs_quota_us: first.map(|f| f.1),
             tile: args.tile,
+            pipeline: pipelines.clone(),
+            cpu_weight: use_lab.then_some(args.cpu_weight),
+            repeat: args.repeat.max(1),
             loadavg_before,
             loadavg_after: loadavg(),
             unix_time,
@@ -369,13 +545,18 @@ fn cgroups_meta(use_lab: bool, share: f64) -> Option<(u64, u64)> {
     use_lab.then(|| netlab::cgroup::period_for_share(share))
 }
 
-/// Starts a master and `spec.n` slaves, replays the cameras, stops them.
-fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow::Result<RunResult> {
+/// Starts a master and `spec.n` slaves (in the master's and the slaves'
+/// cgroups when given), replays the cameras, stops them.
+fn run_once(
+    lab: Option<&Lab>,
+    (master_cgroup, cgroups): (Option<&CpuCgroup>, &[CpuCgroup]),
+    spec: &RunSpec,
+) -> anyhow::Result<RunResult> {
     let token = auth::generate_token()?;
     let master_ns = lab.map(|l| l.master().ns.clone());
     let listen = lab.map_or("127.0.0.1:0".to_string(), |l| format!("{}:0", l.master().addr));
     let (master, ticket) =
-        start_master(master_ns.as_deref(), spec.scene, &listen, &token, &spec.master_extra)?;
+        start_master(master_ns.as_deref(), master_cgroup, spec.scene, &listen, &token, &spec.master_extra)?;
     let mut slaves: Vec<ChildGuard> = Vec::new();
     for i in 0..spec.n {
         let ns = lab.and_then(|l| l.slave(i)).map(|h| h.ns.as_str());
@@ -406,17 +587,18 @@ fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow:
                     // Warm-up: scene loaded and caches hot on every slave.
                     viewer::collect_frame(&v, &mut events, cameras[0], settings).await?;
                     let before = snapshot();
-                    let (mut secs, mut bytes_in, mut duplicated) = (Vec::new(), Vec::new(), 0);
-                    for &camera in cameras {
-                        let t0 = Instant::now();
-                        let (_, stats) = viewer::collect_frame(&v, &mut events, camera, settings).await?;
-                        secs.push(t0.elapsed().as_secs_f64());
-                        bytes_in.push(stats.bytes_in);
-                        duplicated += u64::from(stats.duplicated);
-                    }
+                    let r = replay::replay(&v, &mut events, cameras, settings, spec.pipeline).await?;
                     let after = snapshot();
                     let _ = v.send(viewer::Disconnect).await;
-                    anyhow::Ok(RunResult { secs, bytes_in, duplicated, before, after })
+                    anyhow::Ok(RunResult {
+                        secs: r.intervals(),
+                        latency: r.latencies(),
+                        first_tile: r.first_tile(),
+                        last_tenth: r.last_tenth(),
+                        bytes_in: r.frames.iter().map(|f| f.stats.bytes_in).collect(),
+                        duplicated: r.frames.iter().map(|f| u64::from(f.stats.duplicated)).sum(),
+                        delta: Delta::between(&before, &after),
+                    })
                 })
             })
             .join()
@@ -424,27 +606,36 @@ fn run_once(lab: Option<&Lab>, cgroups: &[CpuCgroup], spec: &RunSpec) -> anyhow:
     })
 }
 
-fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult, base: Option<f64>) -> Row {
+/// Speedups and efficiencies of a group's rows against its first (smallest N,
+/// taken as linear up to there), and the bottleneck where efficiency is short.
+fn fill_speedups(group: &mut [Row]) {
+    let Some(first) = group.first() else { return };
+    let n0 = first.slaves as f64;
+    // Frames per second of one slave, and seconds per frame on one slave.
+    let (fps_1, median_1) = (first.fps / n0, first.sec_median * n0);
+    for r in group.iter_mut() {
+        let n = r.slaves as f64;
+        r.speedup = r.fps / fps_1.max(1e-12);
+        r.efficiency = r.speedup / n;
+        r.speedup_median = median_1 / r.sec_median.max(1e-12);
+        r.efficiency_median = r.speedup_median / n;
+        r.bottleneck = (r.slaves > 1 && r.efficiency < EFFICIENCY_BAR).then(|| bottleneck(r));
+    }
+}
+
+fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult) -> Row {
     let n = spec.n;
     let frames = r.secs.len();
-    let wall = (r.after.at - r.before.at).as_secs_f64().max(1e-9);
+    let wall = r.delta.wall.max(1e-9);
     let sec_median = median(&r.secs);
-    let speedup = base.map_or(n as f64, |b| b / sec_median.max(1e-9));
-    let efficiency = speedup / n as f64;
     let bytes_per_frame = r.bytes_in.iter().sum::<u64>() as f64 / frames.max(1) as f64;
-    let iface = match (&r.before.iface, &r.after.iface) {
-        (Some(b), Some(a)) => Some(a.since(b)),
-        _ => None,
-    };
+    let iface = r.delta.iface;
     let link_utilisation = match (iface, rate) {
         (Some(c), Some(rate)) => Some(c.rx_bytes as f64 * 8.0 / wall / (f64::from(rate) * 1e6)),
         _ => None,
     };
-    let master_cpu = (r.after.master_cpu - r.before.master_cpu) / wall;
-    let render: Vec<SchedStat> =
-        r.after.render.iter().zip(&r.before.render).map(|(a, b)| a.since(b)).collect();
-    let throttled: Vec<f64> =
-        r.after.throttled_us.iter().zip(&r.before.throttled_us).map(|(a, b)| (a - b) / 1e6).collect();
+    let master_cpu = r.delta.master_cpu / wall;
+    let (render, throttled) = (&r.delta.render, &r.delta.throttled);
     let mean = |f: &dyn Fn(usize) -> f64| (0..render.len()).map(f).sum::<f64>() / render.len().max(1) as f64;
     let slave_idle = mean(&|i| (1.0 - (render[i].run + render[i].wait) / wall).max(0.0));
     let slave_quota_use = share.map(|s| mean(&|i| render[i].run / (s * wall)));
@@ -458,19 +649,26 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         }
     };
     let duplicated_per_frame = r.duplicated as f64 / frames.max(1) as f64;
-    let mut row = Row {
+    Row {
         width: spec.settings_size.0,
         height: spec.settings_size.1,
         transport: spec.transport.to_string(),
         compression: spec.compression.to_string(),
         rate_mbit: rate,
+        pipeline: spec.pipeline,
         slaves: n,
         frames,
         sec_median,
         sec_p95: quantile(&r.secs, 0.95),
+        latency_median: median(&r.latency),
+        latency_p95: quantile(&r.latency, 0.95),
+        first_tile_median: median(&r.first_tile),
+        last_tenth_median: median(&r.last_tenth),
         fps: frames as f64 / r.secs.iter().sum::<f64>().max(1e-9),
-        speedup,
-        efficiency,
+        speedup: 0.0,
+        efficiency: 0.0,
+        speedup_median: 0.0,
+        efficiency_median: 0.0,
         bytes_per_frame,
         iface_bytes_per_frame: iface.map(|c| c.rx_bytes as f64 / frames.max(1) as f64),
         link_utilisation,
@@ -480,11 +678,7 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         slave_crowded,
         duplicated_per_frame,
         bottleneck: None,
-    };
-    if n > 1 && efficiency < EFFICIENCY_BAR {
-        row.bottleneck = Some(bottleneck(&row));
     }
-    row
 }
 
 /// Names the resource that kept a run below the efficiency bar, from its measurements.
@@ -533,13 +727,17 @@ fn markdown(rep: &Report) -> String {
     let m = &rep.meta;
     let mut out = String::new();
     out.push_str(&format!(
-        "Scene `{}`, {} evenly spaced cameras of `{}`; lab: {}{}; tile {} px; load average {} → {}.\n\n",
+        "Scene `{}`, {} frames (evenly spaced cameras of `{}`, {} run(s) per N pooled); lab: {}{}; tile {} px; load average {} → {}.\n\n",
         m.scene,
         rep.rows.first().map_or(0, |r| r.frames),
         m.path,
+        m.repeat,
         if m.lab { "yes" } else { "no (loopback)" },
         match (m.slave_share_of_a_core, m.cfs_quota_us, m.cfs_period_us) {
-            (Some(s), Some(q), Some(p)) => format!(", each slave {s:.3} of a core (quota {q} µs / {p} µs)"),
+            (Some(s), Some(q), Some(p)) => format!(
+                ", each slave {s:.3} of a core (quota {q} µs / {p} µs{})",
+                m.cpu_weight.map(|w| format!(", CPU weight {w}")).unwrap_or_default()
+            ),
             _ => String::new(),
         },
         m.tile,
@@ -588,7 +786,11 @@ fn markdown(rep: &Report) -> String {
     }
     let header_refs: Vec<&str> = header.iter().map(String::as_str).collect();
     out.push_str(&report::table(&header_refs, &rows));
-    out.push_str("\nDetails (seconds per frame: median / p95):\n\n");
+    out.push_str(
+        "\nDetails (seconds per frame — intervals between completions — and latency — request to \
+         completion —: median / p95; first tile: request to first tile; last tenth: the time a frame \
+         took to deliver its last 10 % of pixels; `N open`: frames kept requested at once):\n\n",
+    );
     let detail: Vec<Vec<String>> = rep
         .rows
         .iter()
@@ -597,9 +799,12 @@ fn markdown(rep: &Report) -> String {
                 group_label(r),
                 r.slaves.to_string(),
                 format!("{:.3} / {:.3}", r.sec_median, r.sec_p95),
+                format!("{:.3} / {:.3}", r.latency_median, r.latency_p95),
+                format!("{:.1} / {:.1}", r.first_tile_median * 1e3, r.last_tenth_median * 1e3),
                 format!("{:.2}", r.fps),
                 format!("{:.2}", r.speedup),
                 format!("{:.2}", r.efficiency),
+                format!("{:.2}", r.efficiency_median),
                 format!("{:.0}", r.bytes_per_frame / 1e3),
                 fmt_opt(r.iface_bytes_per_frame, |b| format!("{:.0}", b / 1e3)),
                 fmt_opt(r.link_utilisation, |u| format!("{:.1} %", u * 100.0)),
@@ -617,9 +822,12 @@ fn markdown(rep: &Report) -> String {
             "setup",
             "N",
             "s/frame",
+            "latency s",
+            "first tile / last tenth ms",
             "fps",
             "speedup",
             "eff.",
+            "eff. (median s/frame)",
             "kB/frame (transport)",
             "kB/frame (interface)",
             "master link",
@@ -635,10 +843,10 @@ fn markdown(rep: &Report) -> String {
     out
 }
 
-type GroupKey = (u32, u32, String, String, Option<u32>);
+type GroupKey = (u32, u32, String, String, Option<u32>, usize);
 
 fn group_key(r: &Row) -> GroupKey {
-    (r.width, r.height, r.transport.clone(), r.compression.clone(), r.rate_mbit)
+    (r.width, r.height, r.transport.clone(), r.compression.clone(), r.rate_mbit, r.pipeline)
 }
 
 fn groups(rows: &[Row]) -> Vec<GroupKey> {
@@ -658,7 +866,8 @@ fn group_label(r: &Row) -> String {
         Some(m) => format!(", {m} Mbit/s"),
         None => ", loopback".into(),
     };
-    format!("{}×{} {}/{}{rate}", r.width, r.height, r.transport, r.compression)
+    let open = if r.pipeline > 1 { format!(", {} open", r.pipeline) } else { String::new() };
+    format!("{}×{} {}/{}{rate}{open}", r.width, r.height, r.transport, r.compression)
 }
 
 /// The speedup plot: isin per configuration, the paper, ideal.
@@ -701,13 +910,20 @@ mod tests {
             transport: "tcp".into(),
             compression: "raw".into(),
             rate_mbit: Some(100),
+            pipeline: 1,
             slaves: n,
             frames: 4,
             sec_median: 1.0 / (n as f64 * eff),
             sec_p95: 1.0,
+            latency_median: 1.0,
+            latency_p95: 1.0,
+            first_tile_median: 0.01,
+            last_tenth_median: 0.01,
             fps: 1.0,
             speedup: n as f64 * eff,
             efficiency: eff,
+            speedup_median: n as f64 * eff,
+            efficiency_median: eff,
             bytes_per_frame: 230e3,
             iface_bytes_per_frame: Some(240e3),
             link_utilisation: Some(0.1),
@@ -737,6 +953,26 @@ mod tests {
     }
 
     #[test]
+    fn speedup_is_throughput_against_the_first_row_and_the_median_one_is_kept() {
+        let mut g = vec![row(1, 1.0), row(12, 1.0)];
+        (g[0].fps, g[0].sec_median) = (1.0, 0.9);
+        (g[1].fps, g[1].sec_median) = (10.8, 0.1);
+        g[1].slave_idle = 0.3;
+        fill_speedups(&mut g);
+        assert!((g[1].speedup - 10.8).abs() < 1e-9 && (g[1].efficiency - 0.9).abs() < 1e-9);
+        assert!((g[1].speedup_median - 9.0).abs() < 1e-9 && (g[1].efficiency_median - 0.75).abs() < 1e-9);
+        assert!(g[1].bottleneck.is_none(), "0.9 meets the bar");
+        g[1].fps = 10.0;
+        fill_speedups(&mut g);
+        assert!(
+            g[1].bottleneck.as_deref().is_some_and(|b| b.contains("scheduling")),
+            "{:?}",
+            g[1].bottleneck
+        );
+        assert_eq!((g[0].speedup, g[0].efficiency), (1.0, 1.0));
+    }
+
+    #[test]
     fn markdown_puts_paper_and_isin_rows_under_the_pc_counts() {
         let rep = Report {
             meta: Meta {
@@ -751,6 +987,9 @@ mod tests {
                 cfs_period_us: Some(6000),
                 cfs_quota_us: Some(1000),
                 tile: 32,
+                pipeline: vec![1],
+                cpu_weight: Some(8192),
+                repeat: 1,
                 loadavg_before: "1".into(),
                 loadavg_after: "1".into(),
                 unix_time: 0,

@@ -332,7 +332,8 @@ fn run_once(lab: Option<&Lab>, cond: &Condition, spec: &RunSpec) -> anyhow::Resu
     let listen = lab.map_or("127.0.0.1:0".to_string(), |l| format!("{}:0", l.master().addr));
     let mut master_extra = modes::master_args(spec.transport, spec.compression);
     master_extra.extend(["--tile".to_string(), spec.tile.to_string()]);
-    let (master, ticket) = start_master(master_ns.as_deref(), spec.scene, &listen, &token, &master_extra)?;
+    let (master, ticket) =
+        start_master(master_ns.as_deref(), None, spec.scene, &listen, &token, &master_extra)?;
     let slave_extra: Vec<String> = if spec.kind == "cached" {
         vec!["--cache-tiles".into(), spec.cache_dir.display().to_string()]
     } else {

@@ -55,6 +55,10 @@ struct Sim {
     log: Log,
     sizes: HashMap<FrameId, (u32, u32)>,
     next_id: SlaveId,
+    /// Lane-milliseconds alive slaves spent with nothing to render.
+    idle_lane_ms: u64,
+    /// When each frame was first handed a tile, by frame.
+    first_assigned: HashMap<FrameId, Duration>,
 }
 
 impl Sim {
@@ -66,6 +70,8 @@ impl Sim {
             log: Log::default(),
             sizes: HashMap::new(),
             next_id: 1,
+            idle_lane_ms: 0,
+            first_assigned: HashMap::new(),
         }
     }
 
@@ -94,6 +100,13 @@ impl Sim {
         self.drain();
     }
 
+    /// Queues `id` behind the open frames (pipelining).
+    fn queue(&mut self, id: FrameId, w: u32, h: u32) {
+        self.sched.queue_frame(self.now, id, w, h).unwrap();
+        self.sizes.insert(id, (w, h));
+        self.drain();
+    }
+
     fn drain(&mut self) {
         while let Some(out) = self.sched.poll_output(self.now) {
             match out {
@@ -102,6 +115,7 @@ impl Sim {
                     assert_ne!(s.mode, Mode::Gone, "work sent to a disconnected slave");
                     s.received += tiles.len() as u32;
                     self.log.reassigned += reassigned;
+                    self.first_assigned.entry(frame).or_insert(self.now);
                     s.queue.extend(tiles.into_iter().map(|t| (frame, t)));
                 }
                 Output::Cancel { slave, frame, tiles } => {
@@ -137,6 +151,9 @@ impl Sim {
                 {
                     let cost = Duration::from_micros(job.tile.pixel_count() as u64 * s.us_per_pixel).max(MS);
                     *lane = Some((f, job, now + cost));
+                }
+                if lane.is_none() {
+                    self.idle_lane_ms += 1;
                 }
             }
             if now >= s.next_heartbeat {
@@ -381,6 +398,19 @@ fn a_large_cluster_gets_smaller_tiles() {
 }
 
 #[test]
+fn queued_frames_keep_the_full_tile_edge_on_a_large_cluster() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    let ids: Vec<SlaveId> = (0..12).map(|_| sim.join(1, 1)).collect();
+    sim.queue(1, 320, 240);
+    sim.queue(2, 320, 240);
+    let first = sim.slaves[&ids[0]].queue.front().map(|(_, job)| job.tile).expect("work assigned");
+    assert_eq!(first.w, 32, "a pipelined frame's end is filled by the next: no cluster-sized edge");
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
+    sim.assert_exact_cover(1);
+    sim.assert_exact_cover(2);
+}
+
+#[test]
 fn idle_slave_duplicates_the_straggler_and_first_result_wins() {
     let mut sim = Sim::new(cfg());
     let fast = sim.join(1, 1);
@@ -439,6 +469,7 @@ fn randomised_sessions_never_lose_or_duplicate_a_pixel() {
             queue_depth: rng.below(4) as u32,
             heartbeat_timeout: Duration::from_millis(200 + rng.below(400)),
             duplicate_stragglers: rng.below(3) != 0,
+            max_open_frames: 4,
         };
         let mut sim = Sim::new(config);
         for _ in 0..1 + rng.below(4) {
@@ -450,6 +481,12 @@ fn randomised_sessions_never_lose_or_duplicate_a_pixel() {
             frame += 1;
             let (w, h) = (1 + rng.below(200) as u32, 1 + rng.below(150) as u32);
             sim.frame(frame, w, h);
+            // Sometimes the next frame is queued behind this one (pipelining).
+            if frame < frames && rng.below(3) == 0 {
+                frame += 1;
+                let (w, h) = (1 + rng.below(200) as u32, 1 + rng.below(150) as u32);
+                sim.queue(frame, w, h);
+            }
             let superseded = frame < frames && rng.below(3) == 0;
             let steps = if superseded { rng.below(200) } else { u64::MAX };
             let mut n = 0;
@@ -506,4 +543,139 @@ fn randomised_sessions_never_lose_or_duplicate_a_pixel() {
             assert_eq!(set.len(), tiles.len(), "seed {seed}");
         }
     }
+}
+
+/// Renders `frames` frames of `w × h` on `slaves` one-thread slaves, either
+/// one after another (each requested when the previous completes) or with
+/// `ahead` frames queued ahead; returns the sim.
+fn replay(slaves: usize, frames: u64, w: u32, h: u32, ahead: u64, config: SchedulerConfig) -> Sim {
+    let mut sim = Sim::new(config);
+    for _ in 0..slaves {
+        sim.join(1, 3);
+    }
+    let mut requested = 0;
+    for done in 0..frames {
+        while requested < frames && requested < done + 1 + ahead {
+            requested += 1;
+            if ahead == 0 {
+                sim.frame(requested, w, h);
+            } else {
+                sim.queue(requested, w, h);
+            }
+        }
+        sim.run_until(Duration::from_secs(60), |s| s.frame_done(done + 1));
+    }
+    for f in 1..=frames {
+        sim.assert_exact_cover(f);
+    }
+    sim
+}
+
+#[test]
+fn queued_frame_goes_out_as_the_older_one_drains() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    let a = sim.join(1, 5);
+    let b = sim.join(1, 5);
+    sim.queue(1, 128, 64);
+    sim.queue(2, 128, 64);
+    assert_eq!(sim.sched.open_frames(), vec![1, 2]);
+    // Frame 1 goes out first, in full: no frame-2 tile while frame 1 has tiles to hand out.
+    assert!([a, b].iter().all(|id| sim.slaves[id].queue.iter().all(|(f, _)| *f == 1)));
+    sim.run_until(Duration::from_secs(60), |s| s.first_assigned.contains_key(&2));
+    assert!(!sim.frame_done(1), "frame 2 starts before frame 1 completes");
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
+    let order: Vec<FrameId> = sim.log.done.iter().map(|(f, _)| *f).collect();
+    assert_eq!(order, vec![1, 2], "each frame completes, oldest first");
+    sim.assert_exact_cover(1);
+    sim.assert_exact_cover(2);
+    // Stats are per frame: each counts its own tiles.
+    let (t1, t2) = (sim.log.done[0].1.tiles, sim.log.done[1].1.tiles);
+    assert_eq!(t1 as usize, sim.log.accepted[&1].len());
+    assert_eq!(t2 as usize, sim.log.accepted[&2].len());
+    assert_eq!(sim.sched.open_frames(), Vec::<FrameId>::new());
+}
+
+#[test]
+fn pipelined_replay_keeps_slaves_busy_through_frame_ends() {
+    let config = SchedulerConfig { duplicate_stragglers: false, ..cfg() };
+    let (slaves, frames) = (12, 8);
+    let barrier = replay(slaves, frames, 320, 240, 0, config.clone());
+    let piped = replay(slaves, frames, 320, 240, 1, config);
+    // The same work in less time, with fewer idle lanes: the tail of each
+    // frame is filled with tiles of the next.
+    assert!(piped.now < barrier.now, "pipelined {:?} vs one at a time {:?}", piped.now, barrier.now);
+    assert!(
+        piped.idle_lane_ms * 2 < barrier.idle_lane_ms,
+        "idle lane-ms: pipelined {} vs one at a time {}",
+        piped.idle_lane_ms,
+        barrier.idle_lane_ms
+    );
+    // Busy lanes, end to end: above 90 % of 12 lanes × the run.
+    let busy = 1.0 - piped.idle_lane_ms as f64 / (slaves as f64 * piped.now.as_millis() as f64);
+    assert!(busy > 0.9, "lanes busy {busy:.3}");
+}
+
+#[test]
+fn end_of_frame_measures_wait_for_the_last_queued_frame() {
+    // With a frame queued behind, frame 1's end is not the cluster's: its
+    // tiles are not split, copied or moved (the next frame's fill the gaps).
+    let mut sim = Sim::new(cfg());
+    for _ in 0..4 {
+        sim.join(1, 3);
+    }
+    // 64 tiles of 32 px: 16 per thread, so the edge does not shrink for the cluster.
+    sim.queue(1, 256, 256);
+    sim.queue(2, 256, 256);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
+    let s1 = &sim.log.done[0].1;
+    assert_eq!((s1.duplicated, s1.moved), (0, 0), "{s1:?}");
+    assert!(sim.log.accepted[&1].iter().all(|t| t.w == 32 && t.h == 32), "frame 1 tiles split");
+    // The last frame's end still gets them.
+    assert!(sim.log.accepted[&2].iter().any(|t| t.w < 32), "last frame's tail not split");
+}
+
+#[test]
+fn a_submitted_frame_supersedes_queued_ones_too() {
+    let mut sim = Sim::new(cfg());
+    let a = sim.join(2, 5);
+    sim.queue(1, 320, 240);
+    sim.queue(2, 320, 240);
+    sim.run_until(Duration::from_secs(5), |s| s.log.accepted.get(&1).is_some_and(|v| v.len() > 3));
+    sim.frame(3, 64, 64);
+    assert_eq!(sim.sched.open_frames(), vec![3]);
+    assert!(sim.slaves[&a].queue.iter().all(|(f, _)| *f == 3), "queued tiles of 1 and 2 cancelled");
+    assert_eq!(sim.sched.handle_result(sim.now, a, 2, 0), ResultOutcome::Stale);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(3));
+    assert!(!sim.frame_done(1) && !sim.frame_done(2));
+    sim.assert_exact_cover(3);
+}
+
+#[test]
+fn open_frames_are_bounded() {
+    let mut s = Scheduler::new(SchedulerConfig { max_open_frames: 2, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.queue_frame(Duration::ZERO, 1, 8, 8).unwrap();
+    s.queue_frame(Duration::ZERO, 2, 8, 8).unwrap();
+    assert_eq!(s.queue_frame(Duration::ZERO, 3, 8, 8), Err(SchedulerError::TooManyFrames(2)));
+    assert_eq!(s.queue_frame(Duration::ZERO, 2, 8, 8), Err(SchedulerError::NotNewer { new: 2, current: 2 }));
+    // Completing frame 1 makes room.
+    while s.poll_output(Duration::ZERO).is_some() {}
+    assert!(matches!(s.handle_result(MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
+    s.queue_frame(MS, 3, 8, 8).unwrap();
+    assert_eq!(s.open_frames(), vec![2, 3]);
+}
+
+#[test]
+fn abandoning_one_frame_leaves_the_others() {
+    let mut sim = Sim::new(cfg());
+    let a = sim.join(1, 5);
+    sim.queue(1, 64, 64);
+    sim.queue(2, 64, 64);
+    sim.sched.abandon(1);
+    sim.drain();
+    assert_eq!(sim.sched.open_frames(), vec![2]);
+    assert!(sim.slaves[&a].queue.iter().all(|(f, _)| *f == 2), "frame 1's queued tiles cancelled");
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
+    sim.assert_exact_cover(2);
+    assert!(!sim.frame_done(1));
 }

@@ -7,6 +7,9 @@
 //! * `blocks` — leaf triangles in structure-of-arrays blocks of four, tested
 //!   with one SSE Möller–Trumbore (bit-identical to the scalar test).
 //! * `packet` — any-hit for up to four rays at once.
+//! * `packet8` — nearest and any hit for packets of eight rays (camera rays,
+//!   shadow rays from one point to an area light) that traverse the tree once
+//!   per packet, with the same answer for every ray as the single-ray queries.
 //! * `wide` — the tree rays traverse: the binary tree collapsed into 8-wide
 //!   nodes whose eight boxes one AVX (or two SSE) instruction sequences test
 //!   at once (with a bit-identical scalar fallback); nearest-hit traversal visits children
@@ -27,7 +30,10 @@
 mod blocks;
 mod build;
 mod packet;
+mod packet8;
 mod wide;
+
+pub use packet8::LANES as PACKET_LANES;
 
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::{Hit, Triangle};
@@ -184,6 +190,41 @@ impl Bvh {
     /// corner packets it is still slower than four single queries (0.8×).
     pub fn occluded4(&self, rays: &[Ray; 4], t_min: [f32; 4], t_max: [f32; 4], active: u32) -> u32 {
         packet::occluded4(self, rays, t_min, t_max, active)
+    }
+
+    /// Nearest hits of a packet of [`PACKET_LANES`] rays: entry `j` is exactly
+    /// `intersect(&rays[j], t_min[j], t_max[j])` (same `t`, `u`, `v`, `prim`, bit
+    /// for bit) for every ray selected by bit `j` of `active`, `None` for the others.
+    ///
+    /// Made for camera rays: a 4×2 block of pixels seen from one eye. The packet
+    /// walks the tree once (interval-arithmetic bounds of all rays per node, then
+    /// each ray's own box and triangle tests at the leaves, eight rays per AVX
+    /// instruction). It is fastest when the rays are coherent; any rays give the
+    /// right answer. Rays whose direction components differ in sign on some axis,
+    /// have a zero or non-finite component or a non-finite origin, a machine
+    /// without AVX and [`Bvh::set_simd`]`(false)` fall back to single-ray queries.
+    pub fn intersect8(
+        &self,
+        rays: &[Ray; PACKET_LANES],
+        t_min: [f32; PACKET_LANES],
+        t_max: [f32; PACKET_LANES],
+        active: u8,
+    ) -> [Option<Hit>; PACKET_LANES] {
+        packet8::intersect8(self, rays, t_min, t_max, active)
+    }
+
+    /// Any-hit for a packet of [`PACKET_LANES`] rays (e.g. shadow rays from one
+    /// shading point to points on an area light): bit `j` of the result is
+    /// exactly `occluded(&rays[j], t_min[j], t_max[j])` for every ray selected by
+    /// bit `j` of `active`, 0 for the others. Traversal as in [`Bvh::intersect8`].
+    pub fn occluded8(
+        &self,
+        rays: &[Ray; PACKET_LANES],
+        t_min: [f32; PACKET_LANES],
+        t_max: [f32; PACKET_LANES],
+        active: u8,
+    ) -> u8 {
+        packet8::occluded8(self, rays, t_min, t_max, active)
     }
 
     /// Chooses the SIMD box test (the default, where the machine has one) or

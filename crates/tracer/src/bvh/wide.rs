@@ -73,7 +73,7 @@ pub(super) const W: usize = 8;
 pub(super) struct WideNode {
     /// `bounds[a][k]`: for `a` in 0..3 the lower corner of child `k` on axis
     /// `a`, for `a` in 3..6 the upper corner on axis `a − 3`.
-    bounds: [[f32; W]; 6],
+    pub(super) bounds: [[f32; W]; 6],
     /// Interior child: index of its `WideNode` (bit 31 clear). Leaf: [`leaf_word`]
     /// of its first lane (`4 · block + lane`, see `blocks`; during the build, its
     /// first triangle in leaf order) and triangle count. Unused: [`UNUSED`].
