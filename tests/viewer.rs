@@ -431,12 +431,13 @@ fn fly_replays_the_shipped_path_into_pngs() {
 }
 
 /// A parsed `--print-frames` status line of a cluster-backed viewer:
-/// "status: N live slaves  tiles ID:COUNT ID:COUNT  B bytes received  transport T".
+/// "status: N live slaves  tiles ID:COUNT ID:COUNT  B bytes received  transport T  dead D".
 #[derive(Debug)]
 struct Status {
     live: usize,
     tiles: Vec<(u32, u64)>,
     transport: String,
+    dead: usize,
 }
 
 fn parse_status(line: &str) -> Option<Status> {
@@ -452,7 +453,8 @@ fn parse_status(line: &str) -> Option<Status> {
         })
         .collect();
     let transport = words.iter().position(|w| *w == "transport").and_then(|i| words.get(i + 1))?;
-    Some(Status { live, tiles, transport: transport.to_string() })
+    let dead = words.iter().position(|w| *w == "dead").and_then(|i| words.get(i + 1))?.parse().ok()?;
+    Some(Status { live, tiles, transport: transport.to_string(), dead })
 }
 
 /// How many pixels of `img` (below the status text) have exactly the overlay
@@ -488,7 +490,7 @@ fn view_on_cluster(transport: util::Transport) {
     }
     let artefacts = repo().join(format!("target/test-artifacts/viewer-cluster-{}", transport.name()));
     std::fs::create_dir_all(&artefacts).unwrap();
-    let cluster = util::Cluster::start(transport, 2, &[]);
+    let mut cluster = util::Cluster::start(transport, 2, &[]);
 
     // No scene file: the master's scene, camera and settings are shown.
     let args: Vec<OsString> = [
@@ -510,7 +512,7 @@ fn view_on_cluster(transport: util::Transport) {
     // The status printed after that frame: both slaves live and delivering tiles.
     let line = v.wait_line("a status line", |l| l.starts_with("status: "));
     let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
-    assert_eq!(status.live, 2, "{line}");
+    assert_eq!((status.live, status.dead), (2, 0), "the master lists its two slaves: {line}");
     assert_eq!(status.transport, transport.name(), "{line}");
     let owners: Vec<u32> = status.tiles.iter().filter(|(_, n)| *n > 0).map(|(id, _)| *id).collect();
     assert_eq!(owners.len(), 2, "tiles from both slaves: {line}");
@@ -542,6 +544,24 @@ fn view_on_cluster(transport: util::Transport) {
         );
         assert!(overlay_pixels(&before, owner) < n, "the overlay was off before");
     }
+
+    // A slave dies: the master tells the viewer (at once over TCP; over QUIC
+    // when the connection times out), whose status says so with the next
+    // frames shown, rendered by the other slave. Moves until then.
+    cluster.slaves[1].kill9();
+    let told = Instant::now();
+    let mut seen = None;
+    for step in 0..60 {
+        v.press(if step % 2 == 0 { "s" } else { "w" });
+        let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+        let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
+        if (status.live, status.dead) == (1, 1) {
+            seen = Some(line);
+            break;
+        }
+        assert!(told.elapsed() < WAIT, "the dead slave is still listed live: {line}");
+    }
+    assert!(seen.is_some(), "no status line with one live and one dead slave; output:\n{:#?}", v.log);
 
     v.press("Escape");
     let exit = v.wait_exit();

@@ -9,8 +9,9 @@
 //! [`SourceEvent::Tile`]s owned by the slave that rendered them; `FrameDone`
 //! becomes [`SourceEvent::FrameComplete`] after the status counters (live
 //! slaves, tiles per slave, bytes received on the connection) are updated.
-//! Live slaves are those that delivered tiles in the last [`LIVE_FRAMES`]
-//! completed frames (the master does not tell viewers about its slaves).
+//! The slaves are those the master lists ([`GetSlaves`]: it tells its viewers
+//! whenever a slave joins or dies), each with the tiles this viewer received
+//! from it.
 //!
 //! When the window closes, its end of the channel is dropped; the thread then
 //! disconnects from the master (which keeps its slaves for the next viewer)
@@ -21,15 +22,14 @@ use anyhow::Context;
 use isin_actors::auth::Ticket;
 use isin_actors::client::HANDSHAKE_TIMEOUT;
 use isin_actors::protocol::SceneInfo;
-use isin_actors::viewer::{self, Disconnect, GetWireStats, RequestFrameAs, ViewerActor, ViewerEvent};
-use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate};
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use isin_actors::viewer::{
+    self, Disconnect, GetSlaves, GetWireStats, RequestFrameAs, SlaveList, ViewerActor, ViewerEvent,
+};
+use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate, Worker};
+use std::collections::BTreeMap;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
-
-/// A slave counts as live while it delivered tiles in this many of the latest frames.
-const LIVE_FRAMES: usize = 3;
 
 /// How often the bytes-received counter is refreshed between frames.
 const WIRE_POLL: Duration = Duration::from_millis(250);
@@ -79,8 +79,6 @@ impl Remote {
                         feed: thread_feed,
                         transport: ticket.transport.clone(),
                         current: None,
-                        frame_slaves: BTreeSet::new(),
-                        recent: VecDeque::new(),
                         tiles: BTreeMap::new(),
                     };
                     link.run(request_rx, events).await;
@@ -113,12 +111,40 @@ struct Link {
     transport: String,
     /// The latest request and when it was posted.
     current: Option<(u64, Instant)>,
-    /// Slaves that delivered tiles of the latest request.
-    frame_slaves: BTreeSet<u64>,
-    /// The slaves of the latest completed frames, newest last.
-    recent: VecDeque<BTreeSet<u64>>,
     /// Tiles received per slave id, over the whole session.
     tiles: BTreeMap<u32, u64>,
+}
+
+/// The status line's counters from the master's slave list and the tiles
+/// received per slave: every listed slave (live first, with 0 tiles if it sent
+/// none yet), then any other slave that sent tiles (one since forgotten).
+fn status_of(
+    list: &SlaveList,
+    tiles: &BTreeMap<u32, u64>,
+    bytes_received: u64,
+    transport: &str,
+) -> SourceStatus {
+    let owner = |id: u64| u32::try_from(id).unwrap_or(u32::MAX);
+    let listed = list.slaves.as_deref().unwrap_or_default();
+    let mut workers: Vec<Worker> = listed
+        .iter()
+        .map(|e| Worker { id: owner(e.id), name: e.name.clone(), threads: e.threads, alive: e.alive })
+        .collect();
+    workers.sort_by_key(|w| (!w.alive, w.id));
+    let mut tiles_per_slave: Vec<(u32, u64)> =
+        workers.iter().map(|w| (w.id, tiles.get(&w.id).copied().unwrap_or(0))).collect();
+    for (&id, &n) in tiles {
+        if !workers.iter().any(|w| w.id == id) {
+            tiles_per_slave.push((id, n));
+        }
+    }
+    SourceStatus {
+        live_slaves: workers.iter().filter(|w| w.alive).count(),
+        tiles_per_slave,
+        bytes_received,
+        transport: transport.to_string(),
+        workers,
+    }
 }
 
 impl Link {
@@ -135,7 +161,6 @@ impl Link {
                 r = requests.recv() => {
                     let Some(r) = r else { break }; // the window closed
                     self.current = Some((r.frame_id, Instant::now()));
-                    self.frame_slaves.clear();
                     self.viewer.do_send(RequestFrameAs {
                         request: r.frame_id,
                         camera: r.camera,
@@ -158,18 +183,10 @@ impl Link {
         let _ = self.viewer.send(Disconnect).await;
     }
 
-    /// Live slaves: those that delivered tiles of the latest completed frames.
-    fn live(&self) -> usize {
-        self.recent.iter().flatten().collect::<BTreeSet<_>>().len()
-    }
-
     /// Handles one event of the viewer actor; false when the link is over.
     async fn on_event(&mut self, ev: ViewerEvent) -> bool {
         match ev {
             ViewerEvent::Tile { request, slave, tile, pixels, .. } => {
-                if self.current.is_some_and(|(id, _)| id == request) {
-                    self.frame_slaves.insert(slave);
-                }
                 let owner = u32::try_from(slave).unwrap_or(u32::MAX);
                 *self.tiles.entry(owner).or_default() += 1;
                 self.feed.send(SourceEvent::Tile(TileUpdate { frame_id: request, tile, rgb: pixels, owner }))
@@ -179,12 +196,6 @@ impl Link {
                     Some((id, at)) if id == request => at.elapsed(),
                     _ => Duration::from_micros(stats.micros),
                 };
-                if self.current.is_some_and(|(id, _)| id == request) {
-                    self.recent.push_back(std::mem::take(&mut self.frame_slaves));
-                    while self.recent.len() > LIVE_FRAMES {
-                        self.recent.pop_front();
-                    }
-                }
                 self.update_status().await;
                 self.feed.send(SourceEvent::FrameComplete { frame_id: request, elapsed })
             }
@@ -197,16 +208,39 @@ impl Link {
     }
 
     async fn update_status(&self) {
-        let live_slaves = self.live();
         let bytes_received = match self.viewer.send(GetWireStats).await {
             Ok(wire) => wire.bytes_received,
             Err(_) => self.feed.status().bytes_received,
         };
-        self.feed.set_status(SourceStatus {
-            live_slaves,
-            tiles_per_slave: self.tiles.iter().map(|(&k, &v)| (k, v)).collect(),
-            bytes_received,
-            transport: self.transport.clone(),
-        });
+        let list = self.viewer.send(GetSlaves).await.unwrap_or_default();
+        self.feed.set_status(status_of(&list, &self.tiles, bytes_received, &self.transport));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use isin_actors::protocol::SlaveEntry;
+
+    fn entry(id: u64, alive: bool) -> SlaveEntry {
+        SlaveEntry { id, name: format!("s#{id}"), addr: "127.0.0.1:1".into(), threads: 2, alive }
+    }
+
+    #[test]
+    fn the_status_counts_the_masters_live_slaves_and_lists_each_with_its_tiles() {
+        let list =
+            SlaveList { version: 2, slaves: Some(vec![entry(7, false), entry(5, true), entry(3, true)]) };
+        // Slave 5 has not sent a tile yet; 9 sent some but is no longer listed.
+        let tiles = BTreeMap::from([(3, 40), (7, 12), (9, 1)]);
+        let s = status_of(&list, &tiles, 1234, "tcp");
+        assert_eq!(s.live_slaves, 2);
+        assert_eq!(s.tiles_per_slave, [(3, 40), (5, 0), (7, 12), (9, 1)]);
+        let ids: Vec<(u32, bool)> = s.workers.iter().map(|w| (w.id, w.alive)).collect();
+        assert_eq!(ids, [(3, true), (5, true), (7, false)], "live first, then the dead");
+        assert_eq!((s.bytes_received, s.transport.as_str()), (1234, "tcp"));
+        // Before the master's list arrives: no live slaves claimed.
+        let none = status_of(&SlaveList::default(), &tiles, 0, "quic");
+        assert_eq!(none.live_slaves, 0);
+        assert_eq!(none.tiles_per_slave.len(), 3);
     }
 }

@@ -40,6 +40,7 @@ Keys:
   F12 / P                   save a screenshot PNG (the rendered image)
   O / Tab                   tile-ownership overlay (tile borders coloured per slave)
   H                         status text (fps, frame time, slaves, tiles, bytes/s, transport)
+  + / -                     double / halve the move and strafe steps
   Escape                    quit
 A held move key keeps moving, in frames made as small as needed to hold --target-fps; a still
 view is redrawn at full resolution, then refined until --max-spp samples per pixel.";
@@ -60,7 +61,7 @@ pub struct WindowArgs {
     #[arg(long, default_value_t = 64)]
     pub max_spp: u32,
     /// While moving, always render at 1/N of the resolution in each direction
-    /// (shown enlarged; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
+    /// (shown enlarged, bilinear; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
     /// N is chosen from the measured frame times to hold --target-fps.
     /// A still view is sharpened and refined at full resolution.
     #[arg(long, value_name = "N")]
@@ -74,7 +75,7 @@ pub struct WindowArgs {
     pub screenshot_dir: PathBuf,
     /// Print a line "frame N complete: ..." on stdout as each pass is shown
     /// (for scripts and tests); with a cluster, also a "status: ..." line
-    /// (live slaves, tiles per slave, bytes received, transport).
+    /// (live slaves, tiles per slave, bytes received, transport, dead slaves).
     #[arg(long)]
     pub print_frames: bool,
     /// Play a camera path back in the window (each camera as soon as the
@@ -85,6 +86,25 @@ pub struct WindowArgs {
     /// Close the window when the playback is over.
     #[arg(long, requires = "play")]
     pub exit_after_play: bool,
+    /// Scene units one forward/back or strafe key press moves (the paper's
+    /// `k`; default: 1/40 of the scene's size). `+` / `-` change it while flying.
+    #[arg(long, value_name = "K", value_parser = parse_positive)]
+    pub move_step: Option<f32>,
+    /// Degrees one turn key press (yaw, pitch, roll) rotates.
+    #[arg(long, value_name = "DEG", default_value_t = 3.0, value_parser = parse_positive)]
+    pub turn_step: f32,
+    /// Degrees the view turns per pixel of mouse drag.
+    #[arg(long, value_name = "DEG", default_value_t = 0.2, value_parser = parse_positive)]
+    pub look_speed: f32,
+    /// Steps per second while a move key is held down.
+    #[arg(long, value_name = "N", default_value_t = 15.0, value_parser = parse_positive)]
+    pub key_rate: f32,
+    /// With --play: stay this many milliseconds on each camera after its first
+    /// pass is on screen (the still view is sharpened and refined meanwhile),
+    /// so that every move supersedes passes in flight — the latency of the
+    /// first move after looking around. 0: move on at once.
+    #[arg(long, value_name = "MS", default_value_t = 0, requires = "play")]
+    pub play_dwell: u64,
 }
 
 impl Default for WindowArgs {
@@ -102,6 +122,11 @@ impl Default for WindowArgs {
             print_frames: false,
             play: None,
             exit_after_play: false,
+            play_dwell: 0,
+            move_step: None,
+            turn_step: 3.0,
+            look_speed: 0.2,
+            key_rate: 15.0,
         }
     }
 }
@@ -215,7 +240,7 @@ pub fn run_with_source(
         Some(d) => MovingResolution::Fixed(d),
         None => MovingResolution::dynamic(window.target_fps),
     };
-    let config = SessionConfig { settings, quality, controls: Controls::for_scene_extent(extent), camera };
+    let config = SessionConfig { settings, quality, controls: controls_for(window, extent), camera };
     let mut session = Session::new(source, config);
     if let Some(path) = &window.record {
         session.record_to(Recorder::new(path.clone(), settings.width, settings.height));
@@ -223,6 +248,7 @@ pub fn run_with_source(
     if let Some(path) = &window.play {
         let path = CameraPath::load(path)?;
         session.play(path.frames.iter().map(|f| f.camera()));
+        session.set_playback_dwell(Duration::from_millis(window.play_dwell));
     }
     let print_frames = window.print_frames;
     let playing = window.play.is_some();
@@ -260,9 +286,10 @@ pub fn run_with_source(
                     let s = status();
                     let tiles: Vec<String> =
                         s.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
+                    let dead = s.workers.iter().filter(|w| !w.alive).count();
                     let _ = writeln!(
                         out,
-                        "status: {} live slaves  tiles {}  {} bytes received  transport {}",
+                        "status: {} live slaves  tiles {}  {} bytes received  transport {}  dead {dead}",
                         s.live_slaves,
                         tiles.join(" "),
                         s.bytes_received,
@@ -278,7 +305,7 @@ pub fn run_with_source(
     };
     let result = isin_viewer::run(&mut session, options);
     if playing {
-        print_playback_summary(&moving.borrow());
+        print_playback_summary(&moving.borrow(), window.play_dwell > 0);
     }
     if let Some(saved) = session.save_recording() {
         let path = saved.context("cannot save the camera path")?;
@@ -288,8 +315,8 @@ pub fn run_with_source(
 }
 
 /// Prints latency and frame-rate figures of a playback: every moving pass shown
-/// after the first, i.e. one per camera move.
-fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
+/// after the first, i.e. one per camera move (no frame rate when it dwelled).
+fn print_playback_summary(shown: &[(Instant, FrameReport)], dwelled: bool) {
     let latencies: Vec<Duration> = shown.iter().filter_map(|(_, r)| r.latency).collect();
     let renders: Vec<Duration> = shown.iter().skip(1).map(|(_, r)| r.render_time).collect();
     let lat = Summary::of(&latencies);
@@ -299,6 +326,8 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
         _ => 0.0,
     };
     let fps = if span > 0.0 { (shown.len() - 1) as f64 / span } else { 0.0 };
+    let fps =
+        if dwelled { "(dwelling: no frame rate)".to_string() } else { format!("{fps:.1} fps while moving") };
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     // Sizes of the moving frames (every move after the starting view).
     let mut divisors: Vec<(Divisor, (u32, u32))> =
@@ -313,7 +342,7 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
     };
     println!(
         "playback: {} moves  motion-to-photon median {:.1} ms  p95 {:.1} ms  render median {:.1} ms  \
-         p95 {:.1} ms  {:.1} fps while moving{}",
+         p95 {:.1} ms  {}{}",
         lat.count,
         ms(lat.median),
         ms(lat.p95),
@@ -322,6 +351,27 @@ fn print_playback_summary(shown: &[(Instant, FrameReport)]) {
         fps,
         sizes
     );
+}
+
+/// The navigation speeds: steps sized for a scene of `extent`, overridden by
+/// the command line.
+fn controls_for(window: &WindowArgs, extent: f32) -> Controls {
+    let mut c = Controls::for_scene_extent(extent);
+    if let Some(k) = window.move_step {
+        (c.move_step, c.strafe_step) = (k, k);
+    }
+    c.turn_step = window.turn_step.to_radians();
+    c.look_per_pixel = window.look_speed.to_radians();
+    c.repeat_rate = window.key_rate;
+    c
+}
+
+/// Parses a positive, finite number.
+fn parse_positive(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!("expected a positive number, not {s:?}")),
+    }
 }
 
 /// Parses `--target-fps`: a positive, finite number.
@@ -346,6 +396,31 @@ mod tests {
     #[test]
     fn default_window_args_match_an_empty_command_line() {
         assert_eq!(Wrapper::parse_from(["isin"]).window, WindowArgs::default());
+    }
+
+    #[test]
+    fn navigation_speeds_come_from_the_scene_unless_given() {
+        let default = controls_for(&WindowArgs::default(), 40.0);
+        assert_eq!(default, Controls::for_scene_extent(40.0), "defaults: the library's, sized for the scene");
+        let w = Wrapper::parse_from([
+            "isin",
+            "--move-step",
+            "0.25",
+            "--turn-step",
+            "10",
+            "--look-speed",
+            "0.5",
+            "--key-rate",
+            "30",
+        ])
+        .window;
+        let c = controls_for(&w, 40.0);
+        assert_eq!((c.move_step, c.strafe_step, c.repeat_rate), (0.25, 0.25, 30.0));
+        assert!((c.turn_step - 10f32.to_radians()).abs() < 1e-7);
+        assert!((c.look_per_pixel - 0.5f32.to_radians()).abs() < 1e-7);
+        for bad in [["--move-step", "0"], ["--turn-step", "-1"], ["--key-rate", "inf"]] {
+            assert!(Wrapper::try_parse_from(["isin", bad[0], bad[1]]).is_err(), "{bad:?}");
+        }
     }
 
     #[test]

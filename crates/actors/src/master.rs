@@ -9,8 +9,8 @@
 use crate::auth;
 use crate::codec::{self, Codec, Compression};
 use crate::protocol::{
-    self, DEFAULT_MAX_FRAME, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Message, Role, SceneHash,
-    SceneInfo, TileAssignment, Welcome, WireBundle,
+    self, DEFAULT_MAX_FRAME, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, MAX_SLAVE_TEXT,
+    MAX_SLAVES_LISTED, Message, Role, SceneHash, SceneInfo, SlaveEntry, TileAssignment, Welcome, WireBundle,
 };
 use crate::scheduler::{DeathCause, Output, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo};
 use crate::transport::{ConnStats, Connection, FrameSender, Listener};
@@ -29,6 +29,8 @@ pub const MAX_SPP: u32 = 65536;
 pub const MAX_LIGHT_SAMPLES: u32 = 4096;
 /// Largest recursion depth a viewer may request.
 pub const MAX_DEPTH: u32 = 64;
+/// Dead slaves still listed to viewers (the most recent ones).
+pub const DEAD_SLAVES_LISTED: usize = 16;
 
 /// How the master runs.
 #[derive(Clone, Debug)]
@@ -142,6 +144,8 @@ pub struct Master {
     last_heartbeat: Duration,
     status: MasterStatus,
     closed_wire: ConnStats,
+    /// The slaves viewers are told about ([`Message::Slaves`]), by id.
+    roster: std::collections::BTreeMap<u64, SlaveEntry>,
 }
 
 impl Master {
@@ -166,6 +170,7 @@ impl Master {
             last_heartbeat: Duration::ZERO,
             status: MasterStatus::default(),
             closed_wire: ConnStats::default(),
+            roster: std::collections::BTreeMap::new(),
         })
     }
 
@@ -215,6 +220,54 @@ impl Master {
             }
             Err(e) => tracing::error!("cannot encode {}: {e}", msg.kind()),
         }
+    }
+
+    /// The slave list as viewers get it: the live slaves, then the most
+    /// recently dead (bounded by [`MAX_SLAVES_LISTED`]).
+    fn roster_message(&self) -> Message {
+        let live = self.roster.values().filter(|e| e.alive);
+        let dead = self.roster.values().rev().filter(|e| !e.alive);
+        let slaves = live.chain(dead).take(MAX_SLAVES_LISTED).cloned().collect();
+        Message::Slaves { slaves }
+    }
+
+    /// Tells every viewer the slave list.
+    fn send_roster(&self) {
+        let bytes = match protocol::encode(&self.roster_message()) {
+            Ok(b) => b,
+            Err(e) => return tracing::error!("cannot encode the slave list: {e}"),
+        };
+        for p in self.peers.values().filter(|p| matches!(p.state, PeerState::Viewer)) {
+            let _ = p.sender.send(bytes.clone());
+        }
+    }
+
+    /// A slave joined: list it and tell the viewers.
+    fn roster_join(&mut self, id: u64, name: &str, addr: &str, threads: u32) {
+        // At most MAX_SLAVE_TEXT bytes, cut at a character boundary.
+        let cut = |s: &str| {
+            let mut out = String::new();
+            for c in s.chars().filter(|c| !c.is_control()) {
+                if out.len() + c.len_utf8() > MAX_SLAVE_TEXT {
+                    break;
+                }
+                out.push(c);
+            }
+            out
+        };
+        self.roster.insert(id, SlaveEntry { id, name: cut(name), addr: cut(addr), threads, alive: true });
+        self.send_roster();
+    }
+
+    /// A slave died: keep it listed as dead (the latest few) and tell the viewers.
+    fn roster_death(&mut self, id: u64) {
+        let Some(e) = self.roster.get_mut(&id) else { return };
+        e.alive = false;
+        let dead: Vec<u64> = self.roster.values().filter(|e| !e.alive).map(|e| e.id).collect();
+        for old in dead.iter().take(dead.len().saturating_sub(DEAD_SLAVES_LISTED)) {
+            self.roster.remove(old);
+        }
+        self.send_roster();
     }
 
     fn drop_peer(&mut self, id: u64, why: &str) {
@@ -271,6 +324,7 @@ impl Master {
                             "reassigned {reassigned} tiles of dead slaves to {name}"
                         );
                     }
+                    tracing::trace!(slave, frame, "assigning {} tiles", tiles.len());
                     let msg = Message::TileAssignment(TileAssignment {
                         frame,
                         camera: spec.camera,
@@ -282,6 +336,7 @@ impl Master {
                 Output::Cancel { slave, frame, tiles } => self.send(slave, &Message::Cancel { frame, tiles }),
                 Output::SlaveDead { slave, name, cause, requeued } => {
                     self.status.deaths += 1;
+                    self.roster_death(slave);
                     tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
                     if cause == DeathCause::Timeout
                         && let Some(p) = self.peers.remove(&slave)
@@ -348,6 +403,7 @@ impl Master {
                         peer.state = PeerState::Viewer;
                         tracing::info!(viewer = %peer.name, addr = %peer.addr, "viewer {} connected", peer.name);
                         self.send(id, &Message::Welcome(welcome));
+                        self.send(id, &self.roster_message());
                     }
                     Role::Slave => {
                         peer.state = PeerState::Syncing { threads: hello.threads };
@@ -379,11 +435,14 @@ impl Master {
                 let threads = *threads;
                 peer.state = PeerState::Slave;
                 let name = peer.name.clone();
+                let addr = peer.addr.clone();
                 tracing::info!(slave = %name, threads, "slave {name} joined with {threads} threads");
+                self.roster_join(id, &name, &addr, threads);
                 self.sched.handle_join(now, id, name, threads);
                 self.drain();
             }
             (PeerState::Slave, Message::TileResult(r)) => {
+                tracing::trace!(slave = id, frame = r.frame, tile = r.id, "tile result");
                 let Some(rect) = self.sched.tile(r.frame, r.id) else {
                     // Not the current frame: stale, drop quietly.
                     self.sched.handle_heartbeat(now, id);

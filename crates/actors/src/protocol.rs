@@ -17,8 +17,17 @@ use std::collections::BTreeMap;
 
 /// Version of the protocol spoken by this build; peers must match exactly.
 /// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may
-/// queue frames behind the open one, [`Message::QueueFrame`].)
-pub const PROTOCOL_VERSION: u16 = 3;
+/// queue frames behind the open one, [`Message::QueueFrame`]. 4: the master
+/// tells viewers its slaves, [`Message::Slaves`].)
+pub const PROTOCOL_VERSION: u16 = 4;
+
+/// Most slaves a [`Message::Slaves`] may list; a longer list is refused while
+/// it is decoded, before it is allocated.
+pub const MAX_SLAVES_LISTED: usize = 1024;
+
+/// Longest slave name or address in a [`Message::Slaves`] (the master
+/// truncates longer ones; a peer refuses them).
+pub const MAX_SLAVE_TEXT: usize = 128;
 
 /// Default largest frame accepted from an authenticated peer (scene bundles
 /// with meshes and textures are the big ones).
@@ -197,6 +206,51 @@ impl FrameTile {
     }
 }
 
+/// A slave as the master tells viewers about it ([`Message::Slaves`]).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SlaveEntry {
+    /// Its id (the [`Welcome::id`], as in [`FrameTile::slave`]).
+    pub id: u64,
+    /// Its name (as in [`FrameTile::slave_name`]).
+    pub name: String,
+    /// Where it connected from, as the transport names it.
+    pub addr: String,
+    /// Its render threads.
+    pub threads: u32,
+    /// False once the master declared it dead (it stays listed for a while).
+    pub alive: bool,
+}
+
+/// Deserializes a sequence of at most `MAX` elements: a longer one fails as
+/// soon as its declared length (or its `MAX + 1`-th element) is seen.
+fn bounded_vec<'de, D, T, const MAX: usize>(de: D) -> Result<Vec<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    struct Bounded<T, const MAX: usize>(std::marker::PhantomData<T>);
+    impl<'de, T: Deserialize<'de>, const MAX: usize> serde::de::Visitor<'de> for Bounded<T, MAX> {
+        type Value = Vec<T>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "a sequence of at most {MAX} elements")
+        }
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<T>, A::Error> {
+            if seq.size_hint().is_some_and(|n| n > MAX) {
+                return Err(serde::de::Error::custom(format!("more than {MAX} elements")));
+            }
+            let mut out = Vec::with_capacity(seq.size_hint().unwrap_or(0).min(MAX));
+            while let Some(x) = seq.next_element()? {
+                if out.len() == MAX {
+                    return Err(serde::de::Error::custom(format!("more than {MAX} elements")));
+                }
+                out.push(x);
+            }
+            Ok(out)
+        }
+    }
+    de.deserialize_seq(Bounded::<T, MAX>(std::marker::PhantomData))
+}
+
 /// Summary of one completed frame.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct FrameStats {
@@ -281,6 +335,14 @@ pub enum Message {
         /// How it went.
         stats: FrameStats,
     },
+    /// Master → viewer: every slave it knows of — the live ones and the
+    /// latest dead ones. Sent when the viewer joins and whenever a slave joins
+    /// or dies.
+    Slaves {
+        /// The slaves, by id (at most [`MAX_SLAVES_LISTED`]).
+        #[serde(deserialize_with = "bounded_vec::<_, _, MAX_SLAVES_LISTED>")]
+        slaves: Vec<SlaveEntry>,
+    },
     /// Either way: still alive.
     Heartbeat,
     /// Either way: a request could not be served (the connection stays open).
@@ -319,6 +381,7 @@ impl Message {
             Message::TileResult(_) => "TileResult",
             Message::FrameTile(_) => "FrameTile",
             Message::FrameDone { .. } => "FrameDone",
+            Message::Slaves { .. } => "Slaves",
             Message::Heartbeat => "Heartbeat",
             Message::Error { .. } => "Error",
             Message::QueueFrame { .. } => "QueueFrame",
@@ -383,6 +446,15 @@ pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
     let rest = body.len() as u64 - de.position().min(body.len() as u64);
     if rest != 0 {
         return Err(ProtocolError::Decode(format!("{rest} trailing bytes after the message")));
+    }
+    if let Message::Slaves { slaves } = &msg
+        && let Some(s) =
+            slaves.iter().find(|s| s.name.len() > MAX_SLAVE_TEXT || s.addr.len() > MAX_SLAVE_TEXT)
+    {
+        return Err(ProtocolError::Decode(format!(
+            "slave {} has a name or address longer than {MAX_SLAVE_TEXT} bytes",
+            s.id
+        )));
     }
     Ok(msg)
 }
@@ -477,6 +549,18 @@ mod tests {
                 pixels: ByteBuf::from(codec::encode(Codec::Lz4, 3, &[9u8; 36])),
             }),
             Message::FrameDone { request: 3, stats: FrameStats::default() },
+            Message::Slaves {
+                slaves: vec![
+                    SlaveEntry {
+                        id: 4,
+                        name: "a#4".into(),
+                        addr: "10.0.0.2:5000".into(),
+                        threads: 2,
+                        alive: true,
+                    },
+                    SlaveEntry { id: 7, name: "b#7".into(), addr: "mem".into(), threads: 1, alive: false },
+                ],
+            },
             Message::Heartbeat,
             Message::Error { message: "bad".into() },
         ]
@@ -628,6 +712,28 @@ mod tests {
         bytes.extend_from_slice(b"Cancel");
         bytes.extend_from_slice(&[0x92, 1, 0xdd, 0xff, 0xff, 0xff, 0xff, 1]);
         assert!(decode(&bytes, DEFAULT_MAX_FRAME).is_err());
+    }
+
+    #[test]
+    fn slave_lists_are_bounded_while_decoding() {
+        let entry =
+            |id: u64| SlaveEntry { id, name: format!("s#{id}"), addr: "a".into(), threads: 1, alive: true };
+        let full = Message::Slaves { slaves: (0..MAX_SLAVES_LISTED as u64).map(entry).collect() };
+        assert_eq!(decode(&encode(&full).unwrap(), DEFAULT_MAX_FRAME).unwrap(), full);
+        let over = Message::Slaves { slaves: (0..=MAX_SLAVES_LISTED as u64).map(entry).collect() };
+        let err = decode(&encode(&over).unwrap(), DEFAULT_MAX_FRAME).unwrap_err();
+        assert!(matches!(&err, ProtocolError::Decode(m) if m.contains("more than")), "{err:?}");
+        // A list that declares 2^32-1 entries but holds none fails without allocating them.
+        let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();
+        bytes.push(0x81);
+        bytes.push(0xa0 | 6);
+        bytes.extend_from_slice(b"Slaves");
+        bytes.extend_from_slice(&[0x91, 0xdd, 0xff, 0xff, 0xff, 0xff]);
+        assert!(decode(&bytes, DEFAULT_MAX_FRAME).is_err());
+        // Names and addresses are bounded too.
+        let long =
+            Message::Slaves { slaves: vec![SlaveEntry { addr: "x".repeat(MAX_SLAVE_TEXT + 1), ..entry(1) }] };
+        assert!(matches!(decode(&encode(&long).unwrap(), DEFAULT_MAX_FRAME), Err(ProtocolError::Decode(_))));
     }
 
     #[test]

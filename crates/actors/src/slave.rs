@@ -7,9 +7,12 @@
 //! from any thread), so no per-tile round trip through the actor is awaited.
 //! Queued jobs of a cancelled tile (another slave won it, or its frame was
 //! superseded: the master cancels every tile of a superseded frame) are skipped
-//! when their turn comes. A newer frame's tiles do not make an older frame's
-//! stale by themselves: the master may pipeline frames, handing out the next
-//! frame's tiles while the older frame's are still queued here.
+//! when their turn comes, and a job already rendering one stops between bands
+//! of rows ([`Renderer::render_cancellable`]): a move that supersedes a
+//! refinement pass waits for a few rows, not for whole tiles. A newer frame's
+//! tiles do not make an older frame's stale by themselves: the master may
+//! pipeline frames, handing out the next frame's tiles while the older frame's
+//! are still queued here.
 
 use crate::auth::Ticket;
 use crate::client::{self, JoinError};
@@ -73,7 +76,28 @@ pub trait Renderer: Send + Sync + 'static {
     fn load(&self, bundle: SceneBundle) -> Result<Self::Scene, String>;
     /// `tile.w * tile.h * 3` bytes of RGB8.
     fn render(&self, scene: &Self::Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8>;
+
+    /// [`Renderer::render`] that gives up (`None`) once `cancelled()` answers
+    /// true: the slave asks between bands of rows, so a tile of a superseded
+    /// frame stops within a few rows instead of running to its end. The
+    /// default checks once, before rendering the whole tile.
+    fn render_cancellable(
+        &self,
+        scene: &Self::Scene,
+        camera: &Camera,
+        settings: &RenderSettings,
+        tile: Tile,
+        cancelled: &dyn Fn() -> bool,
+    ) -> Option<Vec<u8>> {
+        if cancelled() {
+            return None;
+        }
+        Some(self.render(scene, camera, settings, tile))
+    }
 }
+
+/// Rows rendered between two cancel checks of [`Tracer`].
+pub const ROWS_PER_CANCEL_CHECK: u32 = 4;
 
 /// The isin ray tracer.
 #[derive(Clone, Copy, Debug, Default)]
@@ -139,6 +163,31 @@ impl Renderer for Tracer {
     fn render(&self, scene: &Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8> {
         isin_tracer::render_tile(scene, camera, settings, tile)
     }
+
+    /// Renders the tile in bands of [`ROWS_PER_CANCEL_CHECK`] rows, asking
+    /// `cancelled` before each: the bytes are those of one
+    /// [`isin_tracer::render_tile`] call (a pixel's value does not depend on
+    /// the tiling).
+    fn render_cancellable(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        settings: &RenderSettings,
+        tile: Tile,
+        cancelled: &dyn Fn() -> bool,
+    ) -> Option<Vec<u8>> {
+        let mut out = Vec::with_capacity(tile.pixel_count() * 3);
+        let mut y = tile.y;
+        while y < tile.y + tile.h {
+            if cancelled() {
+                return None;
+            }
+            let h = ROWS_PER_CANCEL_CHECK.min(tile.y + tile.h - y);
+            out.extend_from_slice(&isin_tracer::render_tile(scene, camera, settings, Tile { y, h, ..tile }));
+            y += h;
+        }
+        Some(out)
+    }
 }
 
 /// A loaded scene and the hash of the bundle it came from.
@@ -154,7 +203,7 @@ pub struct SceneCache<S> {
 pub struct SlaveCounters {
     /// Tiles rendered and sent.
     pub tiles: AtomicU64,
-    /// Tiles skipped because cancelled or superseded.
+    /// Tiles skipped, or stopped part-way, because cancelled or superseded.
     pub skipped: AtomicU64,
 }
 
@@ -365,18 +414,17 @@ impl<R: Renderer> SlaveActor<R> {
             );
             let (frame, camera, settings, tile_codec) = (a.frame, a.camera, a.settings, self.codec);
             self.pool.spawn_fifo(move || {
-                // Skip tiles of superseded frames, cancelled tiles, and the
-                // leftovers of a session whose connection is gone.
-                let skip = sender.is_closed()
-                    || latest.load(Ordering::Acquire) > frame.saturating_add(CANCEL_MEMORY)
-                    || cancelled.lock().map(|mut c| c.remove(&(frame, job.id))).unwrap_or(false);
-                if skip {
-                    counters.skipped.fetch_add(1, Ordering::Relaxed);
-                    return;
-                }
+                // Skip (or stop, between bands of rows) cancelled tiles, tiles
+                // of frames long gone, and the leftovers of a session whose
+                // connection is gone.
+                let stop = || {
+                    sender.is_closed()
+                        || latest.load(Ordering::Acquire) > frame.saturating_add(CANCEL_MEMORY)
+                        || cancelled.lock().map(|mut c| c.remove(&(frame, job.id))).unwrap_or(false)
+                };
                 let t0 = Instant::now();
                 let pixels = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    renderer.render(&scene, &camera, &settings, t)
+                    renderer.render_cancellable(&scene, &camera, &settings, t, &stop)
                 }));
                 let Ok(pixels) = pixels else {
                     tracing::error!(
@@ -384,6 +432,10 @@ impl<R: Renderer> SlaveActor<R> {
                         frame,
                         "render_tile panicked; tile dropped (the master will reassign it)"
                     );
+                    return;
+                };
+                let Some(pixels) = pixels else {
+                    counters.skipped.fetch_add(1, Ordering::Relaxed);
                     return;
                 };
                 if pixels.len() != t.pixel_count() * 3 {

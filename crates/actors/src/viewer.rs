@@ -4,7 +4,7 @@
 
 use crate::auth::Ticket;
 use crate::client::{self, JoinError};
-use crate::protocol::{self, FrameStats, Message, Role, SceneInfo};
+use crate::protocol::{self, FrameStats, Message, Role, SceneInfo, SlaveEntry};
 use crate::transport::{ConnStats, FrameSender, Transport, TransportError};
 use actix::prelude::*;
 use isin_tracer::{Camera, Frame, RenderSettings, Tile};
@@ -40,12 +40,30 @@ pub enum ViewerEvent {
     Closed(String),
 }
 
-/// The viewer actor: forwards the master's tiles to a channel.
+/// The viewer actor: forwards the master's tiles to a channel, and keeps the
+/// master's latest slave list ([`GetSlaves`]).
 pub struct ViewerActor {
     sender: FrameSender,
     sink: mpsc::UnboundedSender<ViewerEvent>,
     next_request: u64,
+    slaves: Option<Vec<SlaveEntry>>,
+    slaves_version: u64,
 }
+
+/// The master's slaves as it last told them (live ones and the latest dead
+/// ones), with a version that grows with every update.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SlaveList {
+    /// Number of updates received (0: none yet).
+    pub version: u64,
+    /// The slaves, if the master has sent its list.
+    pub slaves: Option<Vec<SlaveEntry>>,
+}
+
+/// Asks for the master's slave list.
+#[derive(Message)]
+#[rtype(result = "SlaveList")]
+pub struct GetSlaves;
 
 /// Asks for a frame; answers with the request number its tiles will carry.
 /// The actor numbers these requests itself, above every number used so far
@@ -181,6 +199,14 @@ impl Handler<GetWireStats> for ViewerActor {
     }
 }
 
+impl Handler<GetSlaves> for ViewerActor {
+    type Result = MessageResult<GetSlaves>;
+
+    fn handle(&mut self, _: GetSlaves, _: &mut Self::Context) -> Self::Result {
+        MessageResult(SlaveList { version: self.slaves_version, slaves: self.slaves.clone() })
+    }
+}
+
 impl Handler<Inbound> for ViewerActor {
     type Result = ();
 
@@ -201,6 +227,13 @@ impl Handler<Inbound> for ViewerActor {
                 }),
             },
             Ok(Message::FrameDone { request, stats }) => Some(ViewerEvent::FrameDone { request, stats }),
+            Ok(Message::Slaves { slaves }) => {
+                // Kept for GetSlaves rather than sent as an event: drivers that
+                // only want frames need not hear about it.
+                self.slaves = Some(slaves);
+                self.slaves_version += 1;
+                None
+            }
             Ok(Message::Error { message }) => Some(ViewerEvent::Error(message)),
             Ok(Message::Reject { reason }) => Some(ViewerEvent::Closed(format!("master refused: {reason}"))),
             Ok(Message::Heartbeat) => None,
@@ -228,7 +261,7 @@ pub async fn connect(
         client::handshake(transport, ticket, Role::Viewer, name, 0, None, &crate::codec::Codec::ALL).await?;
     let (sink, events) = mpsc::unbounded_channel();
     let crate::transport::Connection { sender, mut receiver, .. } = conn;
-    let addr = ViewerActor { sender, sink, next_request: 0 }.start();
+    let addr = ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0 }.start();
     let target = addr.clone();
     tokio::spawn(async move {
         while let Some(frame) = receiver.recv().await {

@@ -75,6 +75,10 @@ pub enum Command {
     ToggleOverlay,
     /// Show or hide the status text.
     ToggleStatus,
+    /// Double the move and strafe steps.
+    Faster,
+    /// Halve the move and strafe steps.
+    Slower,
     /// Close the window.
     Quit,
 }
@@ -102,6 +106,8 @@ pub fn command_for_key(key: KeyCode, shift: bool) -> Option<Command> {
         (K::F12 | K::KeyP, _) => C::Screenshot,
         (K::KeyO | K::Tab, _) => C::ToggleOverlay,
         (K::KeyH, _) => C::ToggleStatus,
+        (K::Equal | K::NumpadAdd, _) => C::Faster,
+        (K::Minus | K::NumpadSubtract, _) => C::Slower,
         (K::Escape, _) => C::Quit,
         _ => return None,
     };
@@ -151,6 +157,19 @@ impl Controls {
         }
         let step = extent / 40.0;
         Self { move_step: step, strafe_step: step, ..d }
+    }
+
+    /// Multiplies the move and strafe steps by `factor` (turning is
+    /// unchanged); a step that would not stay finite and positive is kept.
+    pub fn scale_steps(&mut self, factor: f32) {
+        if factor.is_finite() && factor > 0.0 {
+            let scaled = |v: f32| {
+                let s = v * factor;
+                if s.is_finite() && s > 0.0 { s } else { v }
+            };
+            self.move_step = scaled(self.move_step);
+            self.strafe_step = scaled(self.strafe_step);
+        }
     }
 
     /// Applies one step of a move to `camera`.
@@ -381,6 +400,33 @@ mod tests {
         assert_eq!(command_for_key(KeyCode::Home, false), Some(Command::ResetCamera));
         assert_eq!(command_for_key(KeyCode::KeyH, false), Some(Command::ToggleStatus));
         assert_eq!(command_for_key(KeyCode::KeyX, false), None);
+        assert_eq!(command_for_key(KeyCode::Equal, true), Some(Command::Faster));
+        assert_eq!(command_for_key(KeyCode::NumpadSubtract, false), Some(Command::Slower));
+    }
+
+    #[test]
+    fn speed_keys_scale_the_move_and_strafe_steps_but_not_turning() {
+        let mut c = controls();
+        let before = after(KeyCode::KeyW, false, &c);
+        let start = Camera::default();
+        c.scale_steps(2.0);
+        let doubled = after(KeyCode::KeyW, false, &c);
+        let d1 = (before.eye - start.eye).length();
+        let d2 = (doubled.eye - start.eye).length();
+        assert!((d2 - 2.0 * d1).abs() < 1e-4, "{d1} then {d2}");
+        assert_eq!(
+            after(KeyCode::KeyA, false, &c),
+            after(KeyCode::KeyA, false, &controls()),
+            "turns unchanged"
+        );
+        let strafe = (after(KeyCode::KeyZ, false, &c).eye - start.eye).length();
+        assert!((strafe - 2.0 * controls().strafe_step).abs() < 1e-4, "{strafe}");
+        c.scale_steps(0.5);
+        assert_eq!(c, controls());
+        for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            c.scale_steps(bad);
+            assert_eq!(c, controls(), "factor {bad}");
+        }
     }
 
     #[test]

@@ -52,5 +52,5 @@ pub use local::LocalSource;
 pub use path::{CameraPath, PathFrame, Recorder};
 pub use resolution::{Divisor, MovingResolution};
 pub use session::{FrameReport, PassKind, Quality, Session, SessionConfig};
-pub use source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker};
+pub use source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker, Worker};
 pub use window::{ViewerEvent, ViewerOptions, check_display, run};

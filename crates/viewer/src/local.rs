@@ -23,9 +23,11 @@ struct Counters {
 /// own rayon pool.
 ///
 /// Tiles are rendered centre-out (the middle of the image appears first). Each
-/// tile checks, before it starts, whether its frame is still the latest request;
-/// tiles of superseded frames are skipped, so a new camera waits at most for the
-/// tiles already being rendered. Tile owners are rayon thread indices.
+/// tile checks, before it starts and between bands of rows
+/// ([`render_tile_until`]), whether its frame is still the latest request:
+/// tiles of superseded frames are skipped or stopped, so a new camera waits at
+/// most for a few rows of the tiles being rendered. Tile owners are rayon
+/// thread indices.
 pub struct LocalSource {
     scene: Arc<Scene>,
     pool: Arc<rayon::ThreadPool>,
@@ -65,6 +67,33 @@ impl LocalSource {
     }
 }
 
+/// Rows rendered between two checks of [`render_tile_until`].
+pub const ROWS_PER_CHECK: u32 = 4;
+
+/// [`render_tile`] in bands of [`ROWS_PER_CHECK`] rows, giving up (`None`) as
+/// soon as `stop()` answers true before a band: a tile of a superseded frame
+/// stops within a few rows. The bytes are those of one `render_tile` call (a
+/// pixel's value does not depend on the tiling).
+pub fn render_tile_until(
+    scene: &Scene,
+    camera: &isin_tracer::Camera,
+    settings: &isin_tracer::RenderSettings,
+    tile: Tile,
+    stop: &dyn Fn() -> bool,
+) -> Option<Vec<u8>> {
+    let mut out = Vec::with_capacity(tile.pixel_count() * 3);
+    let mut y = tile.y;
+    while y < tile.y + tile.h {
+        if stop() {
+            return None;
+        }
+        let h = ROWS_PER_CHECK.min(tile.y + tile.h - y);
+        out.extend_from_slice(&render_tile(scene, camera, settings, Tile { y, h, ..tile }));
+        y += h;
+    }
+    Some(out)
+}
+
 /// The tiles of a `width × height` image, nearest to the centre first.
 pub fn centre_out_tiles(width: u32, height: u32, size: u32) -> Vec<Tile> {
     let mut tiles = Tile::grid(width, height, size);
@@ -100,11 +129,13 @@ impl FrameSource for LocalSource {
                 if latest.load(Ordering::Acquire) != id {
                     return;
                 }
+                let superseded = || latest.load(Ordering::Acquire) != id;
                 let rendered = catch_unwind(AssertUnwindSafe(|| {
-                    render_tile(&scene, &request.camera, &request.settings, tile)
+                    render_tile_until(&scene, &request.camera, &request.settings, tile, &superseded)
                 }));
                 let rgb = match rendered {
-                    Ok(rgb) => rgb,
+                    Ok(Some(rgb)) => rgb,
+                    Ok(None) => return, // superseded part-way
                     Err(panic) => {
                         let what = panic
                             .downcast_ref::<&str>()
@@ -139,6 +170,7 @@ impl FrameSource for LocalSource {
             tiles_per_slave: tiles.iter().map(|(&k, &v)| (k, v)).collect(),
             bytes_received: self.counters.bytes.load(Ordering::Relaxed),
             transport: "in-process".into(),
+            workers: Vec::new(),
         }
     }
 }
@@ -276,6 +308,27 @@ mod tests {
         let new_tiles =
             events.iter().filter(|e| matches!(e, SourceEvent::Tile(t) if t.frame_id == 2)).count();
         assert_eq!(new_tiles, 4);
+    }
+
+    #[test]
+    fn banded_rendering_stops_at_the_first_band_after_the_stop_signal() {
+        let scene = scene();
+        let settings =
+            RenderSettings { width: 40, height: 30, spp: 2, light_samples: 2, ..Default::default() };
+        let tile = Tile { x: 3, y: 2, w: 17, h: 13 };
+        let camera = Camera::default();
+        let asked = AtomicUsize::new(0);
+        let whole = render_tile_until(&scene, &camera, &settings, tile, &|| {
+            asked.fetch_add(1, Ordering::SeqCst);
+            false
+        });
+        assert_eq!(whole, Some(render_tile(&scene, &camera, &settings, tile)));
+        assert_eq!(asked.load(Ordering::SeqCst), 13usize.div_ceil(ROWS_PER_CHECK as usize));
+        let asked = AtomicUsize::new(0);
+        let stopped = render_tile_until(&scene, &camera, &settings, tile, &|| {
+            asked.fetch_add(1, Ordering::SeqCst) == 1
+        });
+        assert_eq!((stopped, asked.load(Ordering::SeqCst)), (None, 2), "one band, then the stop");
     }
 
     #[test]

@@ -64,12 +64,21 @@ impl Canvas<'_> {
         if at.w == 0 || at.h == 0 || src.len() < src_w as usize * src_h as usize {
             return;
         }
+        let n = (at.w as usize).min(self.width.saturating_sub(at.x) as usize);
+        if (at.w, at.h) == (src_w, src_h) {
+            // 1:1 (the window at the render size): row copies.
+            for y in 0..at.h.min(self.height.saturating_sub(at.y)) {
+                let start = ((at.y + y) * self.width + at.x) as usize;
+                let row = y as usize * src_w as usize;
+                self.pixels[start..start + n].copy_from_slice(&src[row..row + n]);
+            }
+            return;
+        }
         let xs: Vec<usize> = (0..at.w).map(|x| ((x as u64 * src_w as u64) / at.w as u64) as usize).collect();
         for y in 0..at.h.min(self.height.saturating_sub(at.y)) {
             let sy = ((y as u64 * src_h as u64) / at.h as u64) as usize;
             let src_row = &src[sy * src_w as usize..(sy + 1) * src_w as usize];
             let start = ((at.y + y) * self.width + at.x) as usize;
-            let n = (at.w as usize).min(self.width.saturating_sub(at.x) as usize);
             for (d, &sx) in self.pixels[start..start + n].iter_mut().zip(&xs) {
                 *d = src_row[sx];
             }
@@ -175,6 +184,19 @@ mod tests {
         let rows: Vec<&[u32]> = px.chunks(6).collect();
         assert_eq!(rows[0], [LETTERBOX, 1, 1, 2, 2, LETTERBOX]);
         assert_eq!(rows[3], [LETTERBOX, 3, 3, 4, 4, LETTERBOX]);
+    }
+
+    #[test]
+    fn draw_image_at_its_own_size_copies_it() {
+        let src: Vec<u32> = (0..12).collect(); // 4 × 3
+        let mut px = vec![0u32; 6 * 3];
+        let mut c = Canvas { pixels: &mut px, width: 6, height: 3 };
+        let at = Placement::fit(4, 3, 6, 3);
+        assert_eq!(at, Placement { x: 1, y: 0, w: 4, h: 3 });
+        c.draw_image(&src, 4, 3, at);
+        let rows: Vec<&[u32]> = px.chunks(6).collect();
+        assert_eq!(rows[0], [LETTERBOX, 0, 1, 2, 3, LETTERBOX]);
+        assert_eq!(rows[2], [LETTERBOX, 8, 9, 10, 11, LETTERBOX]);
     }
 
     #[test]

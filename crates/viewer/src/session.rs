@@ -7,7 +7,7 @@
 //!
 //! 1. [`PassKind::Moving`]: fast mode ([`Quality::moving_spp`] samples,
 //!    [`Quality::moving_light_samples`] shadow rays) at a lower resolution,
-//!    shown enlarged. The divisor comes from [`Quality::moving`]: fixed, or
+//!    shown enlarged (bilinear). The divisor comes from [`Quality::moving`]: fixed, or
 //!    chosen by a [`Controller`] from the measured times of recent fast passes
 //!    so that moving frames hold a target frame rate. The very first view
 //!    (nothing has moved yet) starts at full resolution.
@@ -186,6 +186,10 @@ pub struct Session {
     /// Playback state: `Some(false)` while playing, `Some(true)` once the last
     /// camera's first pass completed.
     played: Option<bool>,
+    /// How long a playback dwells on each camera after its first pass.
+    dwell: Duration,
+    /// When the next playback camera is due (during a dwell).
+    playback_due: Option<Instant>,
 }
 
 impl Session {
@@ -219,6 +223,8 @@ impl Session {
             error: None,
             playback: VecDeque::new(),
             played: None,
+            dwell: Duration::ZERO,
+            playback_due: None,
         }
     }
 
@@ -236,6 +242,40 @@ impl Session {
         if let Some(first) = self.playback.pop_front() {
             self.camera = first;
             self.played = Some(false);
+        }
+    }
+
+    /// Makes a playback dwell `dwell` on each camera after its first pass is
+    /// complete (the still view is refined meanwhile) before applying the
+    /// next: each move then supersedes refinement passes in flight, as a user
+    /// who looks around and moves on does. Zero (the default) moves on at once.
+    pub fn set_playback_dwell(&mut self, dwell: Duration) {
+        self.dwell = dwell;
+    }
+
+    /// When the next camera of a dwelling playback is due, if one is waiting:
+    /// the window must call [`Session::tick`] then.
+    pub fn next_due(&self) -> Option<Instant> {
+        self.playback_due
+    }
+
+    /// Applies a playback camera whose dwell is over at `now` (its input time
+    /// is when it was due). Returns true when it did.
+    pub fn tick(&mut self, now: Instant) -> bool {
+        match self.playback_due {
+            Some(due) if now >= due => {
+                self.playback_due = None;
+                self.next_playback_camera(due);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn next_playback_camera(&mut self, at: Instant) {
+        match self.playback.pop_front() {
+            Some(next) => self.set_camera(next, at),
+            None => self.played = Some(true),
         }
     }
 
@@ -283,6 +323,12 @@ impl Session {
     /// The navigation speeds.
     pub fn controls(&self) -> &Controls {
         &self.config.controls
+    }
+
+    /// Multiplies the move and strafe steps by `factor` (the `+` / `-` keys).
+    pub fn scale_speed(&mut self, factor: f32) {
+        self.config.controls.scale_steps(factor);
+        tracing::info!("move step {:.3} scene units", self.config.controls.move_step);
     }
 
     /// True while the latest camera's first (fast) pass is not complete yet:
@@ -464,9 +510,10 @@ impl Session {
                     self.in_flight = None;
                     changed = true;
                     if f.pass == 0 && self.played == Some(false) {
-                        match self.playback.pop_front() {
-                            Some(next) => self.set_camera(next, now),
-                            None => self.played = Some(true),
+                        if self.dwell.is_zero() || self.playback.is_empty() {
+                            self.next_playback_camera(now);
+                        } else {
+                            self.playback_due = Some(now + self.dwell);
                         }
                     }
                     let next = f.pass + 1;
@@ -570,10 +617,26 @@ impl Session {
             first += &format!("  {}x{} (1/{}", r.size.0, r.size.1, r.divisor);
             first += if self.controller.is_dynamic() { " auto)" } else { ")" };
         }
-        let tiles: Vec<String> = status.tiles_per_slave.iter().map(|(id, n)| format!("{id}:{n}")).collect();
+        let dead = |id: u32| status.workers.iter().any(|w| w.id == id && !w.alive);
+        let tiles: Vec<String> = status
+            .tiles_per_slave
+            .iter()
+            .map(|&(id, n)| if dead(id) { format!("{id}:{n}(dead)") } else { format!("{id}:{n}") })
+            .collect();
+        let slaves = if status.workers.is_empty() {
+            format!("{} slaves", status.live_slaves)
+        } else {
+            let threads: u32 = status.workers.iter().filter(|w| w.alive).map(|w| w.threads).sum();
+            let gone = status.workers.len() - status.live_slaves.min(status.workers.len());
+            let mut s = format!("{} live slaves ({threads} threads)", status.live_slaves);
+            if gone > 0 {
+                s += &format!(", {gone} dead");
+            }
+            s
+        };
         let mut lines = vec![
             first,
-            format!("{} slaves  {:.2} MB/s  {}", status.live_slaves, rate / 1e6, status.transport),
+            format!("{slaves}  {:.2} MB/s  {}", rate / 1e6, status.transport),
             format!("tiles {}", tiles.join(" ")),
         ];
         if let Some(e) = &self.error {
@@ -591,7 +654,7 @@ impl Session {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::TileUpdate;
+    use crate::source::{TileUpdate, Worker};
     use std::sync::{Arc, Mutex};
 
     /// A source that records requests and lets the test deliver tiles.
@@ -599,6 +662,8 @@ mod tests {
     struct Fake {
         requests: Arc<Mutex<Vec<FrameRequest>>>,
         events: Arc<Mutex<VecDeque<SourceEvent>>>,
+        /// What `status` answers (default: one slave over "fake").
+        status: Arc<Mutex<Option<SourceStatus>>>,
     }
 
     impl FrameSource for Fake {
@@ -610,7 +675,11 @@ mod tests {
             self.events.lock().unwrap().pop_front()
         }
         fn status(&self) -> SourceStatus {
-            SourceStatus { live_slaves: 1, transport: "fake".into(), ..Default::default() }
+            self.status.lock().unwrap().clone().unwrap_or_else(|| SourceStatus {
+                live_slaves: 1,
+                transport: "fake".into(),
+                ..Default::default()
+            })
         }
     }
 
@@ -765,6 +834,52 @@ mod tests {
         assert_eq!(fake.count(), 4, "three moving frames, then refinement of the last camera");
         let views: Vec<(u32, u32)> = s.take_completed(t).iter().map(|r| (r.view, r.pass)).collect();
         assert_eq!(views, [(0, 0), (1, 0), (2, 0)]);
+    }
+
+    #[test]
+    fn a_dwelling_playback_refines_each_camera_then_moves_on_when_due() {
+        let fake = Fake::default();
+        let settings = RenderSettings { width: 2, height: 2, light_samples: 4, ..Default::default() };
+        let config = SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default(),
+        };
+        let mut s = Session::new(Box::new(fake.clone()), config);
+        let cams: Vec<Camera> = (0..2)
+            .map(|i| {
+                let mut c = Camera::default();
+                c.advance(i as f32 + 1.0);
+                c
+            })
+            .collect();
+        s.play(cams.clone());
+        s.set_playback_dwell(Duration::from_millis(300));
+        s.start();
+        let t0 = Instant::now();
+        fake.deliver(&fake.last(), 1);
+        s.pump(t0);
+        let due = s.next_due().expect("the next camera waits for the dwell");
+        assert_eq!(due, t0 + Duration::from_millis(300));
+        // Meanwhile the still view is refined.
+        let refine = fake.last();
+        assert_eq!((refine.camera, refine.settings.spp), (cams[0], 4));
+        assert!(!s.tick(t0 + Duration::from_millis(299)), "not due yet");
+        s.flush();
+        assert_eq!(fake.count(), 2);
+        // When due, the next camera supersedes the refinement in flight, and its
+        // latency runs from the moment it was due.
+        assert!(s.tick(due + Duration::from_millis(7)));
+        s.flush();
+        let moved = fake.last();
+        assert_eq!((moved.camera, moved.settings.spp), (cams[1], 1));
+        assert_eq!(s.next_due(), None);
+        fake.deliver(&moved, 2);
+        s.pump(due + Duration::from_millis(40));
+        assert!(s.playback_finished(), "the last camera needs no dwell");
+        let reports = s.take_completed(due + Duration::from_millis(50));
+        assert_eq!(reports.last().and_then(|r| r.latency), Some(Duration::from_millis(50)));
     }
 
     #[test]
@@ -955,5 +1070,29 @@ mod tests {
         let lines = s.status_lines(now).join("\n");
         assert!(lines.contains("1 fps"), "{lines}");
         assert!(lines.contains("1 slaves") && lines.contains("fake"), "{lines}");
+    }
+
+    #[test]
+    fn status_lines_show_a_clusters_slaves_threads_and_dead_ones() {
+        let fake = Fake::default();
+        let worker = |id: u32, alive: bool| Worker { id, name: format!("w#{id}"), threads: 2, alive };
+        *fake.status.lock().unwrap() = Some(SourceStatus {
+            live_slaves: 2,
+            tiles_per_slave: vec![(3, 40), (5, 0), (7, 12)],
+            workers: vec![worker(3, true), worker(5, true), worker(7, false)],
+            transport: "quic".into(),
+            bytes_received: 0,
+        });
+        let settings = RenderSettings { width: 4, height: 2, ..Default::default() };
+        let config = SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default(),
+        };
+        let mut s = Session::new(Box::new(fake), config);
+        let lines = s.status_lines(Instant::now());
+        assert_eq!(lines[1], "2 live slaves (4 threads), 1 dead  0.00 MB/s  quic");
+        assert_eq!(lines[2], "tiles 3:40 5:0 7:12(dead)");
     }
 }

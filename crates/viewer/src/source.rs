@@ -84,12 +84,29 @@ pub enum SourceEvent {
 pub struct SourceStatus {
     /// Number of workers currently able to render (slaves, or local threads).
     pub live_slaves: usize,
-    /// Tiles delivered so far per worker, as `(owner id, count)` sorted by id.
+    /// Tiles delivered so far per worker, as `(owner id, count)`: the
+    /// [`SourceStatus::workers`] in their order, then any other owner.
     pub tiles_per_slave: Vec<(u32, u64)>,
     /// Total tile payload bytes received so far.
     pub bytes_received: u64,
     /// Name of the transport the tiles travel over (`in-process`, `tcp`, `quic`).
     pub transport: String,
+    /// The workers the source knows of (a cluster's slaves as its master
+    /// lists them, live ones first); empty when the source does not say.
+    pub workers: Vec<Worker>,
+}
+
+/// A worker of a source: a slave of the cluster.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Worker {
+    /// Its owner id, as in [`TileUpdate::owner`].
+    pub id: u32,
+    /// Its name.
+    pub name: String,
+    /// Its render threads.
+    pub threads: u32,
+    /// False once it is known to be dead.
+    pub alive: bool,
 }
 
 /// Wakes the window's event loop when a source has events waiting.

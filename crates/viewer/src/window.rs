@@ -118,6 +118,8 @@ pub fn run(session: &mut Session, options: ViewerOptions) -> Result<(), ViewerEr
         cursor: None,
         overlay: false,
         held: HeldMoves::default(),
+        last_present: None,
+        redraw_due: None,
     };
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Window(e.to_string()))?;
     match app.error {
@@ -150,7 +152,17 @@ struct App<'a> {
     overlay: bool,
     show_status: bool,
     held: HeldMoves,
+    /// When the window was last drawn.
+    last_present: Option<Instant>,
+    /// A redraw put off to keep to [`MIN_PRESENT_INTERVAL`].
+    redraw_due: Option<Instant>,
 }
+
+/// Shortest time between two redraws for tiles that arrive while a pass is
+/// rendered (a completed pass is shown at once). Each redraw scales and
+/// presents the whole image; redrawing for every tile cost the window thread
+/// as much CPU as a render thread during refinement passes.
+pub const MIN_PRESENT_INTERVAL: Duration = Duration::from_millis(33);
 
 impl App<'_> {
     fn fail(&mut self, event_loop: &ActiveEventLoop, error: ViewerError) {
@@ -222,6 +234,8 @@ impl App<'_> {
         }
         gfx.window.pre_present_notify();
         buffer.present().map_err(err)?;
+        self.last_present = Some(Instant::now());
+        self.redraw_due = None;
         for report in self.session.take_completed(Instant::now()) {
             (self.options.on_event)(&ViewerEvent::FramePresented(report));
         }
@@ -257,6 +271,8 @@ impl App<'_> {
             },
             Command::ToggleOverlay => self.overlay = !self.overlay,
             Command::ToggleStatus => self.show_status = !self.show_status,
+            Command::Faster => self.session.scale_speed(2.0),
+            Command::Slower => self.session.scale_speed(0.5),
             Command::Quit => event_loop.exit(),
         }
         self.request_redraw();
@@ -286,8 +302,21 @@ impl ApplicationHandler<Wake> for App<'_> {
     fn user_event(&mut self, _: &ActiveEventLoop, _: Wake) {
         // Re-arm before draining so tiles landing meanwhile wake us again.
         self.waker.rearm();
-        if self.session.pump(Instant::now()) {
-            self.request_redraw();
+        let now = Instant::now();
+        if !self.session.pump(now) {
+            return;
+        }
+        // A completed pass goes on screen at once (it ends a motion-to-photon
+        // measurement); tiles of a pass in progress at most every MIN_PRESENT_INTERVAL.
+        let next = self.last_present.map(|t| t + MIN_PRESENT_INTERVAL);
+        match next {
+            Some(at) if now < at && !self.session.has_unreported() => {
+                self.redraw_due.get_or_insert(at);
+            }
+            _ => {
+                self.redraw_due = None;
+                self.request_redraw();
+            }
         }
     }
 
@@ -346,23 +375,34 @@ impl ApplicationHandler<Wake> for App<'_> {
                 self.session.move_steps(mv, steps, now);
             }
         }
+        // A dwelling playback's next camera, when due.
+        self.session.tick(now);
         // While a move key is down the motion goes on: no still passes yet.
         self.session.hold(!self.held.is_empty());
         // One request per batch of input events.
         self.session.flush();
-        if !self.held.is_empty() {
-            event_loop.set_control_flow(ControlFlow::WaitUntil(now + Duration::from_millis(5)));
+        let wake = if !self.held.is_empty() {
+            Some(now + Duration::from_millis(5))
         } else if self.show_status && self.session.active(now) {
             // Keep the status line's counters ticking while frames are rendered.
-            event_loop.set_control_flow(ControlFlow::WaitUntil(Instant::now() + Duration::from_millis(250)));
+            Some(Instant::now() + Duration::from_millis(250))
         } else {
-            event_loop.set_control_flow(ControlFlow::Wait);
-        }
+            None
+        };
+        let wake = [wake, self.session.next_due(), self.redraw_due].into_iter().flatten().min();
+        event_loop.set_control_flow(wake.map_or(ControlFlow::Wait, ControlFlow::WaitUntil));
     }
 
     fn new_events(&mut self, _: &ActiveEventLoop, cause: winit::event::StartCause) {
-        // The status line's timer (held keys' timer redraws when tiles land).
-        if matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) && self.held.is_empty() {
+        if !matches!(cause, winit::event::StartCause::ResumeTimeReached { .. }) {
+            return;
+        }
+        // A put-off redraw whose time came.
+        if self.redraw_due.is_some_and(|at| Instant::now() >= at) {
+            self.redraw_due = None;
+            self.request_redraw();
+        } else if self.held.is_empty() {
+            // The status line's timer (held keys' timer redraws when tiles land).
             self.request_redraw();
         }
     }
