@@ -24,9 +24,13 @@
 //! `blocks`); a leaf owns a run of lanes in one block, and `prim_ids` maps each
 //! lane back to the index in the slice the BVH was built from ([`Hit::prim`]).
 
+mod binning;
 mod blocks;
 mod build;
 mod packet;
+mod partition;
+mod primref;
+mod sweep;
 mod wide;
 
 use crate::geometry::{Aabb, Ray};

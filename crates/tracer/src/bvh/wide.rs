@@ -193,42 +193,23 @@ pub(super) fn shrink_slot(node: &mut WideNode, k: usize, by: f32) {
     node.bounds[3][k] -= by;
 }
 
-/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 8-wide nodes.
+/// Collapses the binary tree `nodes` (depth-first, see [`Node`]; slots no
+/// node points to are ignored) into 8-wide nodes.
 ///
-/// A binary subtree with at most [`MAX_LEAF_SIZE`] triangles (contiguous in
-/// leaf order) becomes one leaf when the surface-area heuristic prefers it —
-/// `LEAF_COST · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
-/// leaf's triangles are tested together and a wide node's box test is shared by
-/// eight children.
+/// The builder has already turned every binary subtree that should be one leaf
+/// of the wide tree into a leaf node (see `build`), so here a leaf is a leaf.
 pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
-    // Triangle range (first, count), SAH cost and "make it a leaf" of every
-    // binary subtree; children follow their parent, so a reverse sweep sees them first.
-    let mut info = vec![Sub { first: 0, count: 0, cost: 0.0, leaf: true }; nodes.len()];
-    for i in (0..nodes.len()).rev() {
-        let n = &nodes[i];
-        let area = n.bounds().area();
-        info[i] = if n.is_leaf() {
-            Sub { first: n.offset, count: n.count, cost: LEAF_COST * area, leaf: true }
-        } else {
-            let (l, r) = (info[i + 1], info[n.offset as usize]);
-            let count = l.count + r.count;
-            let split = MERGE_TRAVERSAL_COST * area + l.cost + r.cost;
-            let merged = LEAF_COST * area;
-            let leaf = count as usize <= MAX_LEAF_SIZE && merged <= split;
-            Sub { first: l.first, count, cost: if leaf { merged } else { split }, leaf }
-        };
-    }
-    let mut out = Vec::with_capacity(nodes.len() / 3 + 1);
+    let mut out = Vec::with_capacity(nodes.len() / 6 + 1);
     match nodes.first() {
         None => {}
-        Some(root) if info[0].leaf => {
+        Some(root) if root.is_leaf() => {
             let mut n = WideNode::EMPTY;
             n.set(0, root);
-            n.child[0] = leaf_word(info[0].first, info[0].count);
+            n.child[0] = leaf_word(root.offset, root.count);
             out.push(n);
         }
         Some(_) => {
-            collapse_node(nodes, &info, 0, &mut out);
+            collapse_node(nodes, 0, &mut out);
         }
     }
     out
@@ -256,24 +237,18 @@ pub(super) fn place_leaves(
 
 /// SAH cost of visiting a wide node's box, relative to one triangle test, when
 /// deciding whether to merge a small binary subtree into one leaf.
-const MERGE_TRAVERSAL_COST: f32 = 1.0;
+pub(super) const MERGE_TRAVERSAL_COST: f32 = 1.0;
 
 /// SAH cost of testing one leaf, in the same unit: its 1..=4 triangles are
 /// tested at once (see `blocks`), so the cost does not depend on how many.
-const LEAF_COST: f32 = 1.5;
-
-/// What [`collapse`] knows about one binary subtree.
-#[derive(Clone, Copy, Debug)]
-struct Sub {
-    first: u32,
-    count: u32,
-    cost: f32,
-    leaf: bool,
-}
+pub(super) const LEAF_COST: f32 = 1.5;
 
 /// Appends the wide node for binary interior node `i` (and its subtree); returns its index.
-fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>) -> u32 {
-    let is_leaf = |k: usize| info[k].leaf;
+///
+/// Starting from `i`'s two children, it keeps replacing the interior child with
+/// the largest box surface (ties: the first) by its own two children until it
+/// has eight or only leaves remain.
+fn collapse_node(nodes: &[Node], i: usize, out: &mut Vec<WideNode>) -> u32 {
     let at = out.len();
     out.push(WideNode::EMPTY);
     let mut kids = [0usize; W];
@@ -283,7 +258,7 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>
         let mut pick: Option<(usize, f32)> = None;
         for (slot, &k) in kids[..len].iter().enumerate() {
             let area = nodes[k].bounds().area();
-            if !is_leaf(k) && pick.is_none_or(|(_, a)| area > a) {
+            if !nodes[k].is_leaf() && pick.is_none_or(|(_, a)| area > a) {
                 pick = Some((slot, area));
             }
         }
@@ -298,11 +273,8 @@ fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>
     for (slot, &k) in kids[..len].iter().enumerate() {
         let n = &nodes[k];
         node.set(slot, n);
-        if is_leaf(k) {
-            node.child[slot] = leaf_word(info[k].first, info[k].count);
-        } else {
-            node.child[slot] = collapse_node(nodes, info, k, out);
-        }
+        node.child[slot] =
+            if n.is_leaf() { leaf_word(n.offset, n.count) } else { collapse_node(nodes, k, out) };
     }
     out[at] = node;
     at as u32
@@ -782,7 +754,16 @@ mod tests {
         }
         let bvh = Bvh::build(&tris);
         let (nodes, _, _) = super::super::build::binary(&tris);
-        let interior = nodes.iter().filter(|n| !n.is_leaf()).count();
+        // Interior binary nodes reachable from the root (the array has unused slots).
+        let (mut interior, mut binary_leaves, mut todo) = (0, 0, vec![0usize]);
+        while let Some(i) = todo.pop() {
+            if nodes[i].is_leaf() {
+                binary_leaves += 1;
+            } else {
+                interior += 1;
+                todo.extend([i + 1, nodes[i].offset as usize]);
+            }
+        }
         let (mut wide_leaves, mut used) = (0, 0);
         let mut seen = vec![0u32; bvh.prim_ids.len()];
         for n in &bvh.wide {
@@ -800,10 +781,14 @@ mod tests {
         }
         // Every wide node but the root fills one slot of its parent.
         assert_eq!(used, bvh.wide.len() - 1 + wide_leaves);
-        // Each wide node absorbs more than 3 binary interior nodes on average
-        // (7 when the tree is full; a subtree ending in two leaves absorbs 1).
+        // Each binary leaf is one wide leaf, and every binary interior node is
+        // expanded by exactly one wide node (a wide node of k slots expands k - 1):
+        // more than 2 per wide node on average (7 when the tree is full; a
+        // subtree ending in two leaves gives 1).
+        assert_eq!(wide_leaves, binary_leaves);
+        assert_eq!(used - bvh.wide.len(), interior);
         assert!(
-            bvh.wide.len() * 3 < interior,
+            bvh.wide.len() * 2 < interior,
             "{} wide for {interior} binary interior nodes",
             bvh.wide.len()
         );
