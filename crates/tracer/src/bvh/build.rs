@@ -34,7 +34,7 @@
 use super::binning::{BinMap, Bins, PARALLEL_MIN};
 use super::partition::{Sides, median, partition};
 use super::primref::{Box4, PrimRef, bounds_of};
-use super::sweep::{SMALL_MAX, split_small};
+use super::sweep::{SMALL_MAX, TINY_MAX, split_small, split_tiny};
 use super::wide::{LEAF_COST, MERGE_TRAVERSAL_COST};
 use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_TRIANGLES, Node, PreTriangle};
 use crate::shapes::Triangle;
@@ -47,8 +47,27 @@ const PARALLEL_THRESHOLD: usize = 4096;
 const MEDIAN_DEPTH: usize = MAX_DEPTH - 34;
 const _: () = assert!(MAX_TRIANGLES <= 1 << 30 && MEDIAN_DEPTH + 32 <= MAX_DEPTH);
 
-/// An unused node slot.
-const HOLE: Node = Node { min: [0.0; 3], offset: 0, max: [0.0; 3], count: 0 };
+/// A binary node as stored by the builder: the 32 bytes of a [`Node`] as words
+/// ([`store`], [`load`]). Arrays of words can be allocated zeroed, which the OS
+/// does lazily, page by page, as the (parallel) build writes them — instead of a
+/// serial pass over the whole array first. An all-zero slot (never written) is
+/// an interior node no one points to.
+pub(super) type Slot = [u32; 8];
+
+/// The slot of `n`.
+#[inline(always)]
+fn store(n: &Node) -> Slot {
+    let [a, b, c] = n.min.map(f32::to_bits);
+    let [d, e, f] = n.max.map(f32::to_bits);
+    [a, b, c, n.offset, d, e, f, n.count]
+}
+
+/// The node in slot `s`.
+#[inline(always)]
+pub(super) fn load(s: &Slot) -> Node {
+    let f = f32::from_bits;
+    Node { min: [f(s[0]), f(s[1]), f(s[2])], offset: s[3], max: [f(s[4]), f(s[5]), f(s[6])], count: s[7] }
+}
 
 /// Builds the BVH (see [`Bvh::build`]).
 pub(super) fn build(triangles: &[Triangle]) -> Bvh {
@@ -58,7 +77,7 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     }
     let (nodes, tris, ids) = binary(triangles);
     let mut wide = super::wide::collapse(&nodes);
-    let bounds = nodes[0].bounds();
+    let bounds = load(&nodes[0]).bounds();
     drop(nodes);
     let (blocks, prim_ids) = super::wide::place_leaves(&mut wide, &tris, &ids);
     Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false, no_avx: false }
@@ -66,7 +85,7 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
 
 /// The binary tree over `triangles` (not empty; depth-first with unused slots,
 /// see the module docs), the triangles in leaf order and their input indices.
-pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Node>, Vec<PreTriangle>, Vec<u32>) {
+pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<PreTriangle>, Vec<u32>) {
     let n = triangles.len();
     let mut prims: Vec<PrimRef> = triangles
         .par_iter()
@@ -81,8 +100,8 @@ pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Node>, Vec<PreTriangle>, Ve
     } else {
         bounds_of(&prims)
     };
-    let mut nodes = vec![HOLE; 2 * n - 1];
-    let mut scratch = if n >= PARALLEL_MIN { vec![PrimRef::ZERO; n] } else { Vec::new() };
+    let mut nodes: Vec<Slot> = vec![[0; 8]; 2 * n - 1];
+    let mut scratch: Vec<Slot> = if n >= PARALLEL_MIN { vec![[0; 8]; n] } else { Vec::new() };
     let root = Pos { index: 0, first: 0, depth: 0 };
     build_node(&mut prims, &mut scratch, &mut nodes, root, geo, cent);
     drop(scratch);
@@ -107,8 +126,8 @@ struct Pos {
 /// model (times area). `scratch` is empty or as long as `prims`.
 fn build_node(
     prims: &mut [PrimRef],
-    scratch: &mut [PrimRef],
-    nodes: &mut [Node],
+    scratch: &mut [Slot],
+    nodes: &mut [Slot],
     at: Pos,
     geo: Box4,
     cent: Box4,
@@ -118,7 +137,7 @@ fn build_node(
     let area = geo.area();
     let bounds = geo.to_aabb();
     let Some(sides) = choose_split(prims, scratch, &geo, &cent, at.depth) else {
-        nodes[0] = Node::leaf(&bounds, at.first, n as u32);
+        nodes[0] = store(&Node::leaf(&bounds, at.first, n as u32));
         return LEAF_COST * area;
     };
     let mid = sides.mid;
@@ -146,10 +165,10 @@ fn build_node(
     let split = MERGE_TRAVERSAL_COST * area + cost_l + cost_r;
     let merged = LEAF_COST * area;
     if n <= MAX_LEAF_SIZE && merged <= split {
-        *head = Node::leaf(&bounds, at.first, n as u32);
+        *head = store(&Node::leaf(&bounds, at.first, n as u32));
         merged
     } else {
-        *head = Node::interior(&bounds, second);
+        *head = store(&Node::interior(&bounds, second));
         split
     }
 }
@@ -158,7 +177,7 @@ fn build_node(
 /// sides (the left one always has `1..n` primitives). `None` means make a leaf.
 fn choose_split(
     prims: &mut [PrimRef],
-    scratch: &mut [PrimRef],
+    scratch: &mut [Slot],
     geo: &Box4,
     cent: &Box4,
     depth: usize,
@@ -173,8 +192,12 @@ fn choose_split(
     // Costs are SAH costs multiplied by the node's area, so that zero-area
     // nodes (all triangles degenerate and in one spot) compare without NaNs.
     let leaf_cost = n as f32 * geo.area();
+    let commit = |cost| n > MAX_LEAF_SIZE || cost < leaf_cost;
+    if n <= TINY_MAX {
+        return split_tiny(prims, geo.area(), commit).map(|(_, s)| s);
+    }
     if n <= SMALL_MAX {
-        return split_small(prims, geo.area(), |cost| n > MAX_LEAF_SIZE || cost < leaf_cost).map(|(_, s)| s);
+        return split_small(prims, geo.area(), commit).map(|(_, s)| s);
     }
     let best = BinMap::new(cent).and_then(|map| Some((map, Bins::best_split(prims, &map)?)));
     match best {

@@ -8,6 +8,7 @@
 //! Either way the result is a pure function of the node's references.
 
 use super::binning::{CHUNK, PARALLEL_MIN};
+use super::build::Slot;
 use super::primref::{Box4, PrimRef, bounds_of};
 use glam::Vec4;
 use rayon::prelude::*;
@@ -27,7 +28,7 @@ pub(super) struct Sides {
 /// `scratch` (as long as `prims`) is used for large nodes.
 pub(super) fn partition(
     prims: &mut [PrimRef],
-    scratch: &mut [PrimRef],
+    scratch: &mut [Slot],
     goes_left: impl Fn(Vec4) -> bool + Sync,
 ) -> Sides {
     if prims.len() >= PARALLEL_MIN && scratch.len() == prims.len() {
@@ -65,7 +66,7 @@ type ChunkSides = (usize, [Box4; 2], [Box4; 2]);
 /// Stable parallel partition through `scratch`.
 fn partition_par(
     prims: &mut [PrimRef],
-    scratch: &mut [PrimRef],
+    scratch: &mut [Slot],
     goes_left: impl Fn(Vec4) -> bool + Sync,
 ) -> Sides {
     let per_chunk: Vec<ChunkSides> = prims
@@ -97,15 +98,19 @@ fn partition_par(
         let (mut i, mut j) = (0, 0);
         for p in chunk {
             if goes_left(p.centroid()) {
-                l[i] = *p;
+                l[i] = p.to_slot();
                 i += 1;
             } else {
-                r[j] = *p;
+                r[j] = p.to_slot();
                 j += 1;
             }
         }
     });
-    prims.par_chunks_mut(CHUNK).zip(scratch.par_chunks(CHUNK)).for_each(|(d, s)| d.copy_from_slice(s));
+    prims.par_chunks_mut(CHUNK).zip(scratch.par_chunks(CHUNK)).for_each(|(d, s)| {
+        for (d, s) in d.iter_mut().zip(s) {
+            *d = PrimRef::from_slot(s);
+        }
+    });
     let mut sides = Sides { mid, geo: [Box4::EMPTY; 2], cent: [Box4::EMPTY; 2] };
     for (_, geo, cent) in &per_chunk {
         for s in 0..2 {
@@ -171,7 +176,7 @@ mod tests {
         for n in [0u32, 1, 5, 1000, 3 * PARALLEL_MIN as u32 + 17] {
             let input = prims(n);
             let mut a = input.clone();
-            let mut scratch = vec![PrimRef::ZERO; a.len()];
+            let mut scratch = vec![[0u32; 8]; a.len()];
             let sides = partition(&mut a, &mut scratch, goes_left);
             check(&a, &sides, goes_left);
             let mut ids: Vec<u32> = a.iter().map(PrimRef::id).collect();

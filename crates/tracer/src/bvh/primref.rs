@@ -118,6 +118,24 @@ impl PrimRef {
         PrimRef { min: min.extend(f32::from_bits(ID_TAG | id)), max: max.extend(0.0) }
     }
 
+    /// The 32 bytes as words (for scratch space that is allocated zeroed).
+    #[inline(always)]
+    pub fn to_slot(self) -> [u32; 8] {
+        let [a, b, c, d] = self.min.to_array().map(f32::to_bits);
+        let [e, f, g, h] = self.max.to_array().map(f32::to_bits);
+        [a, b, c, d, e, f, g, h]
+    }
+
+    /// The reference stored by [`PrimRef::to_slot`].
+    #[inline(always)]
+    pub fn from_slot(s: &[u32; 8]) -> Self {
+        let f = f32::from_bits;
+        PrimRef {
+            min: Vec4::new(f(s[0]), f(s[1]), f(s[2]), f(s[3])),
+            max: Vec4::new(f(s[4]), f(s[5]), f(s[6]), f(s[7])),
+        }
+    }
+
     /// The input index.
     #[inline(always)]
     pub fn id(&self) -> u32 {

@@ -26,6 +26,7 @@
 //! architectures use the scalar path.
 
 use super::blocks::{self, Hits4, TriBlock};
+use super::build::{Slot, load};
 use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::Hit;
@@ -193,24 +194,21 @@ pub(super) fn shrink_slot(node: &mut WideNode, k: usize, by: f32) {
     node.bounds[3][k] -= by;
 }
 
-/// Collapses the binary tree `nodes` (depth-first, see [`Node`]; slots no
-/// node points to are ignored) into 8-wide nodes.
+/// Collapses the binary tree in `nodes` (depth-first, see [`Node`] and
+/// `build::Slot`; slots no node points to are ignored) into 8-wide nodes.
 ///
 /// The builder has already turned every binary subtree that should be one leaf
 /// of the wide tree into a leaf node (see `build`), so here a leaf is a leaf.
-pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
+pub(super) fn collapse(nodes: &[Slot]) -> Vec<WideNode> {
     let mut out = Vec::with_capacity(nodes.len() / 6 + 1);
-    match nodes.first() {
-        None => {}
-        Some(root) if root.is_leaf() => {
-            let mut n = WideNode::EMPTY;
-            n.set(0, root);
-            n.child[0] = leaf_word(root.offset, root.count);
-            out.push(n);
-        }
-        Some(_) => {
-            collapse_node(nodes, 0, &mut out);
-        }
+    let Some(root) = nodes.first().map(load) else { return out };
+    if root.is_leaf() {
+        let mut n = WideNode::EMPTY;
+        n.set(0, &root);
+        n.child[0] = leaf_word(root.offset, root.count);
+        out.push(n);
+    } else {
+        collapse_node(nodes, 0, &root, &mut out);
     }
     out
 }
@@ -243,40 +241,44 @@ pub(super) const MERGE_TRAVERSAL_COST: f32 = 1.0;
 /// tested at once (see `blocks`), so the cost does not depend on how many.
 pub(super) const LEAF_COST: f32 = 1.5;
 
-/// Appends the wide node for binary interior node `i` (and its subtree); returns its index.
+/// Appends the wide node for binary interior node `node`, at index `i` (and its
+/// subtree); returns its index.
 ///
-/// Starting from `i`'s two children, it keeps replacing the interior child with
-/// the largest box surface (ties: the first) by its own two children until it
-/// has eight or only leaves remain.
-fn collapse_node(nodes: &[Node], i: usize, out: &mut Vec<WideNode>) -> u32 {
+/// Starting from the node's two children, it keeps replacing the interior child
+/// with the largest box surface (ties: the first) by its own two children until
+/// it has eight or only leaves remain.
+fn collapse_node(nodes: &[Slot], i: usize, node: &Node, out: &mut Vec<WideNode>) -> u32 {
     let at = out.len();
     out.push(WideNode::EMPTY);
-    let mut kids = [0usize; W];
-    (kids[0], kids[1]) = (i + 1, nodes[i].offset as usize);
+    // (index, node, its box's area)
+    let entry = |k: usize| {
+        let n = load(&nodes[k]);
+        (k, n, n.bounds().area())
+    };
+    let mut kids = [(0usize, *node, 0.0f32); W];
+    (kids[0], kids[1]) = (entry(i + 1), entry(node.offset as usize));
     let mut len = 2;
     while len < W {
         let mut pick: Option<(usize, f32)> = None;
-        for (slot, &k) in kids[..len].iter().enumerate() {
-            let area = nodes[k].bounds().area();
-            if !nodes[k].is_leaf() && pick.is_none_or(|(_, a)| area > a) {
-                pick = Some((slot, area));
+        for (slot, (_, n, area)) in kids[..len].iter().enumerate() {
+            if !n.is_leaf() && pick.is_none_or(|(_, a)| *area > a) {
+                pick = Some((slot, *area));
             }
         }
         let Some((slot, _)) = pick else { break };
-        let k = kids[slot];
+        let (k, n, _) = kids[slot];
         kids.copy_within(slot + 1..len, slot + 2);
-        kids[slot] = k + 1;
-        kids[slot + 1] = nodes[k].offset as usize;
+        kids[slot] = entry(k + 1);
+        kids[slot + 1] = entry(n.offset as usize);
         len += 1;
     }
-    let mut node = WideNode::EMPTY;
-    for (slot, &k) in kids[..len].iter().enumerate() {
-        let n = &nodes[k];
-        node.set(slot, n);
-        node.child[slot] =
-            if n.is_leaf() { leaf_word(n.offset, n.count) } else { collapse_node(nodes, k, out) };
+    let mut wide = WideNode::EMPTY;
+    for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
+        wide.set(slot, n);
+        wide.child[slot] =
+            if n.is_leaf() { leaf_word(n.offset, n.count) } else { collapse_node(nodes, *k, n, out) };
     }
-    out[at] = node;
+    out[at] = wide;
     at as u32
 }
 
@@ -757,11 +759,12 @@ mod tests {
         // Interior binary nodes reachable from the root (the array has unused slots).
         let (mut interior, mut binary_leaves, mut todo) = (0, 0, vec![0usize]);
         while let Some(i) = todo.pop() {
-            if nodes[i].is_leaf() {
+            let node = load(&nodes[i]);
+            if node.is_leaf() {
                 binary_leaves += 1;
             } else {
                 interior += 1;
-                todo.extend([i + 1, nodes[i].offset as usize]);
+                todo.extend([i + 1, node.offset as usize]);
             }
         }
         let (mut wide_leaves, mut used) = (0, 0);
