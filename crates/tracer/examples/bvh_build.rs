@@ -113,6 +113,15 @@ fn probe_rays(b: &Aabb, n: usize) -> (Vec<Ray>, Vec<Ray>) {
     (incoherent, primary)
 }
 
+/// User + system CPU seconds of the whole process so far (Linux; 10 ms ticks).
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let Some((_, rest)) = stat.rsplit_once(')') else { return f64::NAN };
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|s| s.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    (tick(11) + tick(12)) / 100.0
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut reps = 7;
@@ -143,6 +152,7 @@ fn main() {
         for &threads in &thread_counts {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
             let mut times = Vec::new();
+            let cpu0 = cpu_seconds();
             for _ in 0..reps {
                 drop(last.take());
                 let t0 = Instant::now();
@@ -150,8 +160,13 @@ fn main() {
                 times.push(t0.elapsed().as_secs_f64() * 1e3);
                 last = Some(bvh);
             }
+            let cpu_ms = (cpu_seconds() - cpu0) * 1e3 / reps as f64;
             times.sort_by(f64::total_cmp);
-            println!("  {threads}T build: best {:.2} ms, median {:.2} ms", times[0], times[times.len() / 2]);
+            println!(
+                "  {threads}T build: best {:.2} ms, median {:.2} ms, CPU {cpu_ms:.1} ms per build",
+                times[0],
+                times[times.len() / 2]
+            );
         }
         let bvh = last.expect("built");
         bvh.validate().expect("valid BVH");

@@ -13,7 +13,7 @@
 use super::PreTriangle;
 use crate::geometry::Aabb;
 use crate::shapes::Triangle;
-use glam::{Vec3, Vec4};
+use glam::{Vec3, Vec4, Vec4Swizzles};
 
 /// An axis-aligned box in `Vec4`s (`w` ignored).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,11 +54,13 @@ impl Box4 {
         (self.max - self.min).truncate().max(Vec3::ZERO)
     }
 
-    /// Surface area; 0 for the empty box.
+    /// Surface area; 0 for the empty box. `2 · ((x·y + y·z) + z·x)` of the edge
+    /// lengths, the three products in one vector multiplication.
     #[inline(always)]
     pub fn area(&self) -> f32 {
-        let e = self.extent();
-        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+        let e = (self.max - self.min).max(Vec4::ZERO);
+        let p = e * e.yzxw();
+        2.0 * ((p.x + p.y) + p.z)
     }
 
     /// As an [`Aabb`].
@@ -103,19 +105,17 @@ impl PrimRef {
     /// unions that follow are only order-independent on NaN-free boxes.
     pub fn new(id: u32, tri: &Triangle, pre: &PreTriangle) -> Self {
         debug_assert!(id <= ID_MASK);
-        let mut min = Vec3::INFINITY;
-        let mut max = Vec3::NEG_INFINITY;
+        let mut min = Vec4::INFINITY;
+        let mut max = Vec4::NEG_INFINITY;
         for p in tri.v.into_iter().chain(pre.vertices()) {
-            // f32::min/max return the other operand when one is NaN.
-            min = Vec3::new(min.x.min(p.x), min.y.min(p.y), min.z.min(p.z));
-            max = Vec3::new(max.x.max(p.x), max.y.max(p.y), max.z.max(p.z));
+            // Comparisons are false on NaN: a NaN coordinate leaves the box as it is.
+            let p = p.extend(0.0);
+            min = Vec4::select(p.cmplt(min), p, min);
+            max = Vec4::select(p.cmpgt(max), p, max);
         }
-        for axis in 0..3 {
-            if min[axis] > max[axis] {
-                (min[axis], max[axis]) = (0.0, 0.0);
-            }
-        }
-        PrimRef { min: min.extend(f32::from_bits(ID_TAG | id)), max: max.extend(0.0) }
+        let empty = min.cmpgt(max);
+        let (min, max) = (Vec4::select(empty, Vec4::ZERO, min), Vec4::select(empty, Vec4::ZERO, max));
+        PrimRef { min: min.with_w(f32::from_bits(ID_TAG | id)), max: max.with_w(0.0) }
     }
 
     /// The 32 bytes as words (for scratch space that is allocated zeroed).
@@ -200,6 +200,8 @@ mod tests {
         let a = Box4 { min: Vec4::ZERO, max: Vec4::new(1.0, 2.0, 3.0, 99.0) };
         assert_eq!(a.area(), 2.0 * (2.0 + 6.0 + 3.0));
         assert_eq!(Box4::EMPTY.area(), 0.0);
+        let odd = Box4 { min: Vec4::new(0.5, -2.0, 1.0, 0.0), max: Vec4::new(1.25, 3.0, 7.0, 0.0) };
+        assert_eq!(odd.area(), odd.to_aabb().area(), "as Aabb::area computes it");
         let b = Box4 { min: Vec4::splat(-1.0), max: Vec4::ZERO };
         let u = a.union(&b);
         assert_eq!(u.to_aabb(), Aabb { min: Vec3::splat(-1.0), max: Vec3::new(1.0, 2.0, 3.0) });
