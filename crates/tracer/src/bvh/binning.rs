@@ -231,13 +231,10 @@ mod tests {
                 c.x = -1.0 + 0.25 * (i % 17) as f32;
             }
             let b = map.bins(c);
-            for axis in 0..3 {
-                if !map.ok[axis] {
-                    continue;
-                }
+            for (axis, &in_bin) in b.iter().enumerate().filter(|&(axis, _)| map.ok[axis]) {
                 for bin in 0..BINS - 1 {
                     let split = Split { axis, bin, cost: 0.0 };
-                    assert_eq!(map.goes_left(c, &split), b[axis] <= bin, "{c:?} axis {axis} bin {bin}");
+                    assert_eq!(map.goes_left(c, &split), in_bin <= bin, "{c:?} axis {axis} bin {bin}");
                 }
             }
         }
