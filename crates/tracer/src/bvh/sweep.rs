@@ -26,6 +26,17 @@ pub(super) fn split_tiny(
 ) -> Option<(f32, Sides)> {
     let n = prims.len();
     debug_assert!((2..=TINY_MAX).contains(&n));
+    if n == 2 {
+        // One split only; the primitives are already in order.
+        let (a, b) = (&prims[0], &prims[1]);
+        let geo = [Box4 { min: a.min(), max: a.max() }, Box4 { min: b.min(), max: b.max() }];
+        let cost = TRAVERSAL_COST * node_area + geo[0].area() + geo[1].area();
+        if !commit(cost) {
+            return None;
+        }
+        let cent = [a.centroid(), b.centroid()].map(|c| Box4 { min: c, max: c });
+        return Some((cost, Sides { mid: 1, geo, cent }));
+    }
     let full = (1usize << n) - 1;
     // boxes[m]: the box of the primitives whose bits are set in m.
     let mut boxes = [Box4::EMPTY; 1 << TINY_MAX];
