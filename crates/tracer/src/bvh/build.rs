@@ -211,3 +211,79 @@ fn choose_split(
         _ => None,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Sampler;
+    use glam::Vec3;
+
+    /// Random small triangles in clusters, with duplicates and degenerate ones,
+    /// enough of them for the parallel binning, partition and collapse paths.
+    fn soup(n: usize) -> Vec<Triangle> {
+        let s = Sampler::new(7, 7, 7, 7);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let mut tris = Vec::with_capacity(n);
+        while tris.len() < n {
+            let cluster = Vec3::new((tris.len() % 5) as f32 * 40.0, 0.0, (tris.len() % 3) as f32 * 25.0);
+            let o = cluster + Vec3::new(next(), next(), next()) * 20.0;
+            let t =
+                Triangle { v: [o, o + Vec3::new(next(), next(), 0.0), o + Vec3::new(0.0, next(), next())] };
+            tris.push(t);
+            match tris.len() % 97 {
+                0 => tris.push(t),                         // duplicate
+                1 => tris.push(Triangle { v: [o, o, o] }), // degenerate
+                _ => {}
+            }
+        }
+        tris
+    }
+
+    #[test]
+    fn parallel_build_is_the_one_thread_build() {
+        let tris = soup(3 * PARALLEL_MIN + 123);
+        let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool");
+        let (nodes1, tris1, ids1) = pool(1).install(|| binary(&tris));
+        for threads in [2, 3] {
+            let (nodes, t, ids) = pool(threads).install(|| binary(&tris));
+            assert!(nodes == nodes1, "binary nodes differ on {threads} threads");
+            assert!(t == tris1 && ids == ids1, "leaf order differs on {threads} threads");
+        }
+        let one = pool(1).install(|| Bvh::build(&tris));
+        let two = pool(2).install(|| Bvh::build(&tris));
+        one.validate().expect("valid");
+        assert_eq!(one.memory_bytes(), two.memory_bytes());
+        assert_eq!(one, two, "wide nodes, blocks and lane ids are the same");
+    }
+
+    #[test]
+    fn builder_leaves_cover_every_triangle_once_in_order() {
+        let tris = soup(5000);
+        let (nodes, leaf_tris, ids) = binary(&tris);
+        // Walk the reachable tree: leaves tile 0..n in depth-first order.
+        let (mut next, mut todo) = (0u32, vec![0usize]);
+        while let Some(i) = todo.pop() {
+            let node = load(&nodes[i]);
+            if node.is_leaf() {
+                assert_eq!(node.offset, next, "leaves in depth-first order");
+                assert!((1..=MAX_LEAF_SIZE as u32).contains(&node.count));
+                next += node.count;
+            } else {
+                assert!(node.offset as usize > i + 1 && (node.offset as usize) < nodes.len());
+                todo.push(node.offset as usize);
+                todo.push(i + 1);
+            }
+        }
+        assert_eq!(next as usize, tris.len());
+        let mut sorted = ids.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..tris.len() as u32).collect::<Vec<_>>());
+        for (t, &id) in leaf_tris.iter().zip(&ids) {
+            assert_eq!(*t, PreTriangle::new(&tris[id as usize]));
+        }
+    }
+}

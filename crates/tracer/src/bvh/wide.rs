@@ -30,6 +30,7 @@ use super::build::{Slot, load};
 use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::Hit;
+use rayon::prelude::*;
 use std::mem::MaybeUninit;
 
 /// Slab-test exits are scaled by this factor (1 + 2γ₃ rounded up, after Ize,
@@ -208,7 +209,7 @@ pub(super) fn collapse(nodes: &[Slot]) -> Vec<WideNode> {
         n.child[0] = leaf_word(root.offset, root.count);
         out.push(n);
     } else {
-        collapse_node(nodes, 0, &root, &mut out);
+        collapse_node(nodes, 0, &root, 0, &mut out);
     }
     out
 }
@@ -241,16 +242,18 @@ pub(super) const MERGE_TRAVERSAL_COST: f32 = 1.0;
 /// tested at once (see `blocks`), so the cost does not depend on how many.
 pub(super) const LEAF_COST: f32 = 1.5;
 
-/// Appends the wide node for binary interior node `node`, at index `i` (and its
-/// subtree); returns its index.
+/// Wide nodes this close to the root collapse their children's subtrees in parallel.
+const PARALLEL_DEPTH: usize = 2;
+
+/// A child of a wide node: its binary node's index, the node and its box's area.
+type Kid = (usize, Node, f32);
+
+/// The children of the wide node for binary interior node `node` (at index `i`).
 ///
 /// Starting from the node's two children, it keeps replacing the interior child
 /// with the largest box surface (ties: the first) by its own two children until
 /// it has eight or only leaves remain.
-fn collapse_node(nodes: &[Slot], i: usize, node: &Node, out: &mut Vec<WideNode>) -> u32 {
-    let at = out.len();
-    out.push(WideNode::EMPTY);
-    // (index, node, its box's area)
+fn frontier(nodes: &[Slot], i: usize, node: &Node) -> ([Kid; W], usize) {
     let entry = |k: usize| {
         let n = load(&nodes[k]);
         (k, n, n.bounds().area())
@@ -272,11 +275,55 @@ fn collapse_node(nodes: &[Slot], i: usize, node: &Node, out: &mut Vec<WideNode>)
         kids[slot + 1] = entry(n.offset as usize);
         len += 1;
     }
+    (kids, len)
+}
+
+/// Appends the wide node for binary interior node `node`, at index `i` and
+/// `depth` wide levels below the root, and its subtree (depth-first, children
+/// in slot order); returns its index. Near the root the children's subtrees
+/// are collapsed in parallel into their own vectors and then appended with
+/// their child indices shifted: the same nodes in the same order.
+fn collapse_node(nodes: &[Slot], i: usize, node: &Node, depth: usize, out: &mut Vec<WideNode>) -> u32 {
+    let (kids, len) = frontier(nodes, i, node);
+    let at = out.len();
+    out.push(WideNode::EMPTY);
     let mut wide = WideNode::EMPTY;
-    for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
-        wide.set(slot, n);
-        wide.child[slot] =
-            if n.is_leaf() { leaf_word(n.offset, n.count) } else { collapse_node(nodes, *k, n, out) };
+    if depth < PARALLEL_DEPTH {
+        let subs: Vec<Option<Vec<WideNode>>> = kids[..len]
+            .par_iter()
+            .map(|(k, n, _)| {
+                (!n.is_leaf()).then(|| {
+                    let mut sub = Vec::new();
+                    collapse_node(nodes, *k, n, depth + 1, &mut sub);
+                    sub
+                })
+            })
+            .collect();
+        for (slot, ((_, n, _), sub)) in kids[..len].iter().zip(subs).enumerate() {
+            wide.set(slot, n);
+            wide.child[slot] = match sub {
+                None => leaf_word(n.offset, n.count),
+                Some(sub) => {
+                    let base = out.len() as u32;
+                    out.extend(sub.into_iter().map(|mut w| {
+                        for c in w.child.iter_mut().filter(|c| **c & LEAF == 0) {
+                            *c += base;
+                        }
+                        w
+                    }));
+                    base
+                }
+            };
+        }
+    } else {
+        for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
+            wide.set(slot, n);
+            wide.child[slot] = if n.is_leaf() {
+                leaf_word(n.offset, n.count)
+            } else {
+                collapse_node(nodes, *k, n, depth + 1, out)
+            };
+        }
     }
     out[at] = wide;
     at as u32
