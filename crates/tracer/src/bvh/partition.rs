@@ -63,7 +63,8 @@ fn partition_seq(prims: &mut [PrimRef], goes_left: impl Fn(Vec4) -> bool) -> Sid
 /// Per chunk: left count, and the boxes and centroid boxes of both sides.
 type ChunkSides = (usize, [Box4; 2], [Box4; 2]);
 
-/// Stable parallel partition through `scratch`.
+/// Stable parallel partition through `scratch`: one pass copies each chunk to
+/// `scratch` while counting its sides, a second scatters it back into place.
 fn partition_par(
     prims: &mut [PrimRef],
     scratch: &mut [Slot],
@@ -71,9 +72,11 @@ fn partition_par(
 ) -> Sides {
     let per_chunk: Vec<ChunkSides> = prims
         .par_chunks(CHUNK)
-        .map(|chunk| {
+        .zip(scratch.par_chunks_mut(CHUNK))
+        .map(|(chunk, copy)| {
             let (mut geo, mut cent, mut left) = ([Box4::EMPTY; 2], [Box4::EMPTY; 2], 0);
-            for p in chunk {
+            for (p, slot) in chunk.iter().zip(copy) {
+                *slot = p.to_slot();
                 let c = p.centroid();
                 let side = usize::from(!goes_left(c));
                 left += 1 - side;
@@ -85,30 +88,27 @@ fn partition_par(
         .collect();
     let mid: usize = per_chunk.iter().map(|c| c.0).sum();
     // Each chunk's destinations: its run of the left side, its run of the right side.
-    let (mut left_rest, mut right_rest) = scratch.split_at_mut(mid);
+    let n = prims.len();
+    let (mut left_rest, mut right_rest) = prims.split_at_mut(mid);
     let mut dsts = Vec::with_capacity(per_chunk.len());
     for (k, &(left, ..)) in per_chunk.iter().enumerate() {
-        let len = CHUNK.min(prims.len() - k * CHUNK);
+        let len = CHUNK.min(n - k * CHUNK);
         let (l, lr) = std::mem::take(&mut left_rest).split_at_mut(left);
         let (r, rr) = std::mem::take(&mut right_rest).split_at_mut(len - left);
         (left_rest, right_rest) = (lr, rr);
         dsts.push((l, r));
     }
-    prims.par_chunks(CHUNK).zip(dsts).for_each(|(chunk, (l, r))| {
+    scratch.par_chunks(CHUNK).zip(dsts).for_each(|(chunk, (l, r))| {
         let (mut i, mut j) = (0, 0);
-        for p in chunk {
+        for s in chunk {
+            let p = PrimRef::from_slot(s);
             if goes_left(p.centroid()) {
-                l[i] = p.to_slot();
+                l[i] = p;
                 i += 1;
             } else {
-                r[j] = p.to_slot();
+                r[j] = p;
                 j += 1;
             }
-        }
-    });
-    prims.par_chunks_mut(CHUNK).zip(scratch.par_chunks(CHUNK)).for_each(|(d, s)| {
-        for (d, s) in d.iter_mut().zip(s) {
-            *d = PrimRef::from_slot(s);
         }
     });
     let mut sides = Sides { mid, geo: [Box4::EMPTY; 2], cent: [Box4::EMPTY; 2] };
