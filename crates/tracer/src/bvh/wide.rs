@@ -242,8 +242,9 @@ pub(super) const MERGE_TRAVERSAL_COST: f32 = 1.0;
 /// tested at once (see `blocks`), so the cost does not depend on how many.
 pub(super) const LEAF_COST: f32 = 1.5;
 
-/// Wide nodes this close to the root collapse their children's subtrees in parallel.
-const PARALLEL_DEPTH: usize = 2;
+/// The root wide node collapses its children's subtrees in parallel (up to eight tasks;
+/// deeper levels would only copy the nodes more often).
+const PARALLEL_DEPTH: usize = 1;
 
 /// A child of a wide node: its binary node's index, the node and its box's area.
 type Kid = (usize, Node, f32);
