@@ -34,7 +34,7 @@ impl Box4 {
         Box4 { min: self.min.min(o.min), max: self.max.max(o.max) }
     }
 
-    /// Grows the box to contain `o`.
+    /// Grows the box to contain the box `min..max`.
     #[inline(always)]
     pub fn grow_box(&mut self, min: Vec4, max: Vec4) {
         self.min = self.min.min(min);
