@@ -50,10 +50,12 @@ impl BinMap {
         ok.iter().any(|&o| o).then_some(BinMap { min: cent.min, scale, ok })
     }
 
-    /// The bins of centroid `c` on the three axes. `(c − min) · scale` is ≥ 0
-    /// (or NaN on an axis that is not binned); the clamp keeps the maximum (and
-    /// rounding overshoots) in the last bin and maps NaN there too, identically
-    /// in SSE and scalar code (`min` returns its second operand on NaN in both).
+    /// The bins of centroid `c` on the three axes. On a binnable axis `(c − min) ·
+    /// scale` is a finite number in about `0..=BINS` (centroids are finite and
+    /// within the box, `scale = BINS / extent`): the clamp keeps the maximum (and
+    /// rounding overshoots) in the last bin, the same on every machine. On other
+    /// axes (scale 0) the value is 0, or NaN when `c − min` overflows; either
+    /// way the index stays in range and that axis is never split.
     /// Binning and partitioning both use this, so they always agree.
     #[inline(always)]
     pub(super) fn bins(&self, c: Vec4) -> [usize; 3] {
@@ -73,8 +75,8 @@ impl BinMap {
     /// Whether a primitive with centroid `c` goes to the left side of `split`:
     /// exactly `self.bins(c)[split.axis] <= split.bin`, since with `x = (c − min) ·
     /// scale` on the split's axis, `trunc(clamp(x, 0, BINS − 1)) ≤ bin` holds
-    /// if and only if `x < bin + 1` (`bin < BINS − 1`; a NaN `x` is in the last
-    /// bin and fails the comparison). Cheaper: no clamp, conversion or extraction.
+    /// if and only if `x < bin + 1` (`bin < BINS − 1`; `x` is never NaN on a
+    /// binnable axis, see [`BinMap::bins`]). Cheaper: no clamp, conversion or extraction.
     #[inline(always)]
     pub(super) fn goes_left(&self, c: Vec4, split: &Split) -> bool {
         let below = ((c - self.min) * self.scale).cmplt(Vec4::splat((split.bin + 1) as f32));

@@ -51,14 +51,18 @@ impl Box4 {
     /// Edge lengths in `x`, `y`, `z` (0 on the empty box's axes).
     #[inline(always)]
     pub fn extent(&self) -> Vec3 {
-        (self.max - self.min).truncate().max(Vec3::ZERO)
+        let e = (self.max - self.min).truncate();
+        Vec3::select(e.cmpgt(Vec3::ZERO), e, Vec3::ZERO)
     }
 
     /// Surface area; 0 for the empty box. `2 · ((x·y + y·z) + z·x)` of the edge
-    /// lengths, the three products in one vector multiplication.
+    /// lengths, the three products in one vector multiplication. An edge that is
+    /// negative or NaN (`inf − inf`) counts as 0 — by an explicit comparison, as
+    /// vector `max` treats NaN differently on different architectures.
     #[inline(always)]
     pub fn area(&self) -> f32 {
-        let e = (self.max - self.min).max(Vec4::ZERO);
+        let e = self.max - self.min;
+        let e = Vec4::select(e.cmpgt(Vec4::ZERO), e, Vec4::ZERO);
         let p = e * e.yzxw();
         2.0 * ((p.x + p.y) + p.z)
     }
@@ -154,14 +158,15 @@ impl PrimRef {
         self.max
     }
 
-    /// The box's centre, clamped to finite values (`w` meaningless).
-    ///
-    /// `min` returns its second operand when the first is NaN both in SSE
-    /// (`minps`) and in scalar code (`f32::min` returns the number), so a NaN
-    /// centre (a box from −inf to +inf) becomes `BIG` everywhere.
+    /// The box's centre, clamped to finite values (`w` meaningless): `+inf` and
+    /// NaN (a box from −inf to +inf) become `BIG`, `−inf` becomes `−BIG`. Explicit
+    /// comparisons (false on NaN) rather than `min`/`max`, whose NaN handling
+    /// differs between SSE, NEON and scalar code.
     #[inline(always)]
     pub fn centroid(&self) -> Vec4 {
-        ((self.min + self.max) * 0.5).min(Vec4::splat(BIG)).max(Vec4::splat(-BIG))
+        let c = (self.min + self.max) * 0.5;
+        let c = Vec4::select(c.cmple(Vec4::splat(BIG)), c, Vec4::splat(BIG));
+        Vec4::select(c.cmpge(Vec4::splat(-BIG)), c, Vec4::splat(-BIG))
     }
 }
 
