@@ -76,10 +76,17 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
         return Bvh::default();
     }
     let (nodes, tris, ids) = binary(triangles);
-    let mut wide = super::wide::collapse(&nodes);
     let bounds = load(&nodes[0]).bounds();
+    // The leaves, in leaf order: the only leaf slots left (see `build_node`),
+    // and the array is in depth-first order. Their triangles are packed into
+    // blocks while the wide tree is collapsed; then the wide leaves are pointed
+    // at their lanes.
+    let leaves: Vec<(u32, u32)> =
+        nodes.par_iter().filter_map(|s| (s[7] != 0).then_some((s[3], s[7]))).collect();
+    let (mut wide, (blocks, prim_ids, starts)) =
+        rayon::join(|| super::wide::collapse(&nodes), || super::blocks::pack(&leaves, &tris, &ids));
     drop(nodes);
-    let (blocks, prim_ids) = super::wide::place_leaves(&mut wide, &tris, &ids);
+    super::wide::place_leaves(&mut wide, &leaves, &starts, triangles.len());
     Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false, no_avx: false }
 }
 
@@ -166,6 +173,10 @@ fn build_node(
     let merged = LEAF_COST * area;
     if n <= MAX_LEAF_SIZE && merged <= split {
         *head = store(&Node::leaf(&bounds, at.first, n as u32));
+        // The merged children are unreachable: clear them, so that every leaf
+        // slot left in the array is a leaf of the tree.
+        nodes_l.fill([0; 8]);
+        nodes_r.fill([0; 8]);
         merged
     } else {
         *head = store(&Node::interior(&bounds, second));

@@ -27,7 +27,7 @@
 
 use super::blocks::{self, Hits4, TriBlock};
 use super::build::{Slot, load};
-use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
+use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, contains_box, contains_point};
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::Hit;
 use rayon::prelude::*;
@@ -214,24 +214,22 @@ pub(super) fn collapse(nodes: &[Slot]) -> Vec<WideNode> {
     out
 }
 
-/// Moves the leaves' triangles (`tris`, input ids `ids`, in leaf order) into
-/// blocks, leaves in node order, and points every leaf slot at its lanes.
-/// Returns the blocks and the input id of every lane.
-pub(super) fn place_leaves(
-    wide: &mut [WideNode],
-    tris: &[PreTriangle],
-    ids: &[u32],
-) -> (Vec<TriBlock>, Vec<u32>) {
-    let slots: Vec<(usize, usize)> = (0..wide.len())
-        .flat_map(|i| (0..W).map(move |k| (i, k)))
-        .filter(|&(i, k)| wide[i].child[k] & LEAF != 0 && !wide[i].is_unused(k))
-        .collect();
-    let leaves: Vec<(u32, u32)> = slots.iter().map(|&(i, k)| leaf_range(wide[i].child[k])).collect();
-    let (blocks, lane_ids, starts) = blocks::pack(&leaves, tris, ids);
-    for ((&(i, k), start), &(_, count)) in slots.iter().zip(starts).zip(&leaves) {
-        wide[i].child[k] = leaf_word(start, count);
+/// Points every leaf slot of `wide` (whose words still hold the leaf's first
+/// triangle in leaf order) at its lanes: `leaves[i]` is `(first, count)` of a
+/// leaf and `starts[i]` its first lane (`blocks::pack`); `n` triangles.
+pub(super) fn place_leaves(wide: &mut [WideNode], leaves: &[(u32, u32)], starts: &[u32], n: usize) {
+    let mut lane_of = vec![0u32; n];
+    for (&(first, _), &start) in leaves.iter().zip(starts) {
+        lane_of[first as usize] = start;
     }
-    (blocks, lane_ids)
+    wide.par_iter_mut().for_each(|w| {
+        for k in 0..W {
+            if w.child[k] & LEAF != 0 && !w.is_unused(k) {
+                let (first, count) = leaf_range(w.child[k]);
+                w.child[k] = leaf_word(lane_of[first as usize], count);
+            }
+        }
+    });
 }
 
 /// SAH cost of visiting a wide node's box, relative to one triangle test, when
