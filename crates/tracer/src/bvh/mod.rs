@@ -3,7 +3,10 @@
 //!
 //! * `build` — top-down binned SAH builder (parallel with rayon, yet the tree
 //!   is a pure function of the input triangles: any thread count, any machine,
-//!   the same bytes).
+//!   the same bytes), with its parts: `primref` (32-byte primitive
+//!   references and box maths), `binning` (16-bin SAH, binned in parallel at
+//!   large nodes), `partition` (in-place split, parallel for large nodes) and
+//!   `sweep` (exact SAH for small nodes).
 //! * `blocks` — leaf triangles in structure-of-arrays blocks of four, tested
 //!   with one SSE Möller–Trumbore (bit-identical to the scalar test).
 //! * `packet` — any-hit for up to four rays at once (on top of `packet8`).
@@ -27,10 +30,14 @@
 //! `blocks`); a leaf owns a run of lanes in one block, and `prim_ids` maps each
 //! lane back to the index in the slice the BVH was built from ([`Hit::prim`]).
 
+mod binning;
 mod blocks;
 mod build;
 mod packet;
 mod packet8;
+mod partition;
+mod primref;
+mod sweep;
 mod wide;
 
 pub use packet8::LANES as PACKET_LANES;

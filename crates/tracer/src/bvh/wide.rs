@@ -26,9 +26,11 @@
 //! architectures use the scalar path.
 
 use super::blocks::{self, Hits4, TriBlock};
-use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, PreTriangle, contains_box, contains_point};
+use super::build::{Slot, load};
+use super::{Bvh, InvalidBvh, MAX_DEPTH, MAX_LEAF_SIZE, Node, contains_box, contains_point};
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::Hit;
+use rayon::prelude::*;
 use std::mem::MaybeUninit;
 
 /// Slab-test exits are scaled by this factor (1 + 2γ₃ rounded up, after Ize,
@@ -193,118 +195,136 @@ pub(super) fn shrink_slot(node: &mut WideNode, k: usize, by: f32) {
     node.bounds[3][k] -= by;
 }
 
-/// Collapses the binary tree `nodes` (depth-first, see [`Node`]) into 8-wide nodes.
+/// Collapses the binary tree in `nodes` (depth-first, see [`Node`] and
+/// `build::Slot`; slots no node points to are ignored) into 8-wide nodes.
 ///
-/// A binary subtree with at most [`MAX_LEAF_SIZE`] triangles (contiguous in
-/// leaf order) becomes one leaf when the surface-area heuristic prefers it —
-/// `LEAF_COST · A ≤ MERGE_TRAVERSAL_COST · A + cost(left) + cost(right)` — since a
-/// leaf's triangles are tested together and a wide node's box test is shared by
-/// eight children.
-pub(super) fn collapse(nodes: &[Node]) -> Vec<WideNode> {
-    // Triangle range (first, count), SAH cost and "make it a leaf" of every
-    // binary subtree; children follow their parent, so a reverse sweep sees them first.
-    let mut info = vec![Sub { first: 0, count: 0, cost: 0.0, leaf: true }; nodes.len()];
-    for i in (0..nodes.len()).rev() {
-        let n = &nodes[i];
-        let area = n.bounds().area();
-        info[i] = if n.is_leaf() {
-            Sub { first: n.offset, count: n.count, cost: LEAF_COST * area, leaf: true }
-        } else {
-            let (l, r) = (info[i + 1], info[n.offset as usize]);
-            let count = l.count + r.count;
-            let split = MERGE_TRAVERSAL_COST * area + l.cost + r.cost;
-            let merged = LEAF_COST * area;
-            let leaf = count as usize <= MAX_LEAF_SIZE && merged <= split;
-            Sub { first: l.first, count, cost: if leaf { merged } else { split }, leaf }
-        };
-    }
-    let mut out = Vec::with_capacity(nodes.len() / 3 + 1);
-    match nodes.first() {
-        None => {}
-        Some(root) if info[0].leaf => {
-            let mut n = WideNode::EMPTY;
-            n.set(0, root);
-            n.child[0] = leaf_word(info[0].first, info[0].count);
-            out.push(n);
-        }
-        Some(_) => {
-            collapse_node(nodes, &info, 0, &mut out);
-        }
+/// The builder has already turned every binary subtree that should be one leaf
+/// of the wide tree into a leaf node (see `build`), so here a leaf is a leaf.
+pub(super) fn collapse(nodes: &[Slot]) -> Vec<WideNode> {
+    let mut out = Vec::with_capacity(nodes.len() / 6 + 1);
+    let Some(root) = nodes.first().map(load) else { return out };
+    if root.is_leaf() {
+        let mut n = WideNode::EMPTY;
+        n.set(0, &root);
+        n.child[0] = leaf_word(root.offset, root.count);
+        out.push(n);
+    } else {
+        collapse_node(nodes, 0, &root, 0, &mut out);
     }
     out
 }
 
-/// Moves the leaves' triangles (`tris`, input ids `ids`, in leaf order) into
-/// blocks, leaves in node order, and points every leaf slot at its lanes.
-/// Returns the blocks and the input id of every lane.
-pub(super) fn place_leaves(
-    wide: &mut [WideNode],
-    tris: &[PreTriangle],
-    ids: &[u32],
-) -> (Vec<TriBlock>, Vec<u32>) {
-    let slots: Vec<(usize, usize)> = (0..wide.len())
-        .flat_map(|i| (0..W).map(move |k| (i, k)))
-        .filter(|&(i, k)| wide[i].child[k] & LEAF != 0 && !wide[i].is_unused(k))
-        .collect();
-    let leaves: Vec<(u32, u32)> = slots.iter().map(|&(i, k)| leaf_range(wide[i].child[k])).collect();
-    let (blocks, lane_ids, starts) = blocks::pack(&leaves, tris, ids);
-    for ((&(i, k), start), &(_, count)) in slots.iter().zip(starts).zip(&leaves) {
-        wide[i].child[k] = leaf_word(start, count);
+/// Points every leaf slot of `wide` (whose words still hold the leaf's first
+/// triangle in leaf order) at its lanes: `leaves[i]` is `(first, count)` of a
+/// leaf and `starts[i]` its first lane (`blocks::pack`); `n` triangles.
+pub(super) fn place_leaves(wide: &mut [WideNode], leaves: &[(u32, u32)], starts: &[u32], n: usize) {
+    let mut lane_of = vec![0u32; n];
+    for (&(first, _), &start) in leaves.iter().zip(starts) {
+        lane_of[first as usize] = start;
     }
-    (blocks, lane_ids)
+    wide.par_iter_mut().for_each(|w| {
+        for k in 0..W {
+            if w.child[k] & LEAF != 0 && !w.is_unused(k) {
+                let (first, count) = leaf_range(w.child[k]);
+                w.child[k] = leaf_word(lane_of[first as usize], count);
+            }
+        }
+    });
 }
 
 /// SAH cost of visiting a wide node's box, relative to one triangle test, when
 /// deciding whether to merge a small binary subtree into one leaf.
-const MERGE_TRAVERSAL_COST: f32 = 1.0;
+pub(super) const MERGE_TRAVERSAL_COST: f32 = 1.0;
 
 /// SAH cost of testing one leaf, in the same unit: its 1..=4 triangles are
 /// tested at once (see `blocks`), so the cost does not depend on how many.
-const LEAF_COST: f32 = 1.5;
+pub(super) const LEAF_COST: f32 = 1.5;
 
-/// What [`collapse`] knows about one binary subtree.
-#[derive(Clone, Copy, Debug)]
-struct Sub {
-    first: u32,
-    count: u32,
-    cost: f32,
-    leaf: bool,
-}
+/// The root wide node collapses its children's subtrees in parallel (up to eight tasks;
+/// deeper levels would only copy the nodes more often).
+const PARALLEL_DEPTH: usize = 1;
 
-/// Appends the wide node for binary interior node `i` (and its subtree); returns its index.
-fn collapse_node(nodes: &[Node], info: &[Sub], i: usize, out: &mut Vec<WideNode>) -> u32 {
-    let is_leaf = |k: usize| info[k].leaf;
-    let at = out.len();
-    out.push(WideNode::EMPTY);
-    let mut kids = [0usize; W];
-    (kids[0], kids[1]) = (i + 1, nodes[i].offset as usize);
+/// A child of a wide node: its binary node's index, the node and its box's area.
+type Kid = (usize, Node, f32);
+
+/// The children of the wide node for binary interior node `node` (at index `i`).
+///
+/// Starting from the node's two children, it keeps replacing the interior child
+/// with the largest box surface (ties: the first) by its own two children until
+/// it has eight or only leaves remain.
+fn frontier(nodes: &[Slot], i: usize, node: &Node) -> ([Kid; W], usize) {
+    let entry = |k: usize| {
+        let n = load(&nodes[k]);
+        (k, n, n.bounds().area())
+    };
+    let mut kids = [(0usize, *node, 0.0f32); W];
+    (kids[0], kids[1]) = (entry(i + 1), entry(node.offset as usize));
     let mut len = 2;
     while len < W {
         let mut pick: Option<(usize, f32)> = None;
-        for (slot, &k) in kids[..len].iter().enumerate() {
-            let area = nodes[k].bounds().area();
-            if !is_leaf(k) && pick.is_none_or(|(_, a)| area > a) {
-                pick = Some((slot, area));
+        for (slot, (_, n, area)) in kids[..len].iter().enumerate() {
+            if !n.is_leaf() && pick.is_none_or(|(_, a)| *area > a) {
+                pick = Some((slot, *area));
             }
         }
         let Some((slot, _)) = pick else { break };
-        let k = kids[slot];
+        let (k, n, _) = kids[slot];
         kids.copy_within(slot + 1..len, slot + 2);
-        kids[slot] = k + 1;
-        kids[slot + 1] = nodes[k].offset as usize;
+        kids[slot] = entry(k + 1);
+        kids[slot + 1] = entry(n.offset as usize);
         len += 1;
     }
-    let mut node = WideNode::EMPTY;
-    for (slot, &k) in kids[..len].iter().enumerate() {
-        let n = &nodes[k];
-        node.set(slot, n);
-        if is_leaf(k) {
-            node.child[slot] = leaf_word(info[k].first, info[k].count);
-        } else {
-            node.child[slot] = collapse_node(nodes, info, k, out);
+    (kids, len)
+}
+
+/// Appends the wide node for binary interior node `node`, at index `i` and
+/// `depth` wide levels below the root, and its subtree (depth-first, children
+/// in slot order); returns its index. Near the root the children's subtrees
+/// are collapsed in parallel into their own vectors and then appended with
+/// their child indices shifted: the same nodes in the same order.
+fn collapse_node(nodes: &[Slot], i: usize, node: &Node, depth: usize, out: &mut Vec<WideNode>) -> u32 {
+    let (kids, len) = frontier(nodes, i, node);
+    let at = out.len();
+    out.push(WideNode::EMPTY);
+    let mut wide = WideNode::EMPTY;
+    if depth < PARALLEL_DEPTH {
+        let subs: Vec<Option<Vec<WideNode>>> = kids[..len]
+            .par_iter()
+            .map(|(k, n, _)| {
+                (!n.is_leaf()).then(|| {
+                    let mut sub = Vec::new();
+                    collapse_node(nodes, *k, n, depth + 1, &mut sub);
+                    sub
+                })
+            })
+            .collect();
+        for (slot, ((_, n, _), sub)) in kids[..len].iter().zip(subs).enumerate() {
+            wide.set(slot, n);
+            wide.child[slot] = match sub {
+                None => leaf_word(n.offset, n.count),
+                Some(sub) => {
+                    let base = out.len() as u32;
+                    out.extend(sub.into_iter().map(|mut w| {
+                        for c in w.child.iter_mut().filter(|c| **c & LEAF == 0) {
+                            *c += base;
+                        }
+                        w
+                    }));
+                    base
+                }
+            };
+        }
+    } else {
+        for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
+            wide.set(slot, n);
+            wide.child[slot] = if n.is_leaf() {
+                leaf_word(n.offset, n.count)
+            } else {
+                collapse_node(nodes, *k, n, depth + 1, out)
+            };
         }
     }
-    out[at] = node;
+    out[at] = wide;
     at as u32
 }
 
@@ -782,7 +802,17 @@ mod tests {
         }
         let bvh = Bvh::build(&tris);
         let (nodes, _, _) = super::super::build::binary(&tris);
-        let interior = nodes.iter().filter(|n| !n.is_leaf()).count();
+        // Interior binary nodes reachable from the root (the array has unused slots).
+        let (mut interior, mut binary_leaves, mut todo) = (0, 0, vec![0usize]);
+        while let Some(i) = todo.pop() {
+            let node = load(&nodes[i]);
+            if node.is_leaf() {
+                binary_leaves += 1;
+            } else {
+                interior += 1;
+                todo.extend([i + 1, node.offset as usize]);
+            }
+        }
         let (mut wide_leaves, mut used) = (0, 0);
         let mut seen = vec![0u32; bvh.prim_ids.len()];
         for n in &bvh.wide {
@@ -800,10 +830,14 @@ mod tests {
         }
         // Every wide node but the root fills one slot of its parent.
         assert_eq!(used, bvh.wide.len() - 1 + wide_leaves);
-        // Each wide node absorbs more than 3 binary interior nodes on average
-        // (7 when the tree is full; a subtree ending in two leaves absorbs 1).
+        // Each binary leaf is one wide leaf, and every binary interior node is
+        // expanded by exactly one wide node (a wide node of k slots expands k - 1):
+        // more than 2 per wide node on average (7 when the tree is full; a
+        // subtree ending in two leaves gives 1).
+        assert_eq!(wide_leaves, binary_leaves);
+        assert_eq!(used - bvh.wide.len(), interior);
         assert!(
-            bvh.wide.len() * 3 < interior,
+            bvh.wide.len() * 2 < interior,
             "{} wide for {interior} binary interior nodes",
             bvh.wide.len()
         );

@@ -1,0 +1,198 @@
+//! BVH build timing: builds the BVH over an OBJ mesh on 1 and 2 rayon threads and
+//! prints the best and median wall time, the tree's size and a fingerprint of
+//! its hits (to see whether a builder change altered the tree), and optionally
+//! the throughput of a quick incoherent/primary ray set (to see that tree quality held).
+//!
+//! ```sh
+//! cargo run --release -p isin-tracer --example bvh_build -- ../shared/meshes/bunny/stanford-bunny.obj
+//! # options: --reps N (default 7), --split K (split every triangle 1 -> 4, K times), --trace,
+//! # --threads N (only N threads instead of 1 and 2)
+//! ```
+
+use isin_tracer::Vec3;
+use isin_tracer::bvh::Bvh;
+use isin_tracer::geometry::{Aabb, Ray};
+use isin_tracer::shapes::Triangle;
+use std::time::Instant;
+
+/// Reads `v` and `f` lines (faces fanned, `/vt/vn` suffixes and negative indices allowed).
+fn load(path: &str) -> Vec<Triangle> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let mut verts: Vec<Vec3> = Vec::new();
+    let mut tris = Vec::new();
+    for line in text.lines() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let c: Vec<f32> = it.take(3).filter_map(|x| x.parse().ok()).collect();
+                if let [x, y, z] = c[..] {
+                    verts.push(Vec3::new(x, y, z));
+                }
+            }
+            Some("f") => {
+                let idx: Vec<Option<Vec3>> = it
+                    .map_while(|w| w.split('/').next()?.parse::<i64>().ok())
+                    .map(|i| {
+                        let i = if i < 0 { verts.len() as i64 + i } else { i - 1 };
+                        usize::try_from(i).ok().and_then(|i| verts.get(i).copied())
+                    })
+                    .collect();
+                for k in 1..idx.len().saturating_sub(1) {
+                    if let (Some(a), Some(b), Some(c)) = (idx[0], idx[k], idx[k + 1]) {
+                        tris.push(Triangle { v: [a, b, c] });
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    tris
+}
+
+/// Splits every triangle 1 -> 4 at its edge midpoints (the bench's order).
+fn subdivide(tris: &[Triangle]) -> Vec<Triangle> {
+    let mut out = Vec::with_capacity(tris.len() * 4);
+    for t in tris {
+        let [a, b, c] = t.v;
+        let mid = |p: Vec3, q: Vec3| (p + q) * 0.5;
+        let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+        out.extend_from_slice(&[
+            Triangle { v: [a, ab, ca] },
+            Triangle { v: [ab, b, bc] },
+            Triangle { v: [ca, bc, c] },
+            Triangle { v: [ab, bc, ca] },
+        ]);
+    }
+    out
+}
+
+/// A small xorshift generator for the probe rays.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> f32 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    fn in_box(&mut self, b: &Aabb) -> Vec3 {
+        let (x, y, z) = (self.next(), self.next(), self.next());
+        b.min + (b.max - b.min) * Vec3::new(x, y, z)
+    }
+}
+
+/// Incoherent rays (sphere around the box aimed into it) and primary-like rays
+/// (from one eye through a grid in front of the box).
+fn probe_rays(b: &Aabb, n: usize) -> (Vec<Ray>, Vec<Ray>) {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let c = (b.min + b.max) * 0.5;
+    let d = (b.max - b.min).length();
+    let incoherent = (0..n)
+        .map(|_| {
+            let o = loop {
+                let v = Vec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - Vec3::ONE;
+                let l = v.length_squared();
+                if l > 1e-3 && l <= 1.0 {
+                    break c + v / l.sqrt() * d;
+                }
+            };
+            Ray::new(o, rng.in_box(b) - o)
+        })
+        .collect();
+    let eye = c + Vec3::new(0.2, 0.25, 0.75) * d;
+    let side = (n as f64).sqrt() as usize;
+    let primary = (0..side * side)
+        .map(|i| {
+            let (x, y) = ((i % side) as f32 / side as f32, (i / side) as f32 / side as f32);
+            let target = c + Vec3::new(x - 0.5, y - 0.5, 0.0) * d * 0.8;
+            Ray::new(eye, target - eye)
+        })
+        .collect();
+    (incoherent, primary)
+}
+
+/// User + system CPU seconds of the whole process so far (Linux; 10 ms ticks).
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let Some((_, rest)) = stat.rsplit_once(')') else { return f64::NAN };
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|s| s.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    (tick(11) + tick(12)) / 100.0
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut reps = 7;
+    let mut split = 0;
+    let mut trace = false;
+    let mut thread_counts = vec![1, 2];
+    let mut paths = Vec::new();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--reps" => reps = it.next().and_then(|s| s.parse().ok()).expect("--reps N"),
+            "--split" => split = it.next().and_then(|s| s.parse().ok()).expect("--split K"),
+            "--trace" => trace = true,
+            "--threads" => {
+                thread_counts = vec![it.next().and_then(|s| s.parse().ok()).expect("--threads N")];
+            }
+            p => paths.push(p.to_string()),
+        }
+    }
+    for path in &paths {
+        let mut tris = load(path);
+        for _ in 0..split {
+            tris = subdivide(&tris);
+        }
+        let bounds = tris.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
+        println!("{path} (split {split}): {} triangles", tris.len());
+        let mut last = None;
+        for &threads in &thread_counts {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            let mut times = Vec::new();
+            let cpu0 = cpu_seconds();
+            for _ in 0..reps {
+                drop(last.take());
+                let t0 = Instant::now();
+                let bvh = pool.install(|| Bvh::build(&tris));
+                times.push(t0.elapsed().as_secs_f64() * 1e3);
+                last = Some(bvh);
+            }
+            let cpu_ms = (cpu_seconds() - cpu0) * 1e3 / reps as f64;
+            times.sort_by(f64::total_cmp);
+            println!(
+                "  {threads}T build: best {:.2} ms, median {:.2} ms, CPU {cpu_ms:.1} ms per build",
+                times[0],
+                times[times.len() / 2]
+            );
+        }
+        let bvh = last.expect("built");
+        bvh.validate().expect("valid BVH");
+        let (incoherent, primary) = probe_rays(&bounds, 1 << 18);
+        let mut fp: u64 = 0xcbf2_9ce4_8422_2325;
+        for r in incoherent.iter().step_by(16) {
+            let h = bvh.intersect(r, 0.0, f32::INFINITY);
+            let v = h.map_or(u64::MAX, |h| u64::from(h.prim) << 32 | u64::from(h.t.to_bits()));
+            fp = (fp ^ v).wrapping_mul(0x100_0000_01b3);
+        }
+        println!(
+            "  {} wide nodes, {:.1} bytes/triangle, hit fingerprint {fp:016x}",
+            bvh.node_count(),
+            bvh.memory_bytes() as f64 / tris.len() as f64
+        );
+        if trace {
+            for (name, rays) in [("incoherent", &incoherent), ("primary", &primary)] {
+                let mut best = f64::INFINITY;
+                let mut hits = 0;
+                for _ in 0..5 {
+                    let t0 = Instant::now();
+                    hits = rays.iter().filter(|r| bvh.intersect(r, 0.0, f32::INFINITY).is_some()).count();
+                    best = best.min(t0.elapsed().as_secs_f64());
+                }
+                println!("  {name}: {:.2} Mrays/s 1T ({hits} hits)", rays.len() as f64 / best * 1e-6);
+            }
+        }
+    }
+}
