@@ -124,7 +124,7 @@ mod avx {
     use super::{LANES, Packet};
     use crate::bvh::Bvh;
     use crate::bvh::blocks::{RaySse, TriBlock, hits_sse};
-    use crate::bvh::wide::{ROBUST_EXIT, Stack, W, WideNode, leaf_range};
+    use crate::bvh::wide::{ROBUST_EXIT, Stack, W, WideNode, descend_nearest, leaf_range};
     use crate::geometry::Ray;
     use crate::shapes::Hit;
     use std::arch::x86_64::*;
@@ -503,7 +503,7 @@ mod avx {
                 let node = &wide[current as usize];
                 let (e, mask) = frustum(node, &l, best_hi);
                 let leaf = leaf_mask(node);
-                let (mut leaves, mut inner) = (mask & leaf, mask & !leaf);
+                let (mut leaves, inner) = (mask & leaf, mask & !leaf);
                 while leaves != 0 {
                     let k = leaves.trailing_zeros() as usize;
                     leaves &= leaves - 1;
@@ -544,28 +544,8 @@ mod avx {
                 // Interior children still in front of the packet's farthest
                 // nearest hit, nearest bound first (stable on ties).
                 let limit = best_hi * ROBUST_EXIT;
-                let mut order = [(0.0f32, 0u32); W];
-                let mut n = 0;
-                while inner != 0 {
-                    let k = inner.trailing_zeros() as usize;
-                    inner &= inner - 1;
-                    let t = e[k];
-                    if t > limit {
-                        continue;
-                    }
-                    let mut j = n;
-                    while j > 0 && order[j - 1].0 > t {
-                        order[j] = order[j - 1];
-                        j -= 1;
-                    }
-                    order[j] = (t, node.child[k]);
-                    n += 1;
-                }
-                if n > 0 {
-                    for &(t, c) in order[1..n].iter().rev() {
-                        stack.push((c, t));
-                    }
-                    current = order[0].1;
+                if let Some(nearest) = descend_nearest(node, &e, inner, limit, &mut stack) {
+                    current = nearest;
                     continue;
                 }
                 current = loop {

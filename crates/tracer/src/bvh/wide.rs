@@ -561,6 +561,44 @@ impl<'a> LeafRay<'a> {
     }
 }
 
+/// The nearest-hit traversal's next step at a node: of the interior children
+/// in the mask `inner` whose entry distance `e[k]` is at most `limit`, pushes
+/// all but the nearest onto `stack`, farthest first, and returns the nearest
+/// (stable on ties, so deterministic); `None` when no child qualifies.
+#[inline(always)]
+pub(super) fn descend_nearest(
+    node: &WideNode,
+    e: &[f32; W],
+    mut inner: u32,
+    limit: f32,
+    stack: &mut Stack<(u32, f32)>,
+) -> Option<u32> {
+    let mut order = [(0.0f32, 0u32); W];
+    let mut n = 0;
+    while inner != 0 {
+        let k = inner.trailing_zeros() as usize;
+        inner &= inner - 1;
+        let t = e[k];
+        if t > limit {
+            continue;
+        }
+        let mut j = n;
+        while j > 0 && order[j - 1].0 > t {
+            order[j] = order[j - 1];
+            j -= 1;
+        }
+        order[j] = (t, node.child[k]);
+        n += 1;
+    }
+    if n == 0 {
+        return None;
+    }
+    for &(t, c) in order[1..n].iter().rev() {
+        stack.push((c, t));
+    }
+    Some(order[0].1)
+}
+
 /// Nearest hit (see [`Bvh::intersect`]).
 ///
 /// At each node the hit leaves are tested at once (in lane order: the order
@@ -630,28 +668,8 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
         // Interior children still in front of the best hit, nearest first
         // (stable on ties, so deterministic).
         let limit = best_t * ROBUST_EXIT;
-        let mut order = [(0.0f32, 0u32); W];
-        let mut n = 0;
-        while inner != 0 {
-            let k = inner.trailing_zeros() as usize;
-            inner &= inner - 1;
-            let t = e[k];
-            if t > limit {
-                continue;
-            }
-            let mut j = n;
-            while j > 0 && order[j - 1].0 > t {
-                order[j] = order[j - 1];
-                j -= 1;
-            }
-            order[j] = (t, node.child[k]);
-            n += 1;
-        }
-        if n > 0 {
-            for &(t, c) in order[1..n].iter().rev() {
-                stack.push((c, t));
-            }
-            current = order[0].1;
+        if let Some(nearest) = descend_nearest(node, &e, inner, limit, &mut stack) {
+            current = nearest;
             continue;
         }
         current = loop {
