@@ -12,59 +12,11 @@
 use isin_tracer::Vec3;
 use isin_tracer::bvh::Bvh;
 use isin_tracer::geometry::{Aabb, Ray};
-use isin_tracer::shapes::Triangle;
 use std::time::Instant;
 
-/// Reads `v` and `f` lines (faces fanned, `/vt/vn` suffixes and negative indices allowed).
-fn load(path: &str) -> Vec<Triangle> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
-    let mut verts: Vec<Vec3> = Vec::new();
-    let mut tris = Vec::new();
-    for line in text.lines() {
-        let mut it = line.split_whitespace();
-        match it.next() {
-            Some("v") => {
-                let c: Vec<f32> = it.take(3).filter_map(|x| x.parse().ok()).collect();
-                if let [x, y, z] = c[..] {
-                    verts.push(Vec3::new(x, y, z));
-                }
-            }
-            Some("f") => {
-                let idx: Vec<Option<Vec3>> = it
-                    .map_while(|w| w.split('/').next()?.parse::<i64>().ok())
-                    .map(|i| {
-                        let i = if i < 0 { verts.len() as i64 + i } else { i - 1 };
-                        usize::try_from(i).ok().and_then(|i| verts.get(i).copied())
-                    })
-                    .collect();
-                for k in 1..idx.len().saturating_sub(1) {
-                    if let (Some(a), Some(b), Some(c)) = (idx[0], idx[k], idx[k + 1]) {
-                        tris.push(Triangle { v: [a, b, c] });
-                    }
-                }
-            }
-            _ => {}
-        }
-    }
-    tris
-}
-
-/// Splits every triangle 1 -> 4 at its edge midpoints (the bench's order).
-fn subdivide(tris: &[Triangle]) -> Vec<Triangle> {
-    let mut out = Vec::with_capacity(tris.len() * 4);
-    for t in tris {
-        let [a, b, c] = t.v;
-        let mid = |p: Vec3, q: Vec3| (p + q) * 0.5;
-        let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
-        out.extend_from_slice(&[
-            Triangle { v: [a, ab, ca] },
-            Triangle { v: [ab, b, bc] },
-            Triangle { v: [ca, bc, c] },
-            Triangle { v: [ab, bc, ca] },
-        ]);
-    }
-    out
-}
+#[path = "../benches/common/embree_mesh.rs"]
+mod embree_mesh;
+use embree_mesh::{BenchMesh, load_mesh, subdivide};
 
 /// A small xorshift generator for the probe rays.
 struct Rng(u64);
@@ -142,11 +94,11 @@ fn main() {
         }
     }
     for path in &paths {
-        let mut tris = load(path);
+        // Embree's bounds: every vertex of the file (subdivision stays inside them).
+        let Some(BenchMesh { mut tris, bounds }) = load_mesh(std::path::Path::new(path)) else { return };
         for _ in 0..split {
             tris = subdivide(&tris);
         }
-        let bounds = tris.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         println!("{path} (split {split}): {} triangles", tris.len());
         let mut last = None;
         for &threads in &thread_counts {
