@@ -57,8 +57,9 @@ pub struct CpuCgroup {
 }
 
 impl CpuCgroup {
-    /// Creates `PREFIX` + `name` with `share` of a core.
-    pub fn create(name: &str, share: f64) -> anyhow::Result<CpuCgroup> {
+    /// Creates the group `PREFIX` + `name` (replacing a leftover of that name),
+    /// registered for removal, with no settings written yet.
+    fn make(name: &str) -> anyhow::Result<CpuCgroup> {
         let name = format!("{PREFIX}{name}");
         let dir = Path::new(CPU_ROOT).join(&name);
         if dir.exists() {
@@ -66,7 +67,12 @@ impl CpuCgroup {
         }
         std::fs::create_dir(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         super::register_cgroup(&name);
-        let mut cg = CpuCgroup { name, dir, period_us: 0, quota_us: 0 };
+        Ok(CpuCgroup { name, dir, period_us: 0, quota_us: 0 })
+    }
+
+    /// Creates `PREFIX` + `name` with `share` of a core.
+    pub fn create(name: &str, share: f64) -> anyhow::Result<CpuCgroup> {
+        let mut cg = Self::make(name)?;
         let (period, quota) = period_for_share(share);
         // Quota off first: a new period must not conflict with an old quota.
         cg.write("cpu.cfs_quota_us", "-1")?;
@@ -79,14 +85,7 @@ impl CpuCgroup {
     /// Creates `PREFIX` + `name` with no quota (for the master: its CPU is not
     /// limited, only weighted, see [`CpuCgroup::set_weight`]).
     pub fn unlimited(name: &str) -> anyhow::Result<CpuCgroup> {
-        let name = format!("{PREFIX}{name}");
-        let dir = Path::new(CPU_ROOT).join(&name);
-        if dir.exists() {
-            remove(&name);
-        }
-        std::fs::create_dir(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        super::register_cgroup(&name);
-        let cg = CpuCgroup { name, dir, period_us: 0, quota_us: 0 };
+        let cg = Self::make(name)?;
         cg.write("cpu.cfs_quota_us", "-1")?;
         Ok(cg)
     }
