@@ -286,10 +286,10 @@ pub struct Integrator<'a> {
     scene: &'a Scene,
     max_depth: u32,
     light_samples: u32,
-    /// Side of the stratum grid of one pixel's area-light samples.
-    light_grid: u32,
     /// Division by the number of strata, `light_grid²`.
     light_strata: Divisor,
+    /// The `light_grid × light_grid` grid, to be keyed per pixel ([`Integrator::light_set`]).
+    light_grid_strata: Strata,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
     /// The first [`PREPARED_LIGHTS`] lights, prepared once
@@ -317,8 +317,8 @@ impl<'a> Integrator<'a> {
             scene,
             max_depth,
             light_samples,
-            light_grid,
             light_strata: Divisor::new(light_grid * light_grid),
+            light_grid_strata: Strata::new(light_grid, 0),
             adaptive_shadows: true,
             prepared,
         }
@@ -349,7 +349,7 @@ impl<'a> Integrator<'a> {
     /// prepared once for all the samples a shading point takes from it.
     #[inline]
     fn light_set(&self, sampler: &Sampler) -> Strata {
-        Strata::new(self.light_grid, sampler.bits(0))
+        self.light_grid_strata.with_key(sampler.bits(0))
     }
 
     /// Point `j` of the set `set` drawn from `sampler` (see [`Integrator::light_set`]).

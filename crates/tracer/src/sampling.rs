@@ -10,8 +10,9 @@
 //! **Stratification.** Both camera samples and area-light samples use the same
 //! scheme ([`stratified_square`]): `N` samples over the unit square are placed
 //! in an `m × m` grid of strata with `m = ⌈√N⌉`; sample `i` takes stratum
-//! `π(i)` of a hashed permutation `π` of the `m²` strata (Kensler's
-//! cycle-walking permutation, no allocation) and is jittered uniformly inside
+//! `π(i)` of a hashed permutation `π` of the `m²` strata ([`permute`]: a
+//! shuffled table for small sets, Kensler's cycle-walking permutation for
+//! large ones; no allocation) and is jittered uniformly inside
 //! it. When `N` is a square every stratum holds exactly one sample; otherwise
 //! `N` distinct, randomly chosen strata are used.
 
@@ -68,49 +69,67 @@ impl Sampler {
     pub fn get(&self, dim: u32) -> f32 {
         to_unit(self.bits(dim))
     }
+
+    /// Two uniform floats in `[0, 1)` for dimension `dim`, from the two halves
+    /// of one 64-bit hash (half the work of two [`Sampler::get`] calls).
+    #[inline]
+    pub fn pair(&self, dim: u32) -> (f32, f32) {
+        let h = mix64(self.key ^ (dim as u64).wrapping_mul(0xd6e8_feb8_6659_fd93));
+        (to_unit((h >> 32) as u32), to_unit(h as u32))
+    }
 }
 
-/// Kensler's hashed permutation ("Correlated Multi-Jittered Sampling", 2013):
-/// maps `i` in `0..len` to a distinct value in `0..len`, chosen by `key`.
-/// Needs no memory; cycle-walks when `len` is not a power of two.
+/// A hashed permutation: maps `i` in `0..len` to a distinct value in `0..len`,
+/// chosen by `key`, without memory. Sets of up to [`SHUFFLED_MAX`] elements (a
+/// pixel's light samples, typically) are shuffled once by Fisher–Yates driven
+/// by a hash of `key`, the table packed into one `u64`; larger ones use
+/// Kensler's cycle-walking permutation ("Correlated Multi-Jittered Sampling",
+/// 2013), which walks only when `len` is not a power of two.
 #[inline]
 pub fn permute(i: u32, len: u32, key: u32) -> u32 {
     Permutation::new(len, key).apply(i)
 }
 
-/// [`permute`] for one `(len, key)`, with the per-set work (the walk mask and
-/// the final offset `key mod len`) done once: the same values, cheaper when a
-/// set of samples shares its permutation.
+/// Sets up to this size are permuted through a shuffled table (see [`permute`]).
+pub const SHUFFLED_MAX: u32 = 16;
+
+/// [`permute`] for one `(len, key)`, with the per-set work (the shuffled table,
+/// or the walk mask and the final offset `key mod len`) done once: the same
+/// values, cheaper when a set of samples shares its permutation.
 #[derive(Clone, Copy, Debug)]
 pub struct Permutation {
     len: u32,
     key: u32,
     /// `len − 1` with every bit below its highest set.
     mask: u32,
-    /// `key mod len`.
+    /// `key mod len` (Kensler's permutation only).
     offset: u32,
+    /// The image of `i` in bits `4i..4i + 4` (shuffled sets only).
+    table: u64,
 }
 
 impl Permutation {
     /// The permutation of `0..len` chosen by `key`.
     #[inline]
     pub fn new(len: u32, key: u32) -> Self {
-        let mut w = len.saturating_sub(1);
+        if len <= SHUFFLED_MAX {
+            return Permutation { len, key, mask: 0, offset: 0, table: shuffled(len, key) };
+        }
+        let mut w = len - 1;
         w |= w >> 1;
         w |= w >> 2;
         w |= w >> 4;
         w |= w >> 8;
         w |= w >> 16;
-        let offset = if len > 1 { key % len } else { 0 };
-        Permutation { len, key, mask: w, offset }
+        Permutation { len, key, mask: w, offset: key % len, table: 0 }
     }
 
     /// The image of `i` (`i < len`).
     #[inline]
     pub fn apply(&self, mut i: u32) -> u32 {
         let (len, p, w) = (self.len, self.key, self.mask);
-        if len <= 1 {
-            return 0;
+        if len <= SHUFFLED_MAX {
+            return ((self.table >> (4 * (i & 15))) & 15) as u32;
         }
         loop {
             i ^= p;
@@ -139,6 +158,26 @@ impl Permutation {
         let r = i + self.offset;
         if r >= len { r - len } else { r }
     }
+}
+
+/// A Fisher–Yates shuffle of `0..len` (`len ≤ 16`) driven by a 64-bit linear
+/// congruential generator seeded with a hash of `key`, as 4-bit entries of a
+/// `u64` (entry `i` in bits `4i..4i + 4`).
+#[inline]
+fn shuffled(len: u32, key: u32) -> u64 {
+    let mut table = 0xfedc_ba98_7654_3210u64;
+    let mut r = mix64(key as u64 ^ 0x5851_f42d_4c95_7f2d);
+    let mut i = len;
+    while i > 1 {
+        i -= 1;
+        r = r.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        // j uniform in 0..=i from the generator's high 32 bits.
+        let j = (((r >> 32) * (i as u64 + 1)) >> 32) as u32;
+        let (a, b) = (4 * i, 4 * j);
+        let x = ((table >> a) ^ (table >> b)) & 15;
+        table ^= (x << a) | (x << b);
+    }
+    table
 }
 
 /// Exact division and remainder of any `u32` by a divisor fixed in advance,
@@ -214,14 +253,20 @@ impl Strata {
         Strata { perm: Permutation::new(m * m, key), side: Divisor::new(m), inv: 1.0 / m as f32 }
     }
 
-    /// Sample `i` of the set, jittered by `sampler` (dimensions `1 + 2i`, `2 + 2i`).
+    /// The same grid with its strata permuted by `key` instead (cheaper than
+    /// [`Strata::new`]: the grid's divisions are kept).
+    #[inline]
+    pub fn with_key(&self, key: u32) -> Self {
+        Strata { perm: Permutation::new(self.perm.len, key), ..*self }
+    }
+
+    /// Sample `i` of the set, jittered by `sampler` (dimension `1 + i`, [`Sampler::pair`]).
     #[inline]
     pub fn point(&self, i: u32, sampler: &Sampler) -> Vec2 {
         let s = self.perm.apply(i);
         let sy = self.side.div(s);
         let sx = s - sy * self.side.d;
-        let jx = sampler.get(1 + 2 * i);
-        let jy = sampler.get(2 + 2 * i);
+        let (jx, jy) = sampler.pair(1 + i);
         // Clamp below 1: (m-1 + 0.99999994)/m can round up to exactly 1.
         Vec2::new(
             ((sx as f32 + jx) * self.inv).min(ONE_MINUS_EPS),
@@ -299,7 +344,7 @@ mod tests {
                 }
             }
         }
-        for len in [2u32, 3, 9, 16, 25, 100, 4096, 1 << 24] {
+        for len in [17u32, 25, 100, 4096, 1 << 24] {
             for key in [0u32, 1, 0xdead_beef, u32::MAX, 12345] {
                 let perm = Permutation::new(len, key);
                 for i in (0..len).step_by((len as usize / 300).max(1)) {
