@@ -35,7 +35,8 @@ pub struct RenderSettings {
     pub height: u32,
     /// Camera samples per pixel (stratified, jittered).
     pub spp: u32,
-    /// Shadow rays per area light per shading point (stratified over the light).
+    /// Shadow rays per area light per camera hit (stratified over the light;
+    /// fewer behind dim reflections and refractions, see `integrator`).
     pub light_samples: u32,
     /// Maximum recursion depth for mirror and refraction rays.
     pub max_depth: u32,
