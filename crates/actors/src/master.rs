@@ -458,6 +458,7 @@ impl Master {
                     Ok(raw) => raw,
                     Err(e) => return self.refuse(id, format!("tile {}: {e}", r.id)),
                 };
+                self.sched.record_render_time(r.frame, r.id, r.render_micros);
                 match self.sched.handle_result(now, id, r.frame, r.id) {
                     ResultOutcome::Accepted { tile } => {
                         if let Some(spec) = self.frames.iter().find(|f| f.id == r.frame) {
