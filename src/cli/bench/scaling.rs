@@ -643,16 +643,26 @@ fn run_once(
     let (master_pid, slave_pids): (String, Vec<u32>) =
         (master.pid().to_string(), slaves.iter().map(ChildGuard::pid).collect());
     let (master_pid_n, own_pid) = (master.pid(), std::process::id());
-    let snapshot = || Snapshot {
-        at: Instant::now(),
-        master_cpu: cpu_secs(&master_pid),
-        master_run: SchedStat::read(master_pid_n, "").run,
-        viewer_run: SchedStat::read(own_pid, "").run,
-        slaves_run: slave_pids.iter().map(|&p| SchedStat::read(p, "").run).collect(),
-        machine: MachineStat::read(),
-        render: slave_pids.iter().map(|&p| SchedStat::read(p, "isin-render")).collect(),
-        throttled_us: cgroups.iter().take(spec.n).map(|c| c.throttled().1).collect(),
-        iface: lab.and_then(|l| l.counters(l.master()).ok()),
+    // The interface counters take a process spawn to read (milliseconds in
+    // which the slaves sit idle): read them outside the timed span, so that the
+    // span is the replay's — before the clock at the start, after it at the end.
+    let snapshot = |start: bool| {
+        let iface_first = if start { Some(lab.and_then(|l| l.counters(l.master()).ok())) } else { None };
+        let end_at = (!start).then(Instant::now);
+        let mut s = Snapshot {
+            at: Instant::now(),
+            master_cpu: cpu_secs(&master_pid),
+            master_run: SchedStat::read(master_pid_n, "").run,
+            viewer_run: SchedStat::read(own_pid, "").run,
+            slaves_run: slave_pids.iter().map(|&p| SchedStat::read(p, "").run).collect(),
+            machine: MachineStat::read(),
+            render: slave_pids.iter().map(|&p| SchedStat::read(p, "isin-render")).collect(),
+            throttled_us: cgroups.iter().take(spec.n).map(|c| c.throttled().1).collect(),
+            iface: None,
+        };
+        s.iface = iface_first.unwrap_or_else(|| lab.and_then(|l| l.counters(l.master()).ok()));
+        s.at = end_at.unwrap_or_else(Instant::now);
+        s
     };
     let (w, h) = spec.settings_size;
     let cameras = spec.cameras;
@@ -668,9 +678,9 @@ fn run_once(
                     let settings = RenderSettings { width: w, height: h, ..info.settings };
                     // Warm-up: scene loaded and caches hot on every slave.
                     viewer::collect_frame(&v, &mut events, cameras[0], settings).await?;
-                    let before = snapshot();
+                    let before = snapshot(true);
                     let r = replay::replay(&v, &mut events, cameras, settings, spec.pipeline).await?;
-                    let after = snapshot();
+                    let after = snapshot(false);
                     let _ = v.send(viewer::Disconnect).await;
                     anyhow::Ok(RunResult {
                         secs: r.intervals(),
