@@ -291,14 +291,13 @@ mod tests {
         // SAFETY: sysconf has no preconditions.
         let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
         let s = MachineStat::parse("cpu  100 20 30 400 5 6 7 8 0 0\ncpu0 1 2 3 4 5 6 7 8 0 0\n");
-        assert_eq!(s.user, 120.0 / hz);
-        assert_eq!(s.system, 30.0 / hz);
-        assert_eq!(s.idle, 405.0 / hz);
-        assert_eq!(s.irq, 13.0 / hz);
-        assert_eq!(s.steal, 8.0 / hz);
-        assert_eq!(s.busy(), 163.0 / hz);
+        let close = |a: f64, ticks: f64| (a - ticks / hz).abs() < 1e-9;
+        assert!(close(s.user, 120.0), "{s:?}");
+        assert!(close(s.system, 30.0) && close(s.idle, 405.0) && close(s.irq, 13.0) && close(s.steal, 8.0));
+        assert!(close(s.busy(), 163.0), "{s:?}");
         let later = MachineStat::parse("cpu  200 20 30 500 5 6 7 8 0 0\n");
-        assert_eq!(later.since(&s).user, 100.0 / hz);
+        assert!(close(later.since(&s).user, 100.0) && close(later.since(&s).idle, 100.0));
+        assert!(close(s.plus(&later).user, 340.0));
         assert_eq!(MachineStat::parse("garbage"), MachineStat::default());
         let now = MachineStat::read();
         assert!(now.busy() + now.idle > 0.0 || std::fs::metadata("/proc/stat").is_err());
