@@ -211,6 +211,22 @@ impl CpuPerFrame {
         self.master + self.viewer + self.slave_other + self.irq + self.other
     }
 
+    /// What took the CPU besides the render threads, largest first, as
+    /// `" — per frame: master 4.3 ms, …"` (empty when nothing did).
+    fn takers(&self) -> String {
+        let mut parts = [
+            ("the slaves' own network threads", self.slave_other),
+            ("master", self.master),
+            ("viewer", self.viewer),
+            ("interrupts (network)", self.irq),
+            ("other processes", self.other),
+        ];
+        parts.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let list: Vec<String> =
+            parts.iter().filter(|p| p.1 >= 0.05).map(|(n, ms)| format!("{n} {ms:.1} ms")).collect();
+        if list.is_empty() { String::new() } else { format!(" — CPU per frame: {}", list.join(", ")) }
+    }
+
     fn describe(&self) -> String {
         format!(
             "CPU ms/frame: render {:.1}, slaves' other threads {:.1}, master {:.1}, viewer {:.1}, irq {:.1}, \
@@ -802,9 +818,10 @@ fn bottleneck(r: &Row) -> String {
         why.push(format!("master CPU: {:.2} cores busy", r.master_cpu));
     }
     if r.slave_crowded >= 0.05 && r.slave_crowded >= r.slave_idle {
+        let takers = r.cpu_per_frame.map(|c| c.takers()).unwrap_or_default();
         why.push(format!(
             "machine CPU: slaves lost {:.0} % of their quota to other load on the machine \
-             (the N slaves' quotas add up to the whole machine; other processes compete)",
+             (the N slaves' quotas add up to the whole machine; other processes compete){takers}",
             r.slave_crowded * 100.0
         ));
     }
@@ -1103,6 +1120,21 @@ mod tests {
         let mut r = row(12, 0.6);
         r.slave_crowded = 0.3;
         assert!(bottleneck(&r).contains("machine CPU"), "{}", bottleneck(&r));
+        // With a CPU account, the takers are named, largest first.
+        r.cpu_per_frame = Some(CpuPerFrame {
+            master: 4.0,
+            viewer: 1.0,
+            slave_render: 130.0,
+            slave_other: 6.0,
+            irq: 2.0,
+            other: 9.0,
+            idle: 0.0,
+            steal: 0.0,
+        });
+        let b = bottleneck(&r);
+        let (other, own, master) =
+            (b.find("other processes 9.0"), b.find("network threads 6.0"), b.find("master 4.0"));
+        assert!(other < own && own < master && other.is_some(), "{b}");
         let mut r = row(12, 0.6);
         r.slave_idle = 0.3;
         assert!(bottleneck(&r).contains("scheduling"), "{}", bottleneck(&r));
