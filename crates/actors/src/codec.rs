@@ -149,24 +149,32 @@ pub fn encode(codec: Codec, w: u32, rgb: &[u8]) -> Vec<u8> {
 /// Decodes a `w × h` tile's bytes encoded with `codec` into `w * h * 3` bytes
 /// of RGB8. Never allocates more than that, never panics.
 pub fn decode(codec: Codec, w: u32, h: u32, data: &[u8]) -> Result<Vec<u8>, CodecError> {
+    let mut out = Vec::new();
+    decode_into(codec, w, h, data, &mut out)?;
+    Ok(out)
+}
+
+/// [`decode`] into `out` (resized to `w * h * 3` bytes; its allocation is
+/// reused, so a caller that only validates tiles — the master — allocates
+/// nothing per tile). On error `out` holds no meaningful pixels.
+pub fn decode_into(codec: Codec, w: u32, h: u32, data: &[u8], out: &mut Vec<u8>) -> Result<(), CodecError> {
     let len = (w as usize).checked_mul(h as usize).and_then(|n| n.checked_mul(3));
     let len = len.filter(|&n| n <= MAX_TILE_BYTES).ok_or(CodecError::TooLarge { w, h })?;
     let corrupt = |reason: String| CodecError::Corrupt { codec, reason };
-    let lz4 = |data: &[u8]| -> Result<Vec<u8>, CodecError> {
-        let mut out = vec![0u8; len];
-        let n = lz4_flex::block::decompress_into(data, &mut out).map_err(|e| corrupt(e.to_string()))?;
-        if n != len {
-            return Err(corrupt(format!("{n} bytes decoded, {len} expected")));
-        }
-        Ok(out)
-    };
+    out.clear();
     if len == 0 {
-        return if data.is_empty() { Ok(Vec::new()) } else { Err(corrupt("data for an empty tile".into())) };
+        return if data.is_empty() { Ok(()) } else { Err(corrupt("data for an empty tile".into())) };
     }
     match codec {
-        Codec::Raw if data.len() == len => Ok(data.to_vec()),
-        Codec::Raw => Err(corrupt(format!("{} bytes, {len} expected", data.len()))),
-        Codec::Lz4 => lz4(data),
+        Codec::Raw if data.len() == len => out.extend_from_slice(data),
+        Codec::Raw => return Err(corrupt(format!("{} bytes, {len} expected", data.len()))),
+        Codec::Lz4 => {
+            out.resize(len, 0);
+            let n = lz4_flex::block::decompress_into(data, out).map_err(|e| corrupt(e.to_string()))?;
+            if n != len {
+                return Err(corrupt(format!("{n} bytes decoded, {len} expected")));
+            }
+        }
         Codec::Qoi => {
             // The header must name this tile before anything is allocated.
             let header = qoi::decode_header(data).map_err(|e| corrupt(e.to_string()))?;
@@ -176,16 +184,34 @@ pub fn decode(codec: Codec, w: u32, h: u32, data: &[u8]) -> Result<Vec<u8>, Code
                     header.width, header.height, header.channels
                 )));
             }
-            let mut out = vec![0u8; len];
-            qoi::decode_to_buf(&mut out, data).map_err(|e| corrupt(e.to_string()))?;
-            Ok(out)
+            out.resize(len, 0);
+            qoi::decode_to_buf(&mut out[..], data).map_err(|e| corrupt(e.to_string()))?;
         }
     }
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn decode_into_reuses_its_buffer_and_matches_decode() {
+        let (w, h) = (16u32, 8u32);
+        let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 251) as u8).collect();
+        let mut out = vec![9u8; 10_000];
+        for codec in [Codec::Raw, Codec::Lz4, Codec::Qoi] {
+            let data = encode(codec, w, &rgb);
+            decode_into(codec, w, h, &data, &mut out).unwrap();
+            assert_eq!(out, rgb, "{codec}");
+            assert_eq!(decode(codec, w, h, &data).unwrap(), rgb, "{codec}");
+            // A smaller tile into the same buffer: only its own bytes.
+            let small = encode(codec, 2, &rgb[..12]);
+            decode_into(codec, 2, 2, &small, &mut out).unwrap();
+            assert_eq!(out, &rgb[..12], "{codec}");
+            assert!(decode_into(codec, w, h, &data[..data.len() / 2], &mut out).is_err(), "{codec}");
+        }
+    }
     use proptest::prelude::*;
 
     /// A tile with gradients, flat areas and noise, like a rendered one.

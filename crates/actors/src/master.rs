@@ -146,6 +146,8 @@ pub struct Master {
     closed_wire: ConnStats,
     /// The slaves viewers are told about ([`Message::Slaves`]), by id.
     roster: std::collections::BTreeMap<u64, SlaveEntry>,
+    /// Where tiles are decoded to be checked (reused: no allocation per tile).
+    scratch: Vec<u8>,
 }
 
 impl Master {
@@ -171,6 +173,7 @@ impl Master {
             status: MasterStatus::default(),
             closed_wire: ConnStats::default(),
             roster: std::collections::BTreeMap::new(),
+            scratch: Vec::new(),
         })
     }
 
@@ -454,10 +457,11 @@ impl Master {
                 }
                 // Untrusted: decoded (size checked before allocating) before it
                 // counts, even when it is forwarded still encoded.
-                let raw = match r.decoded_pixels() {
-                    Ok(raw) => raw,
-                    Err(e) => return self.refuse(id, format!("tile {}: {e}", r.id)),
-                };
+                if let Err(e) = codec::decode_into(r.codec, r.tile.w, r.tile.h, &r.pixels, &mut self.scratch)
+                {
+                    return self.refuse(id, format!("tile {}: {e}", r.id));
+                }
+                self.sched.record_render_time(r.frame, r.id, r.render_micros);
                 match self.sched.handle_result(now, id, r.frame, r.id) {
                     ResultOutcome::Accepted { tile } => {
                         if let Some(spec) = self.frames.iter().find(|f| f.id == r.frame) {
@@ -467,7 +471,7 @@ impl Master {
                             let (codec, pixels) = if viewer_decodes || r.codec == Codec::Raw {
                                 (r.codec, r.pixels)
                             } else {
-                                (Codec::Raw, ByteBuf::from(raw))
+                                (Codec::Raw, ByteBuf::from(self.scratch.clone()))
                             };
                             let msg = Message::FrameTile(FrameTile {
                                 request: spec.request,

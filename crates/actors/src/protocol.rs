@@ -167,7 +167,10 @@ pub struct TileResult {
     pub id: TileId,
     /// The tile's rectangle (checked by the master against the one it assigned).
     pub tile: Tile,
-    /// Wall time spent rendering it, in microseconds.
+    /// Time spent rendering it, in microseconds: the render thread's CPU
+    /// time where the platform has a thread clock (a slave throttled by a CPU
+    /// quota or crowded by other load still reports what the tile cost), wall
+    /// time elsewhere. The master orders later frames' tiles by it.
     pub render_micros: u64,
     /// How `pixels` is encoded.
     pub codec: Codec,

@@ -18,6 +18,11 @@
 //!   give fewer than 8 tiles per render thread in the cluster — except a
 //!   queued frame (pipelining, below): its end is filled by the next frame's
 //!   tiles, so it keeps the full edge and the per-tile round trips stay few.
+//! - **Expensive tiles first.** Slaves report each tile's render time
+//!   ([`Scheduler::record_render_time`]); a new frame hands out its tiles in
+//!   order of the cost measured there in earlier frames, largest first
+//!   ([`cost`]), so a frame's tail is cheap tiles, not the one expensive region
+//!   that grid order happened to meet last.
 //! - **Smaller tiles at the end.** When fewer tiles remain queued than the
 //!   cluster has threads, the next tile is split in four (down to
 //!   [`SchedulerConfig::min_tile_size`]) so the frame does not wait on one big tile.
@@ -46,6 +51,8 @@
 //!
 //! Polling order for a driver: after any `handle_*` call (and on every timer
 //! tick, after [`Scheduler::handle_timeout`]), drain [`Scheduler::poll_output`].
+
+pub mod cost;
 
 use crate::protocol::{FrameId, FrameStats, TileId, TileJob};
 use isin_tracer::Tile;
@@ -237,6 +244,8 @@ struct TileRec {
 #[derive(Debug)]
 struct FrameState {
     id: FrameId,
+    width: u32,
+    height: u32,
     tiles: Vec<TileRec>,
     queue: VecDeque<TileId>,
     remaining_pixels: u64,
@@ -257,6 +266,8 @@ pub struct Scheduler {
     frames: VecDeque<FrameState>,
     last_frame: Option<FrameId>,
     outputs: VecDeque<Output>,
+    /// Render cost per pixel measured so far, for ordering new frames' tiles.
+    costs: cost::CostMap,
 }
 
 impl Scheduler {
@@ -272,6 +283,7 @@ impl Scheduler {
             frames: VecDeque::new(),
             last_frame: None,
             outputs: VecDeque::new(),
+            costs: cost::CostMap::default(),
         }
     }
 
@@ -433,6 +445,21 @@ impl Scheduler {
         }
     }
 
+    /// A slave reports that tile `tile` of `frame` took `micros` to render (its
+    /// own measure, untrusted: it only orders later frames' tiles). Call it
+    /// for every result of a known frame, before [`Scheduler::handle_result`].
+    pub fn record_render_time(&mut self, frame: FrameId, tile: TileId, micros: u64) {
+        let Some(f) = self.frames.iter().find(|f| f.id == frame) else { return };
+        let Some(rec) = f.tiles.get(tile as usize) else { return };
+        self.costs.record(rec.tile, f.width, f.height, micros);
+    }
+
+    /// The render time expected for `tile` of a `width × height` frame from
+    /// what was measured so far, in microseconds (0: nothing known there).
+    pub fn expected_render_micros(&self, tile: Tile, width: u32, height: u32) -> f32 {
+        self.costs.estimate(tile, width, height)
+    }
+
     /// A slave returned tile `tile` of `frame`. Counts as a heartbeat.
     pub fn handle_result(
         &mut self,
@@ -539,9 +566,15 @@ impl Scheduler {
                 requeued: false,
             })
             .collect();
+        // Most expensive first, by what earlier frames measured.
+        let rects: Vec<Tile> = tiles.iter().map(|r| r.tile).collect();
+        let mut queue: Vec<TileId> = (0..tiles.len() as TileId).collect();
+        self.costs.order(&mut queue, &rects, width, height);
         self.frames.push_back(FrameState {
             id: frame,
-            queue: (0..tiles.len() as TileId).collect(),
+            width,
+            height,
+            queue: queue.into(),
             tiles,
             remaining_pixels: width as u64 * height as u64,
             started: now,

@@ -190,6 +190,19 @@ impl Renderer for Tracer {
     }
 }
 
+/// CPU time of the calling thread, where the platform has a thread clock.
+pub fn thread_cpu_time() -> Option<Duration> {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: clock_gettime writes one timespec through a valid pointer.
+        if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
+            return Some(Duration::new(ts.tv_sec.max(0) as u64, ts.tv_nsec.clamp(0, 999_999_999) as u32));
+        }
+    }
+    None
+}
+
 /// A loaded scene and the hash of the bundle it came from.
 pub struct SceneCache<S> {
     /// Content hash.
@@ -422,7 +435,7 @@ impl<R: Renderer> SlaveActor<R> {
                         || latest.load(Ordering::Acquire) > frame.saturating_add(CANCEL_MEMORY)
                         || cancelled.lock().map(|mut c| c.remove(&(frame, job.id))).unwrap_or(false)
                 };
-                let t0 = Instant::now();
+                let (t0, cpu0) = (Instant::now(), thread_cpu_time());
                 let pixels = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                     renderer.render_cancellable(&scene, &camera, &settings, t, &stop)
                 }));
@@ -446,7 +459,11 @@ impl<R: Renderer> SlaveActor<R> {
                     );
                     return;
                 }
-                let render_micros = t0.elapsed().as_micros() as u64;
+                let took = match (cpu0, thread_cpu_time()) {
+                    (Some(a), Some(b)) => b.saturating_sub(a),
+                    _ => t0.elapsed(),
+                };
+                let render_micros = took.as_micros() as u64;
                 let msg = Message::TileResult(TileResult {
                     frame,
                     id: job.id,
@@ -513,5 +530,29 @@ impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
             Ok(other) => tracing::warn!("ignoring unexpected {} from the master", other.kind()),
             Err(e) => self.finish(format!("bad frame from the master: {e}"), ctx),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thread_cpu_time_counts_work_not_sleep() {
+        let Some(c0) = thread_cpu_time() else {
+            println!("skipped: no thread CPU clock on this platform");
+            return;
+        };
+        std::thread::sleep(Duration::from_millis(50));
+        let slept = thread_cpu_time().unwrap().saturating_sub(c0);
+        let (c1, w1) = (thread_cpu_time().unwrap(), Instant::now());
+        let mut x = 1u64;
+        while w1.elapsed() < Duration::from_millis(100) {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+        }
+        let worked = thread_cpu_time().unwrap().saturating_sub(c1);
+        assert!(slept < Duration::from_millis(25), "sleeping cost {slept:?} of CPU");
+        // 100 ms of spinning: most of it on a CPU, unless the machine is very busy.
+        assert!(worked > Duration::from_millis(5) && worked <= w1.elapsed(), "spinning cost {worked:?}");
     }
 }

@@ -222,9 +222,86 @@ impl SchedStat {
     }
 }
 
+/// The machine's CPU time by kind, from the first line of `/proc/stat`, in
+/// seconds summed over all cores.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MachineStat {
+    /// User and nice time.
+    pub user: f64,
+    /// System time (outside interrupts).
+    pub system: f64,
+    /// Idle and I/O wait.
+    pub idle: f64,
+    /// Hard and soft interrupts (softirq: most of the kernel's network work).
+    pub irq: f64,
+    /// Time the hypervisor gave this VM's virtual CPUs to others.
+    pub steal: f64,
+}
+
+impl MachineStat {
+    /// Reads `/proc/stat` (all zero if unreadable).
+    pub fn read() -> MachineStat {
+        Self::parse(&std::fs::read_to_string("/proc/stat").unwrap_or_default())
+    }
+
+    /// Parses the `cpu` line of a `/proc/stat` text.
+    pub fn parse(text: &str) -> MachineStat {
+        let Some(line) = text.lines().find(|l| l.starts_with("cpu ")) else { return MachineStat::default() };
+        let v: Vec<f64> = line.split_whitespace().skip(1).filter_map(|x| x.parse().ok()).collect();
+        // SAFETY: sysconf has no preconditions.
+        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+        let f = |i: usize| v.get(i).copied().unwrap_or(0.0) / hz;
+        MachineStat { user: f(0) + f(1), system: f(2), idle: f(3) + f(4), irq: f(5) + f(6), steal: f(7) }
+    }
+
+    /// Time since `earlier`.
+    pub fn since(&self, e: &MachineStat) -> MachineStat {
+        MachineStat {
+            user: self.user - e.user,
+            system: self.system - e.system,
+            idle: self.idle - e.idle,
+            irq: self.irq - e.irq,
+            steal: self.steal - e.steal,
+        }
+    }
+
+    /// Sums two spans.
+    pub fn plus(&self, o: &MachineStat) -> MachineStat {
+        MachineStat {
+            user: self.user + o.user,
+            system: self.system + o.system,
+            idle: self.idle + o.idle,
+            irq: self.irq + o.irq,
+            steal: self.steal + o.steal,
+        }
+    }
+
+    /// CPU time spent on anything (not idle, not stolen).
+    pub fn busy(&self) -> f64 {
+        self.user + self.system + self.irq
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn machine_stat_reads_the_cpu_line_by_kind() {
+        // SAFETY: sysconf has no preconditions.
+        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+        let s = MachineStat::parse("cpu  100 20 30 400 5 6 7 8 0 0\ncpu0 1 2 3 4 5 6 7 8 0 0\n");
+        let close = |a: f64, ticks: f64| (a - ticks / hz).abs() < 1e-9;
+        assert!(close(s.user, 120.0), "{s:?}");
+        assert!(close(s.system, 30.0) && close(s.idle, 405.0) && close(s.irq, 13.0) && close(s.steal, 8.0));
+        assert!(close(s.busy(), 163.0), "{s:?}");
+        let later = MachineStat::parse("cpu  200 20 30 500 5 6 7 8 0 0\n");
+        assert!(close(later.since(&s).user, 100.0) && close(later.since(&s).idle, 100.0));
+        assert!(close(s.plus(&later).user, 340.0));
+        assert_eq!(MachineStat::parse("garbage"), MachineStat::default());
+        let now = MachineStat::read();
+        assert!(now.busy() + now.idle > 0.0 || std::fs::metadata("/proc/stat").is_err());
+    }
 
     #[test]
     fn own_cpu_time_grows_with_work() {

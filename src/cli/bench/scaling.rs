@@ -23,7 +23,7 @@
 //! cgroup's `cpu.stat`) and idle (no tile to render).
 
 use super::modes;
-use super::procs::{ChildGuard, SchedStat, cpu_secs, start_master, start_slave, wait_joined};
+use super::procs::{ChildGuard, MachineStat, SchedStat, cpu_secs, start_master, start_slave, wait_joined};
 use super::replay;
 use super::report::{self, Series, median, quantile};
 use super::{loadavg, parse_list, parse_sizes};
@@ -175,6 +175,72 @@ pub struct Row {
     duplicated_per_frame: f64,
     /// Where efficiency < 0.9: the saturated resource, from the figures above.
     bottleneck: Option<String>,
+    /// Where the machine's CPU went, per frame (in the lab).
+    #[serde(default)]
+    cpu_per_frame: Option<CpuPerFrame>,
+}
+
+/// Where the machine's CPU went during a run: CPU milliseconds per frame,
+/// summed over cores (`/proc/stat` and each process's threads'
+/// `/proc/PID/task/*/schedstat`). At N = N_max the slaves' quotas add up to
+/// the machine, so everything that is not `slave_render` comes out of them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct CpuPerFrame {
+    /// The master process.
+    master: f64,
+    /// This process: the viewer receiving the tiles (and the bench's log readers).
+    viewer: f64,
+    /// The slaves' render threads.
+    slave_render: f64,
+    /// The slaves' other threads (network, TLS or QUIC, heartbeats), inside their quotas.
+    slave_other: f64,
+    /// Hard and soft interrupts (the kernel's network work: veth, bridge, tbf, TCP/UDP).
+    irq: f64,
+    /// Busy time of everything else: other processes and kernel threads.
+    other: f64,
+    /// Idle cores.
+    idle: f64,
+    /// Stolen by the hypervisor.
+    steal: f64,
+}
+
+impl CpuPerFrame {
+    /// Everything but the slaves' render threads, idle and steal: the CPU that
+    /// at N = N_max comes out of the slaves' quotas.
+    fn overhead(&self) -> f64 {
+        self.master + self.viewer + self.slave_other + self.irq + self.other
+    }
+
+    /// What took the CPU besides the render threads, largest first, as
+    /// `" — per frame: master 4.3 ms, …"` (empty when nothing did).
+    fn takers(&self) -> String {
+        let mut parts = [
+            ("the slaves' own network threads", self.slave_other),
+            ("master", self.master),
+            ("viewer", self.viewer),
+            ("interrupts (network)", self.irq),
+            ("other processes", self.other),
+        ];
+        parts.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let list: Vec<String> =
+            parts.iter().filter(|p| p.1 >= 0.05).map(|(n, ms)| format!("{n} {ms:.1} ms")).collect();
+        if list.is_empty() { String::new() } else { format!(" — CPU per frame: {}", list.join(", ")) }
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "CPU ms/frame: render {:.1}, slaves' other threads {:.1}, master {:.1}, viewer {:.1}, irq {:.1}, \
+             other {:.1}, idle {:.1}, steal {:.1}",
+            self.slave_render,
+            self.slave_other,
+            self.master,
+            self.viewer,
+            self.irq,
+            self.other,
+            self.idle,
+            self.steal
+        )
+    }
 }
 
 #[derive(Serialize, serde::Deserialize)]
@@ -215,6 +281,10 @@ struct Report {
 struct Snapshot {
     at: Instant,
     master_cpu: f64,
+    master_run: f64,
+    viewer_run: f64,
+    slaves_run: Vec<f64>,
+    machine: MachineStat,
     render: Vec<SchedStat>,
     throttled_us: Vec<f64>,
     iface: Option<IfCounters>,
@@ -253,6 +323,11 @@ struct RunResult {
 struct Delta {
     wall: f64,
     master_cpu: f64,
+    /// Run time of the master's threads, of the viewer's, of each slave's (all threads).
+    master_run: f64,
+    viewer_run: f64,
+    slaves_run: Vec<f64>,
+    machine: MachineStat,
     render: Vec<SchedStat>,
     throttled: Vec<f64>,
     iface: Option<IfCounters>,
@@ -263,6 +338,10 @@ impl Delta {
         Delta {
             wall: (after.at - before.at).as_secs_f64(),
             master_cpu: after.master_cpu - before.master_cpu,
+            master_run: after.master_run - before.master_run,
+            viewer_run: after.viewer_run - before.viewer_run,
+            slaves_run: after.slaves_run.iter().zip(&before.slaves_run).map(|(a, b)| a - b).collect(),
+            machine: after.machine.since(&before.machine),
             render: after.render.iter().zip(&before.render).map(|(a, b)| a.since(b)).collect(),
             throttled: after
                 .throttled_us
@@ -291,6 +370,12 @@ impl RunResult {
         let (d, e) = (&mut self.delta, o.delta);
         d.wall += e.wall;
         d.master_cpu += e.master_cpu;
+        d.master_run += e.master_run;
+        d.viewer_run += e.viewer_run;
+        for (a, b) in d.slaves_run.iter_mut().zip(&e.slaves_run) {
+            *a += b;
+        }
+        d.machine = d.machine.plus(&e.machine);
         for (a, b) in d.render.iter_mut().zip(&e.render) {
             (a.run, a.wait) = (a.run + b.run, a.wait + b.wait);
         }
@@ -498,6 +583,14 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
                                     .map(|b| format!(" — short of {EFFICIENCY_BAR}: {b}"))
                                     .unwrap_or_default()
                             );
+                            if let Some(c) = &row.cpu_per_frame {
+                                println!(
+                                    "    {}; not rendering: {:.1} ms/frame ({:.0} % of the render time)",
+                                    c.describe(),
+                                    c.overhead(),
+                                    100.0 * c.overhead() / c.slave_render.max(1e-9)
+                                );
+                            }
                         }
                     }
                     rows.extend(group);
@@ -565,12 +658,27 @@ fn run_once(
     wait_joined(&master, &mut slaves, Duration::from_secs(120))?;
     let (master_pid, slave_pids): (String, Vec<u32>) =
         (master.pid().to_string(), slaves.iter().map(ChildGuard::pid).collect());
-    let snapshot = || Snapshot {
-        at: Instant::now(),
-        master_cpu: cpu_secs(&master_pid),
-        render: slave_pids.iter().map(|&p| SchedStat::read(p, "isin-render")).collect(),
-        throttled_us: cgroups.iter().take(spec.n).map(|c| c.throttled().1).collect(),
-        iface: lab.and_then(|l| l.counters(l.master()).ok()),
+    let (master_pid_n, own_pid) = (master.pid(), std::process::id());
+    // The interface counters take a process spawn to read (milliseconds in
+    // which the slaves sit idle): read them outside the timed span, so that the
+    // span is the replay's — before the clock at the start, after it at the end.
+    let snapshot = |start: bool| {
+        let iface_first = if start { Some(lab.and_then(|l| l.counters(l.master()).ok())) } else { None };
+        let end_at = (!start).then(Instant::now);
+        let mut s = Snapshot {
+            at: Instant::now(),
+            master_cpu: cpu_secs(&master_pid),
+            master_run: SchedStat::read(master_pid_n, "").run,
+            viewer_run: SchedStat::read(own_pid, "").run,
+            slaves_run: slave_pids.iter().map(|&p| SchedStat::read(p, "").run).collect(),
+            machine: MachineStat::read(),
+            render: slave_pids.iter().map(|&p| SchedStat::read(p, "isin-render")).collect(),
+            throttled_us: cgroups.iter().take(spec.n).map(|c| c.throttled().1).collect(),
+            iface: None,
+        };
+        s.iface = iface_first.unwrap_or_else(|| lab.and_then(|l| l.counters(l.master()).ok()));
+        s.at = end_at.unwrap_or_else(Instant::now);
+        s
     };
     let (w, h) = spec.settings_size;
     let cameras = spec.cameras;
@@ -586,9 +694,9 @@ fn run_once(
                     let settings = RenderSettings { width: w, height: h, ..info.settings };
                     // Warm-up: scene loaded and caches hot on every slave.
                     viewer::collect_frame(&v, &mut events, cameras[0], settings).await?;
-                    let before = snapshot();
+                    let before = snapshot(true);
                     let r = replay::replay(&v, &mut events, cameras, settings, spec.pipeline).await?;
-                    let after = snapshot();
+                    let after = snapshot(false);
                     let _ = v.send(viewer::Disconnect).await;
                     anyhow::Ok(RunResult {
                         secs: r.intervals(),
@@ -649,6 +757,24 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         }
     };
     let duplicated_per_frame = r.duplicated as f64 / frames.max(1) as f64;
+    let d = &r.delta;
+    let cpu_per_frame = (d.machine.busy() > 0.0).then(|| {
+        let per_frame = |secs: f64| secs * 1e3 / frames.max(1) as f64;
+        let render_run: f64 = render.iter().map(|s| s.run).sum();
+        let slaves_run: f64 = d.slaves_run.iter().sum();
+        let irq = d.machine.irq;
+        let named = d.master_run + d.viewer_run + slaves_run;
+        CpuPerFrame {
+            master: per_frame(d.master_run),
+            viewer: per_frame(d.viewer_run),
+            slave_render: per_frame(render_run),
+            slave_other: per_frame((slaves_run - render_run).max(0.0)),
+            irq: per_frame(irq),
+            other: per_frame((d.machine.busy() - named - irq).max(0.0)),
+            idle: per_frame(d.machine.idle),
+            steal: per_frame(d.machine.steal),
+        }
+    });
     Row {
         width: spec.settings_size.0,
         height: spec.settings_size.1,
@@ -678,6 +804,7 @@ fn make_row(spec: &RunSpec, rate: Option<u32>, share: Option<f64>, r: &RunResult
         slave_crowded,
         duplicated_per_frame,
         bottleneck: None,
+        cpu_per_frame,
     }
 }
 
@@ -691,9 +818,10 @@ fn bottleneck(r: &Row) -> String {
         why.push(format!("master CPU: {:.2} cores busy", r.master_cpu));
     }
     if r.slave_crowded >= 0.05 && r.slave_crowded >= r.slave_idle {
+        let takers = r.cpu_per_frame.map(|c| c.takers()).unwrap_or_default();
         why.push(format!(
             "machine CPU: slaves lost {:.0} % of their quota to other load on the machine \
-             (the N slaves' quotas add up to the whole machine; other processes compete)",
+             (the N slaves' quotas add up to the whole machine; other processes compete){takers}",
             r.slave_crowded * 100.0
         ));
     }
@@ -840,6 +968,53 @@ fn markdown(rep: &Report) -> String {
         ],
         &detail,
     ));
+    let cpu: Vec<Vec<String>> = rep
+        .rows
+        .iter()
+        .filter_map(|r| {
+            let c = r.cpu_per_frame?;
+            let mut v = vec![group_label(r), r.slaves.to_string()];
+            v.extend(
+                [
+                    c.slave_render,
+                    c.slave_other,
+                    c.master,
+                    c.viewer,
+                    c.irq,
+                    c.other,
+                    c.overhead(),
+                    c.idle,
+                    c.steal,
+                ]
+                .iter()
+                .map(|x| format!("{x:.1}")),
+            );
+            Some(v)
+        })
+        .collect();
+    if !cpu.is_empty() {
+        out.push_str(
+            "\nWhere the machine's CPU went, in CPU milliseconds per frame (all cores; `not rendering`: \
+             everything but the render threads, idle and steal — at N = N_max it comes out of the slaves' \
+             quotas):\n\n",
+        );
+        out.push_str(&report::table(
+            &[
+                "setup",
+                "N",
+                "slaves render",
+                "slaves other threads",
+                "master",
+                "viewer",
+                "irq/softirq",
+                "other",
+                "not rendering",
+                "idle",
+                "steal",
+            ],
+            &cpu,
+        ));
+    }
     out
 }
 
@@ -933,6 +1108,7 @@ mod tests {
             slave_crowded: 0.0,
             duplicated_per_frame: 0.0,
             bottleneck: None,
+            cpu_per_frame: None,
         }
     }
 
@@ -944,6 +1120,21 @@ mod tests {
         let mut r = row(12, 0.6);
         r.slave_crowded = 0.3;
         assert!(bottleneck(&r).contains("machine CPU"), "{}", bottleneck(&r));
+        // With a CPU account, the takers are named, largest first.
+        r.cpu_per_frame = Some(CpuPerFrame {
+            master: 4.0,
+            viewer: 1.0,
+            slave_render: 130.0,
+            slave_other: 6.0,
+            irq: 2.0,
+            other: 9.0,
+            idle: 0.0,
+            steal: 0.0,
+        });
+        let b = bottleneck(&r);
+        let (other, own, master) =
+            (b.find("other processes 9.0"), b.find("network threads 6.0"), b.find("master 4.0"));
+        assert!(other < own && own < master && other.is_some(), "{b}");
         let mut r = row(12, 0.6);
         r.slave_idle = 0.3;
         assert!(bottleneck(&r).contains("scheduling"), "{}", bottleneck(&r));

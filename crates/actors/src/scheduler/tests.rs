@@ -34,7 +34,8 @@ struct SimSlave {
     us_per_pixel: u64,
     mode: Mode,
     queue: VecDeque<(FrameId, TileJob)>,
-    lanes: Vec<Option<(FrameId, TileJob, Duration)>>,
+    /// Tile being rendered: frame, job, when it is done, how long it takes.
+    lanes: Vec<Option<(FrameId, TileJob, Duration, Duration)>>,
     next_heartbeat: Duration,
     received: u32,
 }
@@ -59,6 +60,10 @@ struct Sim {
     idle_lane_ms: u64,
     /// When each frame was first handed a tile, by frame.
     first_assigned: HashMap<FrameId, Duration>,
+    /// Pixels inside this rectangle cost `hot.1` times as much to render.
+    hot: Option<(Tile, u64)>,
+    /// Report render times to the scheduler (as the master does).
+    report_costs: bool,
 }
 
 impl Sim {
@@ -72,6 +77,8 @@ impl Sim {
             next_id: 1,
             idle_lane_ms: 0,
             first_assigned: HashMap::new(),
+            hot: None,
+            report_costs: true,
         }
     }
 
@@ -135,22 +142,23 @@ impl Sim {
         self.now += MS;
         let now = self.now;
         let mut results = Vec::new();
+        let hot = self.hot;
         for (&id, s) in self.slaves.iter_mut() {
             if s.mode != Mode::Alive {
                 continue;
             }
             for lane in s.lanes.iter_mut() {
-                if let Some((f, job, at)) = *lane
+                if let Some((f, job, at, took)) = *lane
                     && at <= now
                 {
-                    results.push((id, f, job));
+                    results.push((id, f, job, took));
                     *lane = None;
                 }
                 if lane.is_none()
                     && let Some((f, job)) = s.queue.pop_front()
                 {
-                    let cost = Duration::from_micros(job.tile.pixel_count() as u64 * s.us_per_pixel).max(MS);
-                    *lane = Some((f, job, now + cost));
+                    let cost = render_cost(hot, job.tile, s.us_per_pixel);
+                    *lane = Some((f, job, now + cost, cost));
                 }
                 if lane.is_none() {
                     self.idle_lane_ms += 1;
@@ -161,7 +169,10 @@ impl Sim {
                 self.sched.handle_heartbeat(now, id);
             }
         }
-        for (slave, frame, job) in results {
+        for (slave, frame, job, took) in results {
+            if self.report_costs {
+                self.sched.record_render_time(frame, job.id, took.as_micros() as u64);
+            }
             match self.sched.handle_result(now, slave, frame, job.id) {
                 ResultOutcome::Accepted { tile } => {
                     assert_eq!(tile, job.tile, "scheduler reports the rect it handed out");
@@ -212,6 +223,18 @@ impl Sim {
         let twice = count.iter().filter(|&&c| c > 1).count();
         assert_eq!((missing, twice), (0, 0), "frame {frame}: pixels missing / delivered twice");
     }
+}
+
+/// Render time of `tile` on a slave at `us_per_pixel`; pixels inside the hot
+/// spot `hot.0` cost `hot.1` times as much.
+fn render_cost(hot: Option<(Tile, u64)>, tile: Tile, us_per_pixel: u64) -> Duration {
+    let mut us = tile.pixel_count() as u64 * us_per_pixel;
+    if let Some((h, factor)) = hot {
+        let ox = (tile.x + tile.w).min(h.x + h.w).saturating_sub(tile.x.max(h.x));
+        let oy = (tile.y + tile.h).min(h.y + h.h).saturating_sub(tile.y.max(h.y));
+        us += u64::from(ox) * u64::from(oy) * us_per_pixel * (factor - 1);
+    }
+    Duration::from_micros(us).max(MS)
 }
 
 fn cfg() -> SchedulerConfig {
@@ -295,8 +318,12 @@ fn disconnected_slave_tiles_go_back_to_the_front_of_the_queue() {
     sim.frame(1, 640, 480);
     sim.step();
     let sb = &sim.slaves[&b];
-    let held: BTreeSet<TileId> =
-        sb.queue.iter().map(|(_, j)| j.id).chain(sb.lanes.iter().flatten().map(|(_, j, _)| j.id)).collect();
+    let held: BTreeSet<TileId> = sb
+        .queue
+        .iter()
+        .map(|(_, j)| j.id)
+        .chain(sb.lanes.iter().flatten().map(|(_, j, _, _)| j.id))
+        .collect();
     assert_eq!(held.len(), 3);
     sim.disconnect(b);
     assert_eq!(sim.log.dead[0].1, DeathCause::Disconnected);
@@ -305,8 +332,12 @@ fn disconnected_slave_tiles_go_back_to_the_front_of_the_queue() {
     // a gets b's tiles as soon as it has room, before the rest of the queue.
     sim.run_until(Duration::from_secs(5), |s| s.slaves[&a].received >= 6);
     let sa = &sim.slaves[&a];
-    let next: Vec<TileId> =
-        sa.queue.iter().map(|(_, j)| j.id).chain(sa.lanes.iter().flatten().map(|(_, j, _)| j.id)).collect();
+    let next: Vec<TileId> = sa
+        .queue
+        .iter()
+        .map(|(_, j)| j.id)
+        .chain(sa.lanes.iter().flatten().map(|(_, j, _, _)| j.id))
+        .collect();
     for id in &held {
         assert!(
             next.contains(id) || sim.log.accepted[&1].contains(&sim.sched.tile(1, *id).unwrap()),
@@ -678,4 +709,88 @@ fn abandoning_one_frame_leaves_the_others() {
     sim.run_until(Duration::from_secs(60), |s| s.frame_done(2));
     sim.assert_exact_cover(2);
     assert!(!sim.frame_done(1));
+}
+
+/// Renders `frames` frames of 320×240 one at a time on 12 one-thread slaves
+/// with an expensive spot where grid order meets it last; returns how long
+/// each frame took, in order.
+fn hot_spot_frames(report_costs: bool, frames: u64) -> Vec<Duration> {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    sim.hot = Some((Tile { x: 256, y: 176, w: 64, h: 64 }, 12));
+    sim.report_costs = report_costs;
+    // 16 px tiles (the cluster-sized edge) take 7.7 ms, those of the spot 92 ms.
+    for _ in 0..12 {
+        sim.join(1, 30);
+    }
+    let mut took = Vec::new();
+    for f in 1..=frames {
+        let t0 = sim.now;
+        sim.frame(f, 320, 240);
+        sim.run_until(Duration::from_secs(60), |s| s.frame_done(f));
+        sim.assert_exact_cover(f);
+        took.push(sim.now - t0);
+    }
+    took
+}
+
+#[test]
+fn expensive_tiles_go_out_first_once_measured() {
+    let blind = hot_spot_frames(false, 3);
+    let learnt = hot_spot_frames(true, 3);
+    println!("frame times in grid order {blind:?}, expensive first {learnt:?}");
+    // The first frame knows nothing either way.
+    assert_eq!(blind[0], learnt[0]);
+    // The work spread evenly over the 12 slaves.
+    let hot = Some((Tile { x: 256, y: 176, w: 64, h: 64 }, 12));
+    let ideal = Tile::grid(320, 240, 8).into_iter().map(|t| render_cost(hot, t, 30)).sum::<Duration>() / 12;
+    // Later frames start with the hot spot's tiles and end on cheap ones.
+    for f in 1..3 {
+        assert!(learnt[f].as_secs_f64() < 1.1 * ideal.as_secs_f64(), "{:?} vs ideal {ideal:?}", learnt[f]);
+        assert!(
+            learnt[f].as_secs_f64() < 0.92 * blind[f].as_secs_f64(),
+            "frame {}: {:?} with costs against {:?} in grid order",
+            f + 1,
+            learnt[f],
+            blind[f]
+        );
+    }
+}
+
+#[test]
+fn the_first_tiles_handed_out_are_the_measured_expensive_ones() {
+    let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    sim.hot = Some((Tile { x: 256, y: 176, w: 64, h: 64 }, 12));
+    let a = sim.join(1, 3);
+    sim.frame(1, 320, 240);
+    sim.run_until(Duration::from_secs(60), |s| s.frame_done(1));
+    assert!(sim.sched.expected_render_micros(Tile { x: 288, y: 208, w: 32, h: 32 }, 320, 240) > 0.0);
+    sim.frame(2, 320, 240);
+    let (_, first) = sim.slaves[&a].queue.front().copied().expect("frame 2 handed out");
+    let hot = Tile { x: 256, y: 176, w: 64, h: 64 };
+    let inside = first.tile.x + first.tile.w > hot.x && first.tile.y + first.tile.h > hot.y;
+    assert!(inside, "first tile of frame 2 {:?} is not in the hot spot", first.tile);
+}
+
+#[test]
+fn pipelined_frames_with_a_hot_spot_keep_slaves_busier_once_costs_are_known() {
+    let run = |report_costs: bool| {
+        let mut sim = Sim::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+        sim.hot = Some((Tile { x: 256, y: 176, w: 64, h: 64 }, 12));
+        sim.report_costs = report_costs;
+        for _ in 0..12 {
+            sim.join(1, 30);
+        }
+        let (frames, mut requested) = (8u64, 0u64);
+        for done in 0..frames {
+            while requested < frames && requested < done + 2 {
+                requested += 1;
+                sim.queue(requested, 320, 240);
+            }
+            sim.run_until(Duration::from_secs(60), |s| s.frame_done(done + 1));
+        }
+        (sim.now, sim.idle_lane_ms)
+    };
+    let (blind, learnt) = (run(false), run(true));
+    println!("pipelined, 8 frames: grid order {blind:?}, expensive first {learnt:?} (time, idle lane-ms)");
+    assert!(learnt.0 < blind.0 && learnt.1 < blind.1, "{learnt:?} vs {blind:?}");
 }
