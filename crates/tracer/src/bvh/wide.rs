@@ -819,7 +819,7 @@ mod tests {
             }
         }
         let bvh = Bvh::build(&tris);
-        let (nodes, _, _) = super::super::build::binary(&tris);
+        let (nodes, _) = super::super::build::binary(&tris);
         // Interior binary nodes reachable from the root (the array has unused slots).
         let (mut interior, mut binary_leaves, mut todo) = (0, 0, vec![0usize]);
         while let Some(i) = todo.pop() {
