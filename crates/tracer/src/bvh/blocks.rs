@@ -234,7 +234,10 @@ mod tests {
             for i in 0..count {
                 let lane = (start + i) as usize;
                 assert_eq!(lane_ids[lane], 100 + first + i);
-                assert_eq!(blocks[lane / 4].get(lane % 4), PreTriangle::new(&tris[(100 + first + i) as usize]));
+                assert_eq!(
+                    blocks[lane / 4].get(lane % 4),
+                    PreTriangle::new(&tris[(100 + first + i) as usize])
+                );
             }
         }
         assert_eq!(lane_ids.iter().filter(|&&i| i == u32::MAX).count(), 1);

@@ -83,12 +83,13 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     // at their lanes.
     let leaves: Vec<(u32, u32)> =
         nodes.par_iter().filter_map(|s| (s[7] != 0).then_some((s[3], s[7]))).collect();
-    let (mut wide, (blocks, prim_ids, starts)) =
+    let (mut tree, (blocks, prim_ids, starts)) =
         rayon::join(|| super::wide::collapse(&nodes), || super::blocks::pack(&leaves, triangles, &ids));
     drop(nodes);
     drop(ids);
-    super::wide::place_leaves(&mut wide, &leaves, &starts, triangles.len());
-    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false, no_avx: false }
+    super::wide::place_leaves(&mut tree, &leaves, &starts, triangles.len());
+    let super::wide::Collapsed { wide, narrow } = tree;
+    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, narrow, scalar_only: false, no_avx: false }
 }
 
 /// The binary tree over `triangles` (not empty; depth-first with unused slots,
