@@ -772,6 +772,31 @@ pub(super) fn descend_nearest(
     Some(order[0].1)
 }
 
+/// Bit `k` set where child `k` of `node` is a leaf or unused (bit 31 of its
+/// word). `AVX` as in [`entries`].
+#[inline(always)]
+pub(super) fn leaf_bits<const AVX: bool>(node: &WideNode) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        if AVX {
+            // SAFETY: `AVX` is only set by the AVX entry points, which check
+            // the CPU; the load reads the 32 bytes of `child`.
+            return unsafe {
+                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_loadu_si256(node.child.as_ptr().cast()))) as u32
+            };
+        }
+        // SAFETY: SSE2 is part of the x86_64 baseline; the loads read the two
+        // 16-byte halves of `child`.
+        return unsafe {
+            let half = |at: usize| _mm_castsi128_ps(_mm_loadu_si128(node.child[at..at + 4].as_ptr().cast()));
+            (_mm_movemask_ps(half(0)) | _mm_movemask_ps(half(4)) << 4) as u32
+        };
+    }
+    #[allow(unreachable_code)]
+    node.child.iter().enumerate().fold(0, |m, (k, &c)| m | (c >> 31) << k)
+}
+
 /// Tests the leaf of child word `word` for the nearest-hit query: a hit nearer
 /// than `best_t` (the lowest lane on ties) becomes the best, as `(lane, u, v)`.
 #[inline(always)]
@@ -851,16 +876,14 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
             }
         } else {
             let node = &bvh.wide[current as usize];
-            let (e, mut mask) = entries::<AVX>(node, &r, t_min, best_t, simd);
-            let mut inner = 0u32;
-            while mask != 0 {
-                let k = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let word = node.child[k];
-                if word & LEAF == 0 {
-                    inner |= 1 << k;
-                } else if e[k] <= best_t * ROBUST_EXIT {
-                    nearest_in_leaf(&lr, blocks, word, t_min, &mut best_t, &mut best);
+            let (e, mask) = entries::<AVX>(node, &r, t_min, best_t, simd);
+            let leaf = leaf_bits::<AVX>(node);
+            let (mut leaves, inner) = (mask & leaf, mask & !leaf);
+            while leaves != 0 {
+                let k = leaves.trailing_zeros() as usize;
+                leaves &= leaves - 1;
+                if e[k] <= best_t * ROBUST_EXIT {
+                    nearest_in_leaf(&lr, blocks, node.child[k], t_min, &mut best_t, &mut best);
                 }
             }
             // Interior children still in front of the best hit, nearest first
