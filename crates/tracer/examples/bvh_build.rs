@@ -158,6 +158,26 @@ fn main() {
                 }
                 println!("  {name}: {:.2} Mrays/s 1T ({hits} hits)", rays.len() as f64 / best * 1e-6);
             }
+            // Shadow rays from the primary hits to points on a square light above the mesh.
+            let d = (bounds.max - bounds.min).length();
+            let light = Vec3::new((bounds.min.x + bounds.max.x) * 0.5, bounds.max.y + 0.5 * d, bounds.min.z);
+            let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+            let shadow: Vec<(Ray, f32)> = primary
+                .iter()
+                .filter_map(|r| bvh.intersect(r, 0.0, f32::INFINITY).map(|h| r.origin + r.dir * h.t))
+                .map(|p| {
+                    let l = light + Vec3::new(rng.next() - 0.5, 0.0, rng.next() - 0.5) * 0.25 * d;
+                    let to = l - p;
+                    (Ray::new(p, to / to.length()), to.length() * 0.999)
+                })
+                .collect();
+            let (mut best, mut hits) = (f64::INFINITY, 0);
+            for _ in 0..trace_reps {
+                let t0 = Instant::now();
+                hits = shadow.iter().filter(|(r, len)| bvh.occluded(r, 1e-4 * d, *len)).count();
+                best = best.min(t0.elapsed().as_secs_f64());
+            }
+            println!("  shadow: {:.2} Mrays/s 1T ({hits} occluded)", shadow.len() as f64 / best * 1e-6);
         }
     }
 }

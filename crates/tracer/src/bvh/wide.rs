@@ -701,6 +701,45 @@ impl<T: Copy> Stack<T> {
     }
 }
 
+impl Stack<(u32, f32)> {
+    /// Pushes the interior children in the mask `inner` whose entry distance
+    /// `e[k]` is at most `limit`, so that they pop nearest first, and among
+    /// equal distances in slot order — the order [`descend_nearest`] visits
+    /// them in. An insertion sort into the top of the stack.
+    #[inline(always)]
+    pub(super) fn push_nearest_last(
+        &mut self,
+        children: &[u32; W],
+        e: &[f32; W],
+        mut inner: u32,
+        limit: f32,
+    ) {
+        let base = self.len;
+        while inner != 0 {
+            let k = inner.trailing_zeros() as usize;
+            inner &= inner - 1;
+            let t = e[k];
+            if t > limit {
+                continue;
+            }
+            // Entries at or nearer than `t` (pushed earlier, so from lower
+            // slots) move up: they pop first.
+            let mut j = self.len;
+            while j > base {
+                // SAFETY: `base <= j - 1 < len`: written by `push` or below.
+                let below = unsafe { self.items[j - 1].assume_init() };
+                if below.1 > t {
+                    break;
+                }
+                self.items[j] = MaybeUninit::new(below);
+                j -= 1;
+            }
+            self.items[j] = MaybeUninit::new((children[k], t));
+            self.len += 1;
+        }
+    }
+}
+
 /// A ray prepared for the triangle tests of leaves.
 pub(super) struct LeafRay<'a> {
     ray: &'a Ray,
@@ -888,11 +927,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
             }
             // Interior children still in front of the best hit, nearest first
             // (stable on ties, so deterministic).
-            let limit = best_t * ROBUST_EXIT;
-            if let Some(nearest) = descend_nearest(&node.child, &e, inner, limit, &mut stack) {
-                current = nearest;
-                continue;
-            }
+            stack.push_nearest_last(&node.child, &e, inner, best_t * ROBUST_EXIT);
         }
         current = loop {
             match stack.pop() {
@@ -941,6 +976,24 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
     let r = WideRay::new(ray);
     let lr = LeafRay::new(ray, simd);
     let blocks = &bvh.blocks[..];
+    // Which interior children to visit first. Any order gives the same
+    // answer; the cheapest finds an occluder soonest. A wide node's slots
+    // follow the binary tree's left-to-right order, which runs from smaller to
+    // larger coordinates along its split axes, so this visits the children
+    // towards the far end of the ray first: a shadow ray starts on a surface,
+    // whose own boxes (which rarely occlude it) lie at its near end. Measured
+    // with callgrind on shadow rays to a light above and to one below the
+    // bunny and the dragon, it beats slot order, reverse slot order and a sort
+    // by entry distance (nearest or farthest first) over both lights.
+    let d = ray.dir.abs();
+    let dominant = if d.x >= d.y && d.x >= d.z {
+        ray.dir.x
+    } else if d.y >= d.z {
+        ray.dir.y
+    } else {
+        ray.dir.z
+    };
+    let low_slots_first = dominant.is_nan() || dominant <= 0.0;
     let mut stack = Stack::<u32>::new();
     let mut current = 0u32;
     loop {
@@ -963,24 +1016,33 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
             continue;
         }
         let node = &bvh.wide[current as usize];
-        let (_, mut mask) = entries::<AVX>(node, &r, t_min, t_max, simd);
-        let mut next = None;
-        while mask != 0 {
-            let k = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            let child = node.child[k];
-            if child & LEAF != 0 {
-                let (first, count) = leaf_range(child);
-                if lr.hits(blocks, first, count, t_min, t_max).mask != 0 {
-                    return true;
-                }
-            } else if next.is_none() {
-                next = Some(child);
-            } else {
-                stack.push(child);
+        let (_, mask) = entries::<AVX>(node, &r, t_min, t_max, simd);
+        let leaf = leaf_bits::<AVX>(node);
+        let (mut leaves, mut inner) = (mask & leaf, mask & !leaf);
+        while leaves != 0 {
+            let k = leaves.trailing_zeros() as usize;
+            leaves &= leaves - 1;
+            let (first, count) = leaf_range(node.child[k]);
+            if lr.hits(blocks, first, count, t_min, t_max).mask != 0 {
+                return true;
             }
         }
-        current = match next.or_else(|| stack.pop()) {
+        // Interior children in slot order, or in reverse when the ray runs
+        // towards larger coordinates on its dominant axis (see `low_slots_first`).
+        if low_slots_first {
+            while inner != 0 {
+                let k = 31 - inner.leading_zeros() as usize;
+                inner &= !(1 << k);
+                stack.push(node.child[k]);
+            }
+        } else {
+            while inner != 0 {
+                let k = inner.trailing_zeros() as usize;
+                inner &= inner - 1;
+                stack.push(node.child[k]);
+            }
+        }
+        current = match stack.pop() {
             Some(c) => c,
             None => return false,
         };
