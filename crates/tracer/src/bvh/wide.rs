@@ -864,8 +864,9 @@ fn nearest_in_leaf(
 ///
 /// At each node the hit leaves are tested at once (in lane order: the order
 /// only decides between hits at bit-identical `t`, and it is the same on every
-/// machine); of the hit interior children still in front of the best hit, the
-/// nearest is visited next and the others are pushed, farthest first. Within a
+/// machine); the hit interior children still in front of the best hit are
+/// pushed so that they pop nearest first (slot order on ties), and the top is
+/// visited next ([`Stack::push_nearest_last`]). Within a
 /// leaf, the nearest lane wins, the lowest lane on ties — what testing the
 /// lanes one after another with a shrinking `t_max` would give.
 pub(super) fn intersect(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
@@ -1124,6 +1125,44 @@ mod tests {
             for (k, t) in a.iter().enumerate() {
                 assert_eq!(ma & (1 << k) != 0, *t != f32::INFINITY, "case {i}: mask matches entries");
             }
+        }
+    }
+
+    #[test]
+    fn pushing_nearest_last_visits_children_in_descend_nearest_order() {
+        // Random entry distances with many ties, random interior masks and
+        // limits, on top of a non-empty stack: both give the same sequence.
+        let s = Sampler::new(9, 8, 7, 6);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let mut node = WideNode::EMPTY;
+        for (k, c) in node.child.iter_mut().enumerate() {
+            *c = 100 + k as u32;
+        }
+        for i in 0..5_000 {
+            let e: [f32; W] = std::array::from_fn(|_| (next() * 4.0).floor());
+            let inner = (next() * 256.0) as u32 & 0xff;
+            let limit = if i % 3 == 0 { f32::INFINITY } else { (next() * 4.0).floor() };
+            let mut a = Stack::<(u32, f32)>::new();
+            let mut b = Stack::<(u32, f32)>::new();
+            a.push((7, -1.0));
+            b.push((7, -1.0));
+            let mut order_a = Vec::new();
+            if let Some(first) = descend_nearest(&node.child, &e, inner, limit, &mut a) {
+                order_a.push(first);
+            }
+            while let Some((c, _)) = a.pop() {
+                order_a.push(c);
+            }
+            b.push_nearest_last(&node.child, &e, inner, limit);
+            let mut order_b = Vec::new();
+            while let Some((c, _)) = b.pop() {
+                order_b.push(c);
+            }
+            assert_eq!(order_a, order_b, "case {i}: entries {e:?}, mask {inner:#x}, limit {limit}");
         }
     }
 
