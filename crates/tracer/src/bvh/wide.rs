@@ -701,6 +701,44 @@ impl<T: Copy> Stack<T> {
     }
 }
 
+impl<T: Copy> Stack<T> {
+    /// The top entry, if any.
+    #[inline(always)]
+    pub(super) fn peek(&self) -> Option<T> {
+        let top = self.len.checked_sub(1)?;
+        // SAFETY: every slot below the length was written by `push`.
+        Some(unsafe { self.items[top].assume_init() })
+    }
+}
+
+/// Asks the CPU to start loading the node an interior child word points to
+/// (a hint: it changes no result).
+#[inline(always)]
+fn prefetch_node(bvh: &Bvh, word: u32) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let (p, lines): (*const i8, usize) = if word & NARROW == 0 {
+            match bvh.wide.get(word as usize) {
+                Some(n) => (std::ptr::from_ref(n).cast(), 4),
+                None => return,
+            }
+        } else {
+            match bvh.narrow.get((word & !NARROW) as usize) {
+                Some(n) => (std::ptr::from_ref(n).cast(), 2),
+                None => return,
+            }
+        };
+        for l in 0..lines {
+            // SAFETY: SSE is part of the x86_64 baseline; a prefetch never
+            // faults, and the addresses lie inside the node (`wrapping_add`).
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64 * l)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (bvh, word);
+}
+
 impl Stack<(u32, f32)> {
     /// Pushes the interior children in the mask `inner` whose entry distance
     /// `e[k]` is at most `limit`, so that they pop nearest first, and among
@@ -940,7 +978,12 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
                         prim: bvh.prim_ids[lane as usize],
                     });
                 }
-                Some((c, t)) if t <= best_t * ROBUST_EXIT => break c,
+                Some((c, t)) if t <= best_t * ROBUST_EXIT => {
+                    if let Some((next, _)) = stack.peek() {
+                        prefetch_node(bvh, next);
+                    }
+                    break c;
+                }
                 Some(_) => {}
             }
         };
@@ -1014,6 +1057,9 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
                 Some(c) => c,
                 None => return false,
             };
+            if let Some(next) = stack.peek() {
+                prefetch_node(bvh, next);
+            }
             continue;
         }
         let node = &bvh.wide[current as usize];
@@ -1047,6 +1093,9 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
             Some(c) => c,
             None => return false,
         };
+        if let Some(next) = stack.peek() {
+            prefetch_node(bvh, next);
+        }
     }
 }
 
@@ -1125,6 +1174,22 @@ mod tests {
             for (k, t) in a.iter().enumerate() {
                 assert_eq!(ma & (1 << k) != 0, *t != f32::INFINITY, "case {i}: mask matches entries");
             }
+        }
+    }
+
+    #[test]
+    fn stack_peek_and_prefetch_hints() {
+        let mut st = Stack::<u32>::new();
+        assert_eq!(st.peek(), None);
+        st.push(3);
+        st.push(5);
+        assert_eq!(st.peek(), Some(5));
+        assert_eq!(st.pop(), Some(5));
+        assert_eq!(st.peek(), Some(3));
+        // A hint for any word, in range or not, of either kind, is harmless.
+        let bvh = Bvh::default();
+        for word in [0, 7, NARROW, NARROW | 9, LEAF - 1] {
+            prefetch_node(&bvh, word);
         }
     }
 
