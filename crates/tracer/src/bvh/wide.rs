@@ -974,7 +974,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
             let (e, mask) = entries::<AVX>(node, &r, t_min, best_t, simd);
             let leaf = leaf_bits::<AVX>(node);
             let (mut leaves, inner) = (mask & leaf, mask & !leaf);
-            if leaves & (leaves - 1) != 0 {
+            if leaves.count_ones() > 1 {
                 // Several leaves: start loading all their blocks at once.
                 let mut m = leaves;
                 while m != 0 {
