@@ -89,7 +89,19 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     drop(ids);
     super::wide::place_leaves(&mut tree, &leaves, &starts, triangles.len());
     let super::wide::Collapsed { wide, narrow } = tree;
-    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, narrow, scalar_only: false, no_avx: false }
+    let mut bvh = Bvh {
+        bounds,
+        blocks,
+        prim_ids,
+        count: triangles.len(),
+        wide,
+        narrow,
+        scalar_only: false,
+        no_avx: false,
+        prefetch: false,
+    };
+    bvh.prefetch = bvh.memory_bytes() >= super::PREFETCH_MIN_BYTES;
+    bvh
 }
 
 /// The binary tree over `triangles` (not empty; depth-first with unused slots,

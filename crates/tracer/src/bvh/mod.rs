@@ -157,7 +157,16 @@ pub struct Bvh {
     scalar_only: bool,
     /// Use the SSE box test even where the CPU has AVX.
     no_avx: bool,
+    /// Prefetch nodes and triangle blocks during single-ray traversal: set
+    /// when the tree is larger than [`PREFETCH_MIN_BYTES`] (a hint that only
+    /// pays where the tree does not stay in the caches; answers are the same).
+    prefetch: bool,
 }
+
+/// Trees of at least this many bytes ([`Bvh::memory_bytes`]) prefetch during
+/// single-ray traversal. Measured: +10–30% incoherent rays on the 1.6M dragon
+/// (99 MB), −0–5% on the 4–6 MB bunny, dragon 100k and Sponza trees.
+pub const PREFETCH_MIN_BYTES: usize = 32 << 20;
 
 /// A violated BVH invariant, found by [`Bvh::validate`].
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -403,6 +412,32 @@ mod tests {
         let mut cut = bvh;
         cut.wide.pop();
         assert!(cut.validate().is_err(), "a dangling child index");
+    }
+
+    #[test]
+    fn prefetching_changes_no_answer() {
+        let tris = grid(40);
+        let plain = Bvh::build(&tris);
+        assert!(!plain.prefetch, "a small tree does not prefetch");
+        let mut hinted = plain.clone();
+        hinted.prefetch = true;
+        let s = crate::sampling::Sampler::new(3, 1, 4, 1);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let mut hits = 0;
+        for _ in 0..4000 {
+            let o = Vec3::new(next() * 50.0 - 5.0, next() * 6.0 - 1.0, next() * 50.0 - 5.0);
+            let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
+            let ray = Ray::new(o, dir);
+            let a = plain.intersect(&ray, 0.0, f32::INFINITY);
+            assert_eq!(a, hinted.intersect(&ray, 0.0, f32::INFINITY));
+            assert_eq!(plain.occluded(&ray, 0.0, 30.0), hinted.occluded(&ray, 0.0, 30.0));
+            hits += a.is_some() as usize;
+        }
+        assert!(hits > 500, "{hits} hits");
     }
 
     #[test]

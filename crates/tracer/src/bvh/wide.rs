@@ -974,7 +974,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
             let (e, mask) = entries::<AVX>(node, &r, t_min, best_t, simd);
             let leaf = leaf_bits::<AVX>(node);
             let (mut leaves, inner) = (mask & leaf, mask & !leaf);
-            if leaves.count_ones() > 1 {
+            if bvh.prefetch && leaves.count_ones() > 1 {
                 // Several leaves: start loading all their blocks at once.
                 let mut m = leaves;
                 while m != 0 {
@@ -1005,7 +1005,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
                     });
                 }
                 Some((c, t)) if t <= best_t * ROBUST_EXIT => {
-                    if let Some((next, _)) = stack.peek() {
+                    if let Some((next, _)) = stack.peek().filter(|_| bvh.prefetch) {
                         prefetch_node(bvh, next);
                     }
                     break c;
@@ -1083,7 +1083,7 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
                 Some(c) => c,
                 None => return false,
             };
-            if let Some(next) = stack.peek() {
+            if let Some(next) = stack.peek().filter(|_| bvh.prefetch) {
                 prefetch_node(bvh, next);
             }
             continue;
@@ -1119,7 +1119,7 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
             Some(c) => c,
             None => return false,
         };
-        if let Some(next) = stack.peek() {
+        if let Some(next) = stack.peek().filter(|_| bvh.prefetch) {
             prefetch_node(bvh, next);
         }
     }
