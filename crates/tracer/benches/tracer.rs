@@ -543,6 +543,8 @@ fn bench_mesh(name: &str, mesh: &BenchMesh, view: View, isin_only: bool, report:
     let mut sv = None;
     let mut obv = None;
     for (n, p) in &pools {
+        // The previous pool's trees go first: peak RSS is one tree per library.
+        drop((isin.take(), sv.take(), obv.take()));
         let (ti, b) = time_build(p, || Bvh::build(tris));
         report_row(report, &format!("{name} build {n}T"), Unit::Millis, ti, None, None);
         isin = Some(b);

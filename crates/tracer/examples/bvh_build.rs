@@ -6,7 +6,8 @@
 //! ```sh
 //! cargo run --release -p isin-tracer --example bvh_build -- ../shared/meshes/bunny/stanford-bunny.obj
 //! # options: --reps N (default 7), --split K (split every triangle 1 -> 4, K times), --trace,
-//! # --threads N (only N threads instead of 1 and 2)
+//! # --threads N (only N threads instead of 1 and 2), --rays N (probe rays, default 2^18),
+//! # --trace-reps N (default 5; 1 under callgrind)
 //! ```
 
 use isin_tracer::Vec3;
@@ -74,11 +75,20 @@ fn cpu_seconds() -> f64 {
     (tick(11) + tick(12)) / 100.0
 }
 
+/// The process's peak resident set size (VmHWM) in MB (Linux; NaN elsewhere).
+fn peak_rss_mb() -> f64 {
+    let Ok(status) = std::fs::read_to_string("/proc/self/status") else { return f64::NAN };
+    let kb = status.lines().find_map(|l| l.strip_prefix("VmHWM:")).and_then(|v| v.split_whitespace().next());
+    kb.and_then(|k| k.parse::<f64>().ok()).map_or(f64::NAN, |k| k / 1024.0)
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut reps = 7;
     let mut split = 0;
     let mut trace = false;
+    let mut rays = 1 << 18;
+    let mut trace_reps = 5;
     let mut thread_counts = vec![1, 2];
     let mut paths = Vec::new();
     let mut it = args.iter();
@@ -87,6 +97,8 @@ fn main() {
             "--reps" => reps = it.next().and_then(|s| s.parse().ok()).expect("--reps N"),
             "--split" => split = it.next().and_then(|s| s.parse().ok()).expect("--split K"),
             "--trace" => trace = true,
+            "--rays" => rays = it.next().and_then(|s| s.parse().ok()).expect("--rays N"),
+            "--trace-reps" => trace_reps = it.next().and_then(|s| s.parse().ok()).expect("--trace-reps N"),
             "--threads" => {
                 thread_counts = vec![it.next().and_then(|s| s.parse().ok()).expect("--threads N")];
             }
@@ -122,7 +134,7 @@ fn main() {
         }
         let bvh = last.expect("built");
         bvh.validate().expect("valid BVH");
-        let (incoherent, primary) = probe_rays(&bounds, 1 << 18);
+        let (incoherent, primary) = probe_rays(&bounds, rays);
         let mut fp: u64 = 0xcbf2_9ce4_8422_2325;
         for r in incoherent.iter().step_by(16) {
             let h = bvh.intersect(r, 0.0, f32::INFINITY);
@@ -134,17 +146,38 @@ fn main() {
             bvh.node_count(),
             bvh.memory_bytes() as f64 / tris.len() as f64
         );
+        println!("  peak RSS so far {:.0} MB", peak_rss_mb());
         if trace {
             for (name, rays) in [("incoherent", &incoherent), ("primary", &primary)] {
                 let mut best = f64::INFINITY;
                 let mut hits = 0;
-                for _ in 0..5 {
+                for _ in 0..trace_reps {
                     let t0 = Instant::now();
                     hits = rays.iter().filter(|r| bvh.intersect(r, 0.0, f32::INFINITY).is_some()).count();
                     best = best.min(t0.elapsed().as_secs_f64());
                 }
                 println!("  {name}: {:.2} Mrays/s 1T ({hits} hits)", rays.len() as f64 / best * 1e-6);
             }
+            // Shadow rays from the primary hits to points on a square light above the mesh.
+            let d = (bounds.max - bounds.min).length();
+            let light = Vec3::new((bounds.min.x + bounds.max.x) * 0.5, bounds.max.y + 0.5 * d, bounds.min.z);
+            let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+            let shadow: Vec<(Ray, f32)> = primary
+                .iter()
+                .filter_map(|r| bvh.intersect(r, 0.0, f32::INFINITY).map(|h| r.origin + r.dir * h.t))
+                .map(|p| {
+                    let l = light + Vec3::new(rng.next() - 0.5, 0.0, rng.next() - 0.5) * 0.25 * d;
+                    let to = l - p;
+                    (Ray::new(p, to / to.length()), to.length() * 0.999)
+                })
+                .collect();
+            let (mut best, mut hits) = (f64::INFINITY, 0);
+            for _ in 0..trace_reps {
+                let t0 = Instant::now();
+                hits = shadow.iter().filter(|(r, len)| bvh.occluded(r, 1e-4 * d, *len)).count();
+                best = best.min(t0.elapsed().as_secs_f64());
+            }
+            println!("  shadow: {:.2} Mrays/s 1T ({hits} occluded)", shadow.len() as f64 / best * 1e-6);
         }
     }
 }

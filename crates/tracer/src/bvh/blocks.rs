@@ -18,7 +18,7 @@
 
 use super::PreTriangle;
 use crate::geometry::Ray;
-use crate::shapes::moller_trumbore;
+use crate::shapes::{Triangle, moller_trumbore};
 use glam::Vec3;
 
 /// Four precomputed triangles, structure-of-arrays (see the module docs).
@@ -167,8 +167,10 @@ pub(super) fn hits_sse(block: &TriBlock, r: &RaySse, t_min: f32, t_max: f32, lan
 }
 
 /// Lays the leaves' triangles out in blocks: `leaves` lists each leaf's
-/// `(first, count)` in leaf order (`tris`, `ids`), in the order the leaves should
-/// be placed. Returns the blocks, the input id of every lane (`u32::MAX` for an
+/// `(first, count)` in leaf order (`ids[i]` is the index in `triangles` of the
+/// `i`-th triangle in leaf order), in the order the leaves should be placed.
+/// The precomputed form is made here, so no leaf-ordered copy of the triangles
+/// is ever held. Returns the blocks, the input id of every lane (`u32::MAX` for an
 /// empty lane) and each leaf's first lane (`4 · block + lane`).
 ///
 /// Best fit: a leaf goes into the most recently opened block with the fewest
@@ -176,10 +178,10 @@ pub(super) fn hits_sse(block: &TriBlock, r: &RaySse, t_min: f32, t_max: f32, lan
 /// its input.
 pub(super) fn pack(
     leaves: &[(u32, u32)],
-    tris: &[PreTriangle],
+    triangles: &[Triangle],
     ids: &[u32],
 ) -> (Vec<TriBlock>, Vec<u32>, Vec<u32>) {
-    let mut blocks: Vec<TriBlock> = Vec::with_capacity(tris.len() / 3 + 1);
+    let mut blocks: Vec<TriBlock> = Vec::with_capacity(ids.len() / 3 + 1);
     let mut lane_ids: Vec<u32> = Vec::with_capacity(blocks.capacity() * 4);
     let mut starts = Vec::with_capacity(leaves.len());
     // open[f]: blocks with exactly f free lanes (at the end), most recent last.
@@ -196,7 +198,7 @@ pub(super) fn pack(
         let lane = 4 - free;
         for i in 0..count {
             let src = first as usize + i;
-            blocks[block as usize].set(lane + i, &tris[src]);
+            blocks[block as usize].set(lane + i, &PreTriangle::new(&triangles[ids[src] as usize]));
             lane_ids[block as usize * 4 + lane + i] = ids[src];
         }
         if free > count {
@@ -211,11 +213,10 @@ pub(super) fn pack(
 mod tests {
     use super::*;
     use crate::sampling::Sampler;
-    use crate::shapes::Triangle;
 
     #[test]
     fn packing_keeps_leaves_in_one_block_and_fills_blocks() {
-        let tri = |i: usize| PreTriangle::new(&Triangle { v: [Vec3::splat(i as f32), Vec3::X, Vec3::Y] });
+        let tri = |i: usize| Triangle { v: [Vec3::splat(i as f32), Vec3::X, Vec3::Y] };
         let sizes = [3u32, 1, 2, 2, 4, 1, 3, 1, 2];
         let mut leaves = Vec::new();
         let mut first = 0;
@@ -223,7 +224,8 @@ mod tests {
             leaves.push((first, c));
             first += c;
         }
-        let tris: Vec<_> = (0..first as usize).map(tri).collect();
+        // Triangle 100 + i of the input is the i-th in leaf order.
+        let tris: Vec<_> = (0..100 + first as usize).map(tri).collect();
         let ids: Vec<u32> = (0..first).map(|i| 100 + i).collect();
         let (blocks, lane_ids, starts) = pack(&leaves, &tris, &ids);
         assert_eq!(blocks.len(), (first as usize).div_ceil(4), "19 triangles fit in 5 blocks");
@@ -232,7 +234,10 @@ mod tests {
             for i in 0..count {
                 let lane = (start + i) as usize;
                 assert_eq!(lane_ids[lane], 100 + first + i);
-                assert_eq!(blocks[lane / 4].get(lane % 4), tris[(first + i) as usize]);
+                assert_eq!(
+                    blocks[lane / 4].get(lane % 4),
+                    PreTriangle::new(&tris[(100 + first + i) as usize])
+                );
             }
         }
         assert_eq!(lane_ids.iter().filter(|&&i| i == u32::MAX).count(), 1);

@@ -75,7 +75,7 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     if triangles.is_empty() {
         return Bvh::default();
     }
-    let (nodes, tris, ids) = binary(triangles);
+    let (nodes, ids) = binary(triangles);
     let bounds = load(&nodes[0]).bounds();
     // The leaves, in leaf order: the only leaf slots left (see `build_node`),
     // and the array is in depth-first order. Their triangles are packed into
@@ -83,16 +83,30 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     // at their lanes.
     let leaves: Vec<(u32, u32)> =
         nodes.par_iter().filter_map(|s| (s[7] != 0).then_some((s[3], s[7]))).collect();
-    let (mut wide, (blocks, prim_ids, starts)) =
-        rayon::join(|| super::wide::collapse(&nodes), || super::blocks::pack(&leaves, &tris, &ids));
+    let (mut tree, (blocks, prim_ids, starts)) =
+        rayon::join(|| super::wide::collapse(&nodes), || super::blocks::pack(&leaves, triangles, &ids));
     drop(nodes);
-    super::wide::place_leaves(&mut wide, &leaves, &starts, triangles.len());
-    Bvh { bounds, blocks, prim_ids, count: triangles.len(), wide, scalar_only: false, no_avx: false }
+    drop(ids);
+    super::wide::place_leaves(&mut tree, &leaves, &starts, triangles.len());
+    let super::wide::Collapsed { wide, narrow } = tree;
+    let mut bvh = Bvh {
+        bounds,
+        blocks,
+        prim_ids,
+        count: triangles.len(),
+        wide,
+        narrow,
+        scalar_only: false,
+        no_avx: false,
+        prefetch: false,
+    };
+    bvh.prefetch = bvh.memory_bytes() >= super::PREFETCH_MIN_BYTES;
+    bvh
 }
 
 /// The binary tree over `triangles` (not empty; depth-first with unused slots,
-/// see the module docs), the triangles in leaf order and their input indices.
-pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<PreTriangle>, Vec<u32>) {
+/// see the module docs) and the input indices of the triangles in leaf order.
+pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<u32>) {
     let n = triangles.len();
     let mut prims: Vec<PrimRef> = triangles
         .par_iter()
@@ -112,9 +126,8 @@ pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<PreTriangle>, Ve
     let root = Pos { index: 0, first: 0, depth: 0 };
     build_node(&mut prims, &mut scratch, &mut nodes, root, geo, cent);
     drop(scratch);
-    let tris = prims.par_iter().map(|p| PreTriangle::new(&triangles[p.id() as usize])).collect();
     let ids = prims.par_iter().map(PrimRef::id).collect();
-    (nodes, tris, ids)
+    (nodes, ids)
 }
 
 /// Where a subtree goes.
@@ -258,11 +271,11 @@ mod tests {
     fn parallel_build_is_the_one_thread_build() {
         let tris = soup(3 * PARALLEL_MIN + 123);
         let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool");
-        let (nodes1, tris1, ids1) = pool(1).install(|| binary(&tris));
+        let (nodes1, ids1) = pool(1).install(|| binary(&tris));
         for threads in [2, 3] {
-            let (nodes, t, ids) = pool(threads).install(|| binary(&tris));
+            let (nodes, ids) = pool(threads).install(|| binary(&tris));
             assert!(nodes == nodes1, "binary nodes differ on {threads} threads");
-            assert!(t == tris1 && ids == ids1, "leaf order differs on {threads} threads");
+            assert!(ids == ids1, "leaf order differs on {threads} threads");
         }
         let one = pool(1).install(|| Bvh::build(&tris));
         let two = pool(2).install(|| Bvh::build(&tris));
@@ -274,7 +287,7 @@ mod tests {
     #[test]
     fn builder_leaves_cover_every_triangle_once_in_order() {
         let tris = soup(5000);
-        let (nodes, leaf_tris, ids) = binary(&tris);
+        let (nodes, ids) = binary(&tris);
         // Walk the reachable tree: leaves tile 0..n in depth-first order.
         let (mut next, mut todo) = (0u32, vec![0usize]);
         while let Some(i) = todo.pop() {
@@ -293,8 +306,5 @@ mod tests {
         let mut sorted = ids.clone();
         sorted.sort_unstable();
         assert_eq!(sorted, (0..tris.len() as u32).collect::<Vec<_>>());
-        for (t, &id) in leaf_tris.iter().zip(&ids) {
-            assert_eq!(*t, PreTriangle::new(&tris[id as usize]));
-        }
     }
 }

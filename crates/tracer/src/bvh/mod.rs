@@ -24,8 +24,9 @@
 //! The builder makes a binary tree of 32-byte nodes in depth-first order: the root is
 //! node 0, an interior node's first child directly follows it and its second
 //! child's index is stored in the node. Traversal uses the 8-wide nodes it is
-//! collapsed into (224 bytes each, see `wide`); the binary nodes are then
-//! dropped. Triangles are stored once, in the precomputed Möller–Trumbore form
+//! collapsed into (224 bytes each, see `wide`), and 4-wide ones (128 bytes)
+//! where a node has at most four children — a third to two thirds of all
+//! nodes, at the bottom of the tree; the binary nodes are then dropped. Triangles are stored once, in the precomputed Möller–Trumbore form
 //! `(v0, e1, e2)` ([`PreTriangle`]), four to a structure-of-arrays block (see
 //! `blocks`); a leaf owns a run of lanes in one block, and `prim_ids` maps each
 //! lane back to the index in the slice the BVH was built from ([`Hit::prim`]).
@@ -148,13 +149,24 @@ pub struct Bvh {
     prim_ids: Vec<u32>,
     /// Number of triangles.
     count: usize,
-    /// The 8-wide tree traversal uses, collapsed from `nodes`.
+    /// The 8-wide nodes of the tree traversal uses (the root is node 0).
     wide: Vec<wide::WideNode>,
+    /// Its 4-wide nodes (see `wide`).
+    narrow: Vec<wide::NarrowNode>,
     /// Use the scalar box and triangle tests even where SIMD ones exist.
     scalar_only: bool,
     /// Use the SSE box test even where the CPU has AVX.
     no_avx: bool,
+    /// Prefetch nodes and triangle blocks during single-ray traversal: set
+    /// when the tree is larger than [`PREFETCH_MIN_BYTES`] (a hint that only
+    /// pays where the tree does not stay in the caches; answers are the same).
+    prefetch: bool,
 }
+
+/// Trees of at least this many bytes ([`Bvh::memory_bytes`]) prefetch during
+/// single-ray traversal. Measured: +10–30% incoherent rays on the 1.6M dragon
+/// (99 MB), −0–5% on the 4–6 MB bunny, dragon 100k and Sponza trees.
+pub const PREFETCH_MIN_BYTES: usize = 32 << 20;
 
 /// A violated BVH invariant, found by [`Bvh::validate`].
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -284,12 +296,13 @@ impl Bvh {
         false
     }
 
-    /// Bytes the tree and its triangle data occupy (8-wide nodes, precomputed
-    /// triangles, primitive ids). The binary tree the builder makes is dropped
+    /// Bytes the tree and its triangle data occupy (8- and 4-wide nodes,
+    /// precomputed triangles, primitive ids). The binary tree the builder makes is dropped
     /// once it has been collapsed.
     pub fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
         self.wide.len() * size_of::<wide::WideNode>()
+            + self.narrow.len() * size_of::<wide::NarrowNode>()
             + self.blocks.len() * size_of::<blocks::TriBlock>()
             + self.prim_ids.len() * size_of::<u32>()
     }
@@ -299,9 +312,9 @@ impl Bvh {
         self.count
     }
 
-    /// Number of nodes of the tree rays traverse (8-wide nodes).
+    /// Number of nodes of the tree rays traverse (8-wide and 4-wide nodes).
     pub fn node_count(&self) -> usize {
-        self.wide.len()
+        self.wide.len() + self.narrow.len()
     }
 
     /// Bounding box of everything (empty box for the empty BVH).
@@ -311,8 +324,9 @@ impl Bvh {
 
     /// Checks the tree's invariants:
     /// * the empty BVH has no nodes, triangles or ids;
-    /// * every wide node is reached exactly once from the root (node 0), within
-    ///   [`MAX_DEPTH`] levels, and comes after its parent;
+    /// * every node is reached exactly once from the root (wide node 0), within
+    ///   [`MAX_DEPTH`] levels, and comes after its parent when of the same kind;
+    ///   4-wide nodes have only leaf children;
     /// * every interior child's box contains the boxes of its own children;
     /// * leaves hold 1..=[`MAX_LEAF_SIZE`] triangles within one block, every
     ///   non-empty lane is in exactly one leaf, and each leaf's box contains its
@@ -325,7 +339,7 @@ impl Bvh {
             return fail(0, format!("{} blocks but {} lane ids", self.blocks.len(), self.prim_ids.len()));
         }
         if self.wide.is_empty() {
-            return if n == 0 && self.blocks.is_empty() {
+            return if n == 0 && self.blocks.is_empty() && self.narrow.is_empty() {
                 Ok(())
             } else {
                 fail(0, format!("{n} triangles but no nodes"))
@@ -390,9 +404,40 @@ mod tests {
         root.bounds.max.y -= 1.0;
         assert!(root.validate().is_err(), "a child box sticking out of the whole tree's box");
 
+        let mut narrow = bvh.clone();
+        assert!(!narrow.narrow.is_empty(), "a grid has small leaf clusters");
+        narrow.narrow[0].child[0] = 1;
+        assert!(narrow.validate().is_err(), "a narrow node with an interior child");
+
         let mut cut = bvh;
         cut.wide.pop();
         assert!(cut.validate().is_err(), "a dangling child index");
+    }
+
+    #[test]
+    fn prefetching_changes_no_answer() {
+        let tris = grid(40);
+        let plain = Bvh::build(&tris);
+        assert!(!plain.prefetch, "a small tree does not prefetch");
+        let mut hinted = plain.clone();
+        hinted.prefetch = true;
+        let s = crate::sampling::Sampler::new(3, 1, 4, 1);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let mut hits = 0;
+        for _ in 0..4000 {
+            let o = Vec3::new(next() * 50.0 - 5.0, next() * 6.0 - 1.0, next() * 50.0 - 5.0);
+            let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
+            let ray = Ray::new(o, dir);
+            let a = plain.intersect(&ray, 0.0, f32::INFINITY);
+            assert_eq!(a, hinted.intersect(&ray, 0.0, f32::INFINITY));
+            assert_eq!(plain.occluded(&ray, 0.0, 30.0), hinted.occluded(&ray, 0.0, 30.0));
+            hits += a.is_some() as usize;
+        }
+        assert!(hits > 500, "{hits} hits");
     }
 
     #[test]

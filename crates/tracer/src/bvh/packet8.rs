@@ -124,7 +124,7 @@ mod avx {
     use super::{LANES, Packet};
     use crate::bvh::Bvh;
     use crate::bvh::blocks::{RaySse, TriBlock, hits_sse};
-    use crate::bvh::wide::{ROBUST_EXIT, Stack, W, WideNode, descend_nearest, leaf_range};
+    use crate::bvh::wide::{NodeRef, ROBUST_EXIT, Stack, W, descend_nearest, leaf_range};
     use crate::geometry::Ray;
     use crate::shapes::Hit;
     use std::arch::x86_64::*;
@@ -332,11 +332,10 @@ mod avx {
     /// # Safety
     /// The CPU must support AVX.
     #[inline(always)]
-    unsafe fn frustum(node: &WideNode, l: &Lanes, t_far: f32) -> ([f32; W], u32) {
-        // SAFETY: the caller guarantees AVX; loads read 32-byte rows, the store
-        // writes the 32 bytes of `out`.
+    unsafe fn frustum(node: NodeRef, l: &Lanes, t_far: f32) -> ([f32; W], u32) {
+        // SAFETY: the caller guarantees AVX; the store writes the 32 bytes of `out`.
         unsafe {
-            let load = |a: usize| _mm256_loadu_ps(node.bounds[a].as_ptr());
+            let load = |a: usize| row(node, a);
             let mut near = _mm256_set1_ps(l.t_min_lo);
             let mut far = _mm256_set1_ps(t_far);
             for a in 0..3 {
@@ -358,15 +357,47 @@ mod avx {
         }
     }
 
+    /// Row `a` of `node`'s boxes (see `wide::Slots`) in eight lanes: a narrow
+    /// node's four, then four empty slots' (`+inf` lower, `-inf` upper
+    /// corners), exactly as if it were a wide node.
+    ///
+    /// # Safety
+    /// The CPU must support AVX.
+    #[inline(always)]
+    unsafe fn row(node: NodeRef, a: usize) -> __m256 {
+        // SAFETY: the caller guarantees AVX; the loads read the 32 bytes of a
+        // `[f32; 8]` row or the 16 bytes of a `[f32; 4]` one.
+        unsafe {
+            match node {
+                NodeRef::Wide(n) => _mm256_loadu_ps(n.bounds[a].as_ptr()),
+                NodeRef::Narrow(n) => {
+                    let empty = _mm_set1_ps(if a < 3 { f32::INFINITY } else { f32::NEG_INFINITY });
+                    _mm256_insertf128_ps::<1>(
+                        _mm256_castps128_ps256(_mm_loadu_ps(n.bounds[a].as_ptr())),
+                        empty,
+                    )
+                }
+            }
+        }
+    }
+
     /// Bit `k` set where child `k` of `node` is a leaf (bit 31 of its word).
     ///
     /// # Safety
     /// The CPU must support AVX.
     #[inline(always)]
-    unsafe fn leaf_mask(node: &WideNode) -> u32 {
-        // SAFETY: the caller guarantees AVX; the load reads the 32 bytes of `child`.
+    unsafe fn leaf_mask(node: NodeRef) -> u32 {
+        // SAFETY: the caller guarantees AVX; the loads read the 32 or 16 bytes of `child`.
         unsafe {
-            _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_loadu_si256(node.child.as_ptr().cast()))) as u32
+            match node {
+                NodeRef::Wide(n) => {
+                    _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_loadu_si256(n.child.as_ptr().cast())))
+                        as u32
+                }
+                NodeRef::Narrow(n) => {
+                    _mm_movemask_ps(_mm_castsi128_ps(_mm_loadu_si128(n.child.as_ptr().cast()))) as u32
+                }
+            }
         }
     }
 
@@ -377,15 +408,15 @@ mod avx {
     /// # Safety
     /// The CPU must support AVX.
     #[inline(always)]
-    unsafe fn box_rays(node: &WideNode, k: usize, l: &Lanes, t_far: __m256) -> __m256 {
+    unsafe fn box_rays(node: NodeRef, k: usize, l: &Lanes, t_far: __m256) -> __m256 {
         // SAFETY: the caller guarantees AVX.
         unsafe {
             let mut near = l.t_min;
             let mut far = t_far;
             for a in 0..3 {
                 let (rn, rf) = if l.neg[a] { (a + 3, a) } else { (a, a + 3) };
-                let t0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(node.bounds[rn][k]), l.o[a]), l.inv[a]);
-                let t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(node.bounds[rf][k]), l.o[a]), l.inv[a]);
+                let t0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(node.bound(rn, k)), l.o[a]), l.inv[a]);
+                let t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(node.bound(rf, k)), l.o[a]), l.inv[a]);
                 near = _mm256_max_ps(t0, near);
                 far = _mm256_min_ps(t1, far);
             }
@@ -488,7 +519,6 @@ mod avx {
         // SAFETY: this function is compiled for AVX and the caller checked the CPU.
         unsafe {
             let l = lanes(p)?;
-            let wide = &bvh.wide[..];
             let blocks = &bvh.blocks[..];
             // Per lane: nearest t so far (starting at the interval end, -inf
             // for inactive lanes), its u, v and triangle lane, whether there
@@ -500,7 +530,8 @@ mod avx {
             let mut stack = Stack::<(u32, f32)>::new();
             let mut current = 0u32;
             loop {
-                let node = &wide[current as usize];
+                let node = NodeRef::of(bvh, current);
+                let children = node.children();
                 let (e, mask) = frustum(node, &l, best_hi);
                 let leaf = leaf_mask(node);
                 let (mut leaves, inner) = (mask & leaf, mask & !leaf);
@@ -515,7 +546,7 @@ mod avx {
                     if _mm256_movemask_ps(rays) == 0 {
                         continue;
                     }
-                    let (first, count) = leaf_range(node.child[k]);
+                    let (first, count) = leaf_range(children[k]);
                     let block = &blocks[(first / 4) as usize];
                     let mut improved = false;
                     for lane in (first % 4)..(first % 4 + count) {
@@ -544,7 +575,7 @@ mod avx {
                 // Interior children still in front of the packet's farthest
                 // nearest hit, nearest bound first (stable on ties).
                 let limit = best_hi * ROBUST_EXIT;
-                if let Some(nearest) = descend_nearest(node, &e, inner, limit, &mut stack) {
+                if let Some(nearest) = descend_nearest(children, &e, inner, limit, &mut stack) {
                     current = nearest;
                     continue;
                 }
@@ -589,7 +620,6 @@ mod avx {
         // SAFETY: this function is compiled for AVX and the caller checked the CPU.
         unsafe {
             let l = lanes(p)?;
-            let wide = &bvh.wide[..];
             let blocks = &bvh.blocks[..];
             // Lanes still to answer (all bits set), and the largest interval end among them.
             let mut open = l.active;
@@ -597,7 +627,8 @@ mod avx {
             let mut stack = Stack::<u32>::new();
             let mut current = 0u32;
             loop {
-                let node = &wide[current as usize];
+                let node = NodeRef::of(bvh, current);
+                let children = node.children();
                 let (_, mask) = frustum(node, &l, far_hi);
                 let leaf = leaf_mask(node);
                 let (mut leaves, mut inner) = (mask & leaf, mask & !leaf);
@@ -609,7 +640,7 @@ mod avx {
                     if _mm256_movemask_ps(rays) == 0 {
                         continue;
                     }
-                    let (first, count) = leaf_range(node.child[k]);
+                    let (first, count) = leaf_range(children[k]);
                     let block = &blocks[(first / 4) as usize];
                     let alone = _mm256_movemask_ps(rays) as u32;
                     let done = if alone.is_power_of_two() {
@@ -640,9 +671,9 @@ mod avx {
                     let k = inner.trailing_zeros() as usize;
                     inner &= inner - 1;
                     if next.is_none() {
-                        next = Some(node.child[k]);
+                        next = Some(children[k]);
                     } else {
-                        stack.push(node.child[k]);
+                        stack.push(children[k]);
                     }
                 }
                 current = match next.or_else(|| stack.pop()) {
