@@ -1046,24 +1046,12 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
     let r = WideRay::new(ray);
     let lr = LeafRay::new(ray, simd);
     let blocks = &bvh.blocks[..];
-    // Which interior children to visit first. Any order gives the same
-    // answer; the cheapest finds an occluder soonest. A wide node's slots
-    // follow the binary tree's left-to-right order, which runs from smaller to
-    // larger coordinates along its split axes, so this visits the children
-    // towards the far end of the ray first: a shadow ray starts on a surface,
-    // whose own boxes (which rarely occlude it) lie at its near end. Measured
-    // with callgrind on shadow rays to a light above and to one below the
-    // bunny and the dragon, it beats slot order, reverse slot order and a sort
-    // by entry distance (nearest or farthest first) over both lights.
-    let d = ray.dir.abs();
-    let dominant = if d.x >= d.y && d.x >= d.z {
-        ray.dir.x
-    } else if d.y >= d.z {
-        ray.dir.y
-    } else {
-        ray.dir.z
-    };
-    let low_slots_first = dominant.is_nan() || dominant <= 0.0;
+    // Interior children are visited in slot order: the first one next, the
+    // others from the stack (so the last slots come second). Any order gives
+    // the same answer. Turning the order by the ray's dominant direction (the
+    // far end first) saved 12–17 % of the instructions of shadow rays to a
+    // light above the bunny and the dragon, but cost 2–10 % of the wall time
+    // of whole frames (paper, bunny and 1.6M dragon scenes, paired runs).
     let mut stack = Stack::<u32>::new();
     let mut current = 0u32;
     loop {
@@ -1100,22 +1088,17 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
                 return true;
             }
         }
-        // Interior children in slot order, or in reverse when the ray runs
-        // towards larger coordinates on its dominant axis (see `low_slots_first`).
-        if low_slots_first {
-            while inner != 0 {
-                let k = 31 - inner.leading_zeros() as usize;
-                inner &= !(1 << k);
-                stack.push(node.child[k]);
-            }
-        } else {
-            while inner != 0 {
-                let k = inner.trailing_zeros() as usize;
-                inner &= inner - 1;
+        let mut next = None;
+        while inner != 0 {
+            let k = inner.trailing_zeros() as usize;
+            inner &= inner - 1;
+            if next.is_none() {
+                next = Some(node.child[k]);
+            } else {
                 stack.push(node.child[k]);
             }
         }
-        current = match stack.pop() {
+        current = match next.or_else(|| stack.pop()) {
             Some(c) => c,
             None => return false,
         };
