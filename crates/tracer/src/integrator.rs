@@ -290,9 +290,10 @@ pub struct Integrator<'a> {
     scene: &'a Scene,
     max_depth: u32,
     light_samples: u32,
-    /// Division by the number of strata, `light_grid²`.
+    /// Division by the number of strata of one pixel's light-sample grid.
     light_strata: Divisor,
-    /// The `light_grid × light_grid` grid, to be keyed per pixel ([`Integrator::light_set`]).
+    /// That grid (`⌈√(spp · light_samples)⌉` strata a side), to be keyed per
+    /// pixel ([`Integrator::light_set`]).
     light_grid_strata: Strata,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
