@@ -297,6 +297,8 @@ pub struct Integrator<'a> {
     light_grid_strata: Strata,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
+    /// Ask the scene's shadow cells before tracing shadow rays ([`Integrator::with_shadow_cells`]).
+    shadow_cells: bool,
     /// The first [`PREPARED_LIGHTS`] lights, prepared once
     /// ([`crate::lights::Light::prepare_area`]; `None` for point lights and degenerate ones).
     prepared: [Option<AreaSampler<'a>>; PREPARED_LIGHTS],
@@ -325,6 +327,7 @@ impl<'a> Integrator<'a> {
             light_strata: Divisor::new(light_grid * light_grid),
             light_grid_strata: Strata::new(light_grid, 0),
             adaptive_shadows: true,
+            shadow_cells: true,
             prepared,
         }
     }
@@ -334,6 +337,21 @@ impl<'a> Integrator<'a> {
     pub fn with_adaptive_shadows(mut self, on: bool) -> Self {
         self.adaptive_shadows = on;
         self
+    }
+
+    /// Answers shadow rays from the scene's shadow cells where they can (the
+    /// default; see [`crate::shadows`]) or traces every one through the BVH.
+    /// The answers, and so the pixels, are the same.
+    pub fn with_shadow_cells(mut self, on: bool) -> Self {
+        self.shadow_cells = on;
+        self
+    }
+
+    /// True when the shadow cells know that nothing blocks shadow rays from
+    /// `origin` to light `index`.
+    #[inline]
+    fn shadow_clear(&self, index: usize, origin: Vec3) -> bool {
+        self.shadow_cells && self.scene.shadow_clear(index, origin)
     }
 
     /// Area-light samples at a hit whose contribution reaches the pixel
@@ -569,6 +587,10 @@ impl<'a> Integrator<'a> {
         for (index, light) in scene.lights.iter().enumerate() {
             if !light.is_area() {
                 if let Some(c) = light.sample(sp.p, Vec2::splat(0.5)).and_then(|ls| lobe.eval(sp, &ls)) {
+                    if self.shadow_clear(index, lobe.origin) {
+                        total += c.0;
+                        continue;
+                    }
                     counts.shadow += 1;
                     if !scene.occluded(&Ray::new(lobe.origin, c.1.dir), 0.0, c.1.dist * SHADOW_SHORTEN) {
                         total += c.0;
@@ -586,23 +608,32 @@ impl<'a> Integrator<'a> {
             let light_sampler = depth_sampler.child(index as u32);
             let n = self.light_samples_for(weight);
             let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
-            let sum = if self.adaptive_shadows && (ADAPTIVE_TESTS as u32) < n && n <= ADAPTIVE_MAX as u32 {
-                self.area_adaptive(sp, &lobe, &area, counts)
-            } else {
-                let mut sum = Vec3::ZERO;
-                let set = self.light_set(&light_sampler);
-                for j in 0..n {
-                    let u = self.light_sample_in(&set, first.wrapping_add(j), &light_sampler);
-                    let Some((c, ls)) = prepared.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
-                        continue;
-                    };
-                    counts.shadow += 1;
-                    if !scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
-                        sum += c;
+            let clear = self.shadow_clear(index, lobe.origin);
+            let sum =
+                if !clear && self.adaptive_shadows && (ADAPTIVE_TESTS as u32) < n && n <= ADAPTIVE_MAX as u32
+                {
+                    self.area_adaptive(sp, &lobe, &area, counts)
+                } else {
+                    // Every sample traced (or, with nothing in the way, none
+                    // needs to be): the same sum.
+                    let mut sum = Vec3::ZERO;
+                    let set = self.light_set(&light_sampler);
+                    for j in 0..n {
+                        let u = self.light_sample_in(&set, first.wrapping_add(j), &light_sampler);
+                        let Some((c, ls)) = prepared.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
+                            continue;
+                        };
+                        if clear {
+                            sum += c;
+                            continue;
+                        }
+                        counts.shadow += 1;
+                        if !scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+                            sum += c;
+                        }
                     }
-                }
-                sum
-            };
+                    sum
+                };
             total += sum / n as f32;
         }
         total

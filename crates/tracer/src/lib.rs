@@ -22,7 +22,8 @@
 //! Modules are named for what they hold: [`geometry`] (rays, boxes),
 //! [`shapes`] (triangle intersection), [`bvh`] (the acceleration structure),
 //! [`cameras`], [`materials`], [`lights`], [`textures`], [`sampling`],
-//! [`meshes`] (built-in primitives), [`scene`] (the built, renderable scene),
+//! [`meshes`] (built-in primitives), [`shadows`] (what can block shadow rays,
+//! per region of space), [`scene`] (the built, renderable scene),
 //! [`scenefile`] (the human-editable description and its loaders),
 //! [`integrator`] (Whitted shading) and [`render`] (tiles and frames).
 
@@ -38,6 +39,7 @@ pub mod render;
 pub mod sampling;
 pub mod scene;
 pub mod scenefile;
+pub mod shadows;
 pub mod shapes;
 pub mod textures;
 

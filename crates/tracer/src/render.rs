@@ -253,11 +253,14 @@ pub struct TraceOptions {
     /// Trace camera rays in packets of a 4×2 block of pixels
     /// ([`crate::Bvh::intersect8`], the same hits as single rays); on by default.
     pub packets: bool,
+    /// Answer shadow rays from the scene's shadow cells where they can
+    /// ([`crate::shadows`], the same answers as tracing them); on by default.
+    pub shadow_cells: bool,
 }
 
 impl Default for TraceOptions {
     fn default() -> Self {
-        Self { adaptive_shadows: true, packets: true }
+        Self { adaptive_shadows: true, packets: true, shadow_cells: true }
     }
 }
 
@@ -275,7 +278,9 @@ pub fn render_tile_with(
 ) -> (Vec<u8>, RayCounts) {
     let mut out = vec![0u8; tile.pixel_count() * 3];
     let mut counts = RayCounts::default();
-    let integrator = Integrator::new(scene, settings).with_adaptive_shadows(options.adaptive_shadows);
+    let integrator = Integrator::new(scene, settings)
+        .with_adaptive_shadows(options.adaptive_shadows)
+        .with_shadow_cells(options.shadow_cells);
     let spp = settings.spp.max(1);
     let (w, h) = (settings.width.max(1) as f32, settings.height.max(1) as f32);
     // With several samples each one stands for a stratum ⌈√spp⌉ times smaller

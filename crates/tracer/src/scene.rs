@@ -10,6 +10,7 @@ use crate::geometry::{Aabb, Ray};
 use crate::lights::Light;
 use crate::materials::Material;
 use crate::render::RenderSettings;
+use crate::shadows::ShadowCells;
 use crate::shapes::{Hit, Triangle};
 use crate::textures::Texture;
 use glam::{Vec2, Vec3};
@@ -74,6 +75,9 @@ pub struct Scene {
     pub bounds: Aabb,
     /// Acceleration structure over `triangles`.
     pub bvh: Bvh,
+    /// What can block shadow rays to each light, per cell of space, filled
+    /// on demand (made from `triangles` and `lights` by [`Scene::new`]).
+    shadow_cells: ShadowCells,
 }
 
 impl Scene {
@@ -83,6 +87,7 @@ impl Scene {
         assert_eq!(parts.triangles.len(), parts.shading.len(), "one shading record per triangle");
         let bvh = Bvh::build(&parts.triangles);
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
+        let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
         Scene {
             triangles: parts.triangles,
             shading: parts.shading,
@@ -95,6 +100,7 @@ impl Scene {
             settings: parts.settings,
             bounds,
             bvh,
+            shadow_cells,
         }
     }
 
@@ -108,6 +114,20 @@ impl Scene {
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
         self.bvh.occluded(ray, t_min, t_max)
+    }
+
+    /// True when no shadow ray from `origin` to light `light` (an index into
+    /// `lights`) can hit anything, provided it stops short of the light (as
+    /// the integrator's shadow rays do); false when that is not known. See
+    /// [`crate::shadows`].
+    #[inline]
+    pub fn shadow_clear(&self, light: usize, origin: Vec3) -> bool {
+        self.shadow_cells.clear(&self.bvh, light, origin)
+    }
+
+    /// Shadow cells filled so far, over all lights.
+    pub fn shadow_cells_filled(&self) -> usize {
+        self.shadow_cells.filled()
     }
 
     /// Number of triangles.

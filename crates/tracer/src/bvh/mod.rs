@@ -10,6 +10,8 @@
 //! * `blocks` — leaf triangles in structure-of-arrays blocks of four, tested
 //!   with one SSE Möller–Trumbore (bit-identical to the scalar test).
 //! * `packet` — any-hit for up to four rays at once (on top of `packet8`).
+//! * `shaft` — whether anything can block shadow rays from a box to a light
+//!   (shaft culling), for `crate::shadows`.
 //! * `packet8` — nearest and any hit for packets of eight rays (camera rays,
 //!   shadow rays from one point to an area light) that traverse the tree once
 //!   per packet, with the same answer for every ray as the single-ray queries.
@@ -38,10 +40,12 @@ mod packet;
 mod packet8;
 mod partition;
 mod primref;
+mod shaft;
 mod sweep;
 mod wide;
 
 pub use packet8::LANES as PACKET_LANES;
+pub use shaft::{SHAFT_PLANES, SURFACE_PLANES, Shaft, SurfacePlanes};
 
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::{Hit, Triangle};
@@ -267,6 +271,17 @@ impl Bvh {
         active: u8,
     ) -> u8 {
         packet8::occluded8(self, rays, t_min, t_max, active)
+    }
+
+    /// Whether nothing can block a segment inside `shaft` that ends at most
+    /// `1 − 10⁻³` of the way to a point of the light whose corners (or
+    /// position) are `light`: `Some` with the planes of the surfaces left
+    /// out (those with the whole light on one side, see `shaft`), which the
+    /// segment's start must clear; `None` when a triangle may block it or
+    /// there are more than [`SURFACE_PLANES`] such surfaces. `margin` covers
+    /// rounding, in world units.
+    pub fn shaft_clear(&self, shaft: &Shaft, light: &[Vec3], margin: f32) -> Option<SurfacePlanes> {
+        shaft::shaft_clear(self, shaft, light, margin)
     }
 
     /// Chooses the SIMD box test (the default, where the machine has one) or

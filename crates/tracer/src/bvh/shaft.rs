@@ -1,0 +1,305 @@
+//! Shaft queries: can anything block a segment between a box and a light?
+//!
+//! Every shadow ray from a point inside a box `A` to a point of a light lies
+//! inside the convex hull of `A` and the light's box `B`. [`Shaft::between`]
+//! bounds that hull by its box and the planes that join the two boxes' edges
+//! (Haines & Wallace's shaft culling: in each of the three axis-aligned
+//! projections, the edges of the 2-D hull of the two rectangles that connect
+//! one to the other), and [`Bvh::shaft_clear`] walks the tree with it, looking
+//! for a triangle it cannot rule out. When there is none, no shadow ray from
+//! inside `A` to the light can hit anything.
+//!
+//! **Surfaces the rays start from.** A box around a floor point contains the
+//! floor, which would put the floor on every list. A triangle whose plane has
+//! the whole light on one (closed) side cannot block a segment that starts
+//! strictly on that side and ends short of the light: such a segment never
+//! reaches the plane. The walk leaves those triangles out and records their
+//! planes instead ([`SurfacePlanes::admit`]); the answer holds for a ray only
+//! when its origin lies on the light's side of every recorded plane, by a
+//! margin that covers the rounding of the plane test and of the triangle test. The caller
+//! must stop its shadow rays short of the light, as the integrator does (by a
+//! factor `1 − 10⁻³`); a lamp's own polygon, coplanar with the light, is then
+//! never reached either, which the margin accounts for.
+//!
+//! **Conservative culling.** A node or triangle is dropped only when its box
+//! or all three of its vertices lie outside one of the shaft's half-spaces,
+//! which are widened by the caller's margin; the plane arithmetic decides only
+//! what is tested, never the answer. `tests/shadows.rs` checks [`Bvh::occluded`]
+//! on shadow rays from cells found clear in real scenes.
+
+use super::Bvh;
+use super::blocks::TriBlock;
+use super::wide::{LEAF, NodeRef, Stack, leaf_range};
+use crate::geometry::Aabb;
+use glam::{Vec2, Vec3};
+
+/// Most half-spaces of a [`Shaft`] besides its box (four connecting planes in
+/// each of the three projections).
+pub const SHAFT_PLANES: usize = 12;
+
+/// Most surface planes a [`SurfacePlanes`] records (see the module docs);
+/// a shaft with more surfaces in it is not clear.
+pub const SURFACE_PLANES: usize = 3;
+
+/// A convex region: the points `x` with `n·x ≤ d` for each of its half-spaces
+/// `(n, d)`, inside a bounding box. Built by [`Shaft::between`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shaft {
+    /// Half-spaces `(n, d)`: unit normal pointing out of the region and offset.
+    planes: [(Vec3, f32); SHAFT_PLANES],
+    /// Number of half-spaces in use.
+    count: usize,
+    /// Bounding box of the region.
+    bounds: Aabb,
+}
+
+impl Shaft {
+    /// A region containing the convex hull of boxes `a` and `b`, widened by
+    /// `margin` world units on every side. `None` when a box is empty or
+    /// anything is not finite.
+    pub fn between(a: &Aabb, b: &Aabb, margin: f32) -> Option<Shaft> {
+        let finite = |x: &Aabb| x.min.is_finite() && x.max.is_finite() && x.min.cmple(x.max).all();
+        if !(finite(a) && finite(b) && margin >= 0.0 && margin.is_finite()) {
+            return None;
+        }
+        let union = a.union(b);
+        let mut shaft = Shaft {
+            planes: [(Vec3::ZERO, 0.0); SHAFT_PLANES],
+            count: 0,
+            bounds: Aabb { min: union.min - Vec3::splat(margin), max: union.max + Vec3::splat(margin) },
+        };
+        let corners = |x: &Aabb| {
+            let mut c = [Vec3::ZERO; 8];
+            for (i, c) in c.iter_mut().enumerate() {
+                *c = Vec3::new(
+                    if i & 1 == 0 { x.min.x } else { x.max.x },
+                    if i & 2 == 0 { x.min.y } else { x.max.y },
+                    if i & 4 == 0 { x.min.z } else { x.max.z },
+                );
+            }
+            c
+        };
+        let all: Vec<Vec3> = corners(a).into_iter().chain(corners(b)).collect();
+        // In each projection, the hull edges joining a corner of one rectangle
+        // to a corner of the other (the rectangles' own edges are the box's).
+        for (i, j) in [(0, 1), (1, 2), (2, 0)] {
+            let rect = |x: &Aabb| {
+                let mut r: Vec<Vec2> = Vec::with_capacity(4);
+                for (u, v) in
+                    [(x.min[i], x.min[j]), (x.max[i], x.min[j]), (x.min[i], x.max[j]), (x.max[i], x.max[j])]
+                {
+                    let p = Vec2::new(u, v);
+                    if !r.contains(&p) {
+                        r.push(p);
+                    }
+                }
+                r
+            };
+            let (ra, rb) = (rect(a), rect(b));
+            let pts: Vec<Vec2> = ra.iter().chain(&rb).copied().collect();
+            for &p in &ra {
+                for &q in &rb {
+                    let e = q - p;
+                    // Axis-aligned joins are faces of the bounding box already.
+                    if e.x == 0.0 || e.y == 0.0 {
+                        continue;
+                    }
+                    let n = Vec2::new(e.y, -e.x).normalize();
+                    let side = |s: f32| pts.iter().all(|&x| s * n.dot(x - p) <= 0.0);
+                    let n = if side(1.0) {
+                        n
+                    } else if side(-1.0) {
+                        -n
+                    } else {
+                        continue;
+                    };
+                    let mut n3 = Vec3::ZERO;
+                    n3[i] = n.x;
+                    n3[j] = n.y;
+                    // The offset that keeps every corner inside, whatever the rounding above.
+                    let d = all.iter().map(|&c| n3.dot(c)).fold(f32::NEG_INFINITY, f32::max) + margin;
+                    let duplicate = shaft.planes[..shaft.count].iter().any(|&(m, e)| m == n3 && e == d);
+                    if !duplicate && shaft.count < SHAFT_PLANES && d.is_finite() {
+                        shaft.planes[shaft.count] = (n3, d);
+                        shaft.count += 1;
+                    }
+                }
+            }
+        }
+        Some(shaft)
+    }
+
+    /// True when the point lies inside the region (for tests).
+    pub fn contains(&self, p: Vec3) -> bool {
+        p.cmpge(self.bounds.min).all()
+            && p.cmple(self.bounds.max).all()
+            && self.planes[..self.count].iter().all(|&(n, d)| n.dot(p) <= d)
+    }
+
+    /// True when child `k` of `node` may overlap the region: its box meets
+    /// the bounding box and, for every half-space, its corner deepest inside
+    /// lies inside.
+    fn overlaps(&self, node: NodeRef, k: usize) -> bool {
+        let lo = Vec3::new(node.bound(0, k), node.bound(1, k), node.bound(2, k));
+        let hi = Vec3::new(node.bound(3, k), node.bound(4, k), node.bound(5, k));
+        if !(lo.cmple(self.bounds.max).all() && hi.cmpge(self.bounds.min).all()) {
+            return false;
+        }
+        self.planes[..self.count].iter().all(|&(n, d)| {
+            let deepest = Vec3::select(n.cmpge(Vec3::ZERO), lo, hi);
+            n.dot(deepest) <= d
+        })
+    }
+
+    /// True when the triangle with vertices `v` lies outside the region: all
+    /// three vertices beyond one face of the box or one half-space.
+    fn excludes(&self, v: &[Vec3; 3]) -> bool {
+        let lo = v[0].min(v[1]).min(v[2]);
+        let hi = v[0].max(v[1]).max(v[2]);
+        lo.cmpgt(self.bounds.max).any()
+            || hi.cmplt(self.bounds.min).any()
+            || self.planes[..self.count].iter().any(|&(n, d)| v.iter().all(|&p| n.dot(p) > d))
+    }
+}
+
+/// The surfaces a clear shaft ([`Bvh::shaft_clear`]) left out: planes
+/// `n·x = d` with the light on their positive side.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SurfacePlanes {
+    /// `[n.x, n.y, n.z, d + margin]`: rays must start where `n·o` exceeds the last.
+    planes: [[f32; 4]; SURFACE_PLANES],
+    /// Number of planes in use.
+    count: u32,
+}
+
+impl SurfacePlanes {
+    /// True when a shadow ray from `origin` is covered: the origin lies on
+    /// the light's side of every surface left out, clear of the margin.
+    #[inline(always)]
+    pub fn admit(&self, origin: Vec3) -> bool {
+        self.planes[..self.count as usize]
+            .iter()
+            .all(|p| p[0] * origin.x + p[1] * origin.y + p[2] * origin.z > p[3])
+    }
+
+    /// Number of planes recorded.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+
+    /// True when no surface was left out.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// Adds the plane `n·x = d` of a surface left out, which rays must clear
+    /// by `margin`. A plane whose normal is within 10⁻⁷ of a recorded one
+    /// (which moves the plane test at points of the scene by less than
+    /// `slack / 6`) and whose threshold is within `slack` merges with it:
+    /// the recorded threshold becomes the larger of the two, each raised by
+    /// `slack / 2`. `false` when there is no room.
+    fn add(&mut self, n: Vec3, d: f32, margin: f32, slack: f32) -> bool {
+        let threshold = d + margin + 0.5 * slack;
+        for p in &mut self.planes[..self.count as usize] {
+            let m = Vec3::new(p[0], p[1], p[2]);
+            if (m - n).abs().max_element() <= 1e-7 && (p[3] - threshold).abs() <= slack {
+                p[3] = p[3].max(threshold);
+                return true;
+            }
+        }
+        if self.count as usize == SURFACE_PLANES {
+            return false;
+        }
+        self.planes[self.count as usize] = [n.x, n.y, n.z, threshold];
+        self.count += 1;
+        true
+    }
+}
+
+/// See [`Bvh::shaft_clear`].
+pub(super) fn shaft_clear(bvh: &Bvh, shaft: &Shaft, light: &[Vec3], margin: f32) -> Option<SurfacePlanes> {
+    let mut planes = SurfacePlanes::default();
+    if bvh.wide.is_empty() {
+        return Some(planes);
+    }
+    if light.is_empty() || !(margin >= 0.0 && margin.is_finite()) {
+        return None;
+    }
+    let mut stack = Stack::<u32>::new();
+    let mut current = 0u32;
+    loop {
+        let node = NodeRef::of(bvh, current);
+        for (k, &child) in node.children().iter().enumerate() {
+            // Unused slots have empty boxes, which no shaft overlaps.
+            if !shaft.overlaps(node, k) {
+                continue;
+            }
+            if child & LEAF == 0 {
+                stack.push(child);
+                continue;
+            }
+            let (first, count) = leaf_range(child);
+            let lanes = ((1u32 << count) - 1) << (first % 4);
+            if !clear_lanes(&bvh.blocks[(first / 4) as usize], lanes, shaft, light, margin, &mut planes) {
+                return None;
+            }
+        }
+        match stack.pop() {
+            Some(c) => current = c,
+            None => return Some(planes),
+        }
+    }
+}
+
+/// True when none of the triangles in lanes `lanes` of `block` can block a
+/// segment of the shaft: each lies outside it, or is a surface with the
+/// light on one side, whose plane goes into `planes` (false when there is no
+/// room for it).
+fn clear_lanes(
+    block: &TriBlock,
+    lanes: u32,
+    shaft: &Shaft,
+    light: &[Vec3],
+    margin: f32,
+    planes: &mut SurfacePlanes,
+) -> bool {
+    let mut rest = lanes;
+    while rest != 0 {
+        let k = rest.trailing_zeros() as usize;
+        rest &= rest - 1;
+        let tri = block.get(k);
+        let v = tri.vertices();
+        if shaft.excludes(&v) {
+            continue;
+        }
+        let n = tri.e1.cross(tri.e2);
+        let len = n.length();
+        if !(len > 0.0 && len.is_finite()) {
+            // Degenerate: the intersection test never reports it.
+            continue;
+        }
+        let n = n / len;
+        let d = n.dot(tri.v0);
+        let (lo, hi) = light
+            .iter()
+            .map(|&q| n.dot(q) - d)
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), s| (lo.min(s), hi.max(s)));
+        // Which side of the plane the whole light lies on (closed), if one.
+        let (n, d, touch) = if lo >= -margin {
+            (n, d, lo)
+        } else if hi <= margin {
+            (-n, -d, -hi)
+        } else {
+            return false;
+        };
+        // A light on (or, by rounding, just across) the plane, such as a
+        // lamp's own polygon: shadow rays end 10⁻³ of their length before it,
+        // so the origin must be a thousand times farther off the plane than
+        // the light can lie across it, and clear of the rounding.
+        let plane_margin = if touch >= margin { margin } else { margin + 2e3 * (margin - touch.min(0.0)) };
+        if !planes.add(n, d, plane_margin, margin) {
+            return false;
+        }
+    }
+    true
+}

@@ -1,0 +1,247 @@
+//! Shadow cells: what can block a shadow ray, remembered per region of space.
+//!
+//! Most shadow rays in a room reach their light: they cross the room from a
+//! wall or the floor to the lamp and meet nothing, yet each pays a walk down
+//! the BVH to prove it. [`ShadowCells`] splits the scene's box into a grid of
+//! cubic cells and, per light, asks the BVH once per cell whether anything
+//! can block *any* segment from inside the cell to the light (shaft culling,
+//! see [`crate::bvh::Shaft`]). Where nothing can — the common case — every
+//! shadow ray from that cell to that light is known to reach it without
+//! tracing it; elsewhere rays traverse the BVH as before.
+//!
+//! **Exact.** A cell is clear only when no triangle lies in the shaft of
+//! segments from the cell to the light (widened by a margin for rounding),
+//! apart from surfaces a ray from the cell provably cannot reach (see
+//! `bvh::shaft`), so every answer is the one the BVH gives; pixels do not
+//! change. Nor does an answer depend on which thread first filled the cell,
+//! so renders stay deterministic.
+//!
+//! **Lazy.** A cell is filled the first time a shading point in it asks
+//! ([`OnceLock`]), and then serves every frame of a session: the scene is
+//! static while the camera moves, so an interactive fly-through fills the
+//! cells it sees once. A cell is two bytes: unfilled, not clear, or clear
+//! with the index of its set of surface planes in a small per-light table
+//! (a room has few distinct ones: the floor, each wall, their corners), so
+//! a light's grid stays in the caches. A 320×240 frame of the paper scene
+//! fills about 10,000 cells over its two lights.
+
+use crate::bvh::{Bvh, Shaft, SurfacePlanes};
+use crate::geometry::Aabb;
+use crate::lights::Light;
+use glam::Vec3;
+use std::sync::atomic::{AtomicU16, Ordering};
+use std::sync::{Mutex, OnceLock};
+
+/// Cells a light's grid aims at (the cell size is chosen so that the scene's
+/// box holds about this many).
+pub const TARGET_CELLS: f32 = 32_768.0;
+
+/// The grid is at least this fine along the scene's longest side.
+pub const MIN_CELLS_PER_SIDE: f32 = 32.0;
+
+/// Lights with cells; further lights' shadow rays always traverse the BVH.
+pub const MAX_CELL_LIGHTS: usize = 8;
+
+/// Distinct sets of surface planes per light; cells that would need more
+/// count as not clear.
+pub const MAX_PLANE_SETS: usize = 1024;
+
+/// A cell not filled yet.
+const UNFILLED: u16 = 0;
+/// A cell that is not clear.
+const NOT_CLEAR: u16 = 1;
+/// A clear cell holds this plus the index of its plane set.
+const FIRST_SET: u16 = 2;
+
+/// Per-light grids of shadow cells over a scene (see the module docs).
+#[derive(Debug, Default)]
+pub struct ShadowCells {
+    /// Lower corner of the grid.
+    origin: Vec3,
+    /// Cell edge length and its reciprocal.
+    size: f32,
+    inv_size: f32,
+    /// Cells along each axis.
+    dims: [u32; 3],
+    /// Rounding margin for shafts (world units).
+    shaft_margin: f32,
+    /// Rounding margin for the surface planes of lists (world units).
+    plane_margin: f32,
+    /// One grid per light (the first [`MAX_CELL_LIGHTS`]).
+    lights: Vec<LightCells>,
+}
+
+/// One light's grid.
+#[derive(Debug)]
+struct LightCells {
+    /// The light's corners (or position): where its shadow rays end.
+    points: Vec<Vec3>,
+    /// Their bounding box.
+    bounds: Aabb,
+    /// Per cell: [`UNFILLED`], [`NOT_CLEAR`], or [`FIRST_SET`] + the index
+    /// in `sets` of the surfaces left out of a clear cell.
+    cells: Vec<AtomicU16>,
+    /// The distinct plane sets of clear cells, filled in order.
+    sets: Vec<OnceLock<SurfacePlanes>>,
+    /// Number of `sets` filled; held while adding one.
+    adding: Mutex<usize>,
+}
+
+impl LightCells {
+    fn new(points: Vec<Vec3>, bounds: Aabb, cells: usize) -> Self {
+        LightCells {
+            points,
+            bounds,
+            cells: (0..cells).map(|_| AtomicU16::new(UNFILLED)).collect(),
+            sets: (0..if cells > 0 { MAX_PLANE_SETS } else { 0 }).map(|_| OnceLock::new()).collect(),
+            adding: Mutex::new(0),
+        }
+    }
+
+    /// The cell value for a clear cell with surface planes `planes`
+    /// ([`NOT_CLEAR`] when the table is full).
+    fn value_of(&self, planes: SurfacePlanes) -> u16 {
+        // A poisoned lock only means another thread panicked mid-search; the
+        // table itself is append-only and stays valid.
+        let mut count = self.adding.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = self.sets[..*count].iter().position(|s| s.get() == Some(&planes)) {
+            return FIRST_SET + i as u16;
+        }
+        if *count == self.sets.len() {
+            return NOT_CLEAR;
+        }
+        let _ = self.sets[*count].set(planes);
+        *count += 1;
+        FIRST_SET + (*count - 1) as u16
+    }
+}
+
+impl Clone for ShadowCells {
+    /// A clone starts with empty cells (they refill on demand, with the same contents).
+    fn clone(&self) -> Self {
+        ShadowCells {
+            lights: self
+                .lights
+                .iter()
+                .map(|l| LightCells::new(l.points.clone(), l.bounds, l.cells.len()))
+                .collect(),
+            ..*self
+        }
+    }
+}
+
+impl ShadowCells {
+    /// Empty grids for the lights of a scene whose triangles lie in `bounds`.
+    pub fn new(bounds: &Aabb, lights: &[Light]) -> Self {
+        let none = ShadowCells::default();
+        if !(bounds.min.is_finite() && bounds.max.is_finite()) || lights.is_empty() {
+            return none;
+        }
+        let extent = (bounds.max - bounds.min).max(Vec3::ZERO);
+        let longest = extent.max_element();
+        if longest.is_nan() || longest <= 0.0 {
+            return none;
+        }
+        let volume =
+            extent.x.max(longest * 1e-3) * extent.y.max(longest * 1e-3) * extent.z.max(longest * 1e-3);
+        let size =
+            crate::math::powf(volume / TARGET_CELLS, 1.0 / 3.0).max(longest / (4.0 * MIN_CELLS_PER_SIDE));
+        let size = size.min(longest / MIN_CELLS_PER_SIDE);
+        let dims = [0, 1, 2].map(|a| ((extent[a] / size).ceil() as u32).clamp(1, 1024));
+        let count = dims.iter().map(|&d| d as usize).product::<usize>();
+        let mut scale = 1.0 + bounds.min.abs().max(bounds.max.abs()).max_element();
+        let mut grids = Vec::new();
+        for light in lights.iter().take(MAX_CELL_LIGHTS) {
+            let points = match light {
+                Light::Point { position, .. } => vec![*position],
+                Light::Area { vertices, .. } => vertices.clone(),
+            };
+            let mut lb = Aabb::EMPTY;
+            for &p in &points {
+                lb.grow(p);
+                scale = scale.max(1.0 + p.abs().max_element());
+            }
+            // Lights that are not finite keep an empty grid (every lookup Unknown).
+            let finite = lb.min.is_finite() && lb.max.is_finite();
+            grids.push(LightCells::new(points, lb, if finite { count } else { 0 }));
+        }
+        ShadowCells {
+            origin: bounds.min,
+            size,
+            inv_size: 1.0 / size,
+            dims,
+            shaft_margin: 1e-5 * scale,
+            plane_margin: 2e-6 * scale,
+            lights: grids,
+        }
+    }
+
+    /// True when no shadow ray from `origin` to light `light` (the index
+    /// into the scene's lights) can be blocked, provided it stops short of
+    /// the light (see [`Bvh::shaft_clear`]); false when that is not known.
+    /// Fills the cell on first use.
+    #[inline]
+    pub fn clear(&self, bvh: &Bvh, light: usize, origin: Vec3) -> bool {
+        let Some(grid) = self.lights.get(light) else { return false };
+        let Some(index) = self.cell_of(origin) else { return false };
+        let Some(cell) = grid.cells.get(index) else { return false };
+        let mut value = cell.load(Ordering::Acquire);
+        if value == UNFILLED {
+            value = self.fill(bvh, grid, index);
+        }
+        value >= FIRST_SET && grid.sets[(value - FIRST_SET) as usize].get().is_some_and(|p| p.admit(origin))
+    }
+
+    /// Index of the cell containing `p`, if `p` lies in the grid.
+    #[inline]
+    fn cell_of(&self, p: Vec3) -> Option<usize> {
+        let rel = (p - self.origin) * self.inv_size;
+        // Also false for NaN.
+        if !(rel.cmpge(Vec3::ZERO).all()) {
+            return None;
+        }
+        let mut index = 0usize;
+        for a in (0..3).rev() {
+            let c = rel[a] as u32;
+            if c >= self.dims[a] {
+                return None;
+            }
+            index = index * self.dims[a] as usize + c as usize;
+        }
+        Some(index)
+    }
+
+    /// Fills cell `index` of `grid` and returns its value (another thread
+    /// may be filling it too; both find the same planes, so either value
+    /// gives the same answers).
+    #[cold]
+    #[inline(never)]
+    fn fill(&self, bvh: &Bvh, grid: &LightCells, index: usize) -> u16 {
+        let value = match self.clear_cell(bvh, grid, index) {
+            Some(planes) => grid.value_of(planes),
+            None => NOT_CLEAR,
+        };
+        // Release: the plane set is in the table before the cell points at it.
+        grid.cells[index].store(value, Ordering::Release);
+        value
+    }
+
+    /// Whether cell `index` is clear for `grid`'s light (see [`ShadowCells::clear`]).
+    fn clear_cell(&self, bvh: &Bvh, grid: &LightCells, index: usize) -> Option<SurfacePlanes> {
+        let (nx, ny) = (self.dims[0] as usize, self.dims[1] as usize);
+        let c = Vec3::new((index % nx) as f32, ((index / nx) % ny) as f32, (index / (nx * ny)) as f32);
+        // The cell, widened so that points `cell_of` rounds into it lie inside.
+        let lo = self.origin + c * self.size - Vec3::splat(self.shaft_margin);
+        let hi = self.origin + (c + Vec3::ONE) * self.size + Vec3::splat(self.shaft_margin);
+        let shaft = Shaft::between(&Aabb { min: lo, max: hi }, &grid.bounds, self.shaft_margin)?;
+        bvh.shaft_clear(&shaft, &grid.points, self.plane_margin)
+    }
+
+    /// Number of cells filled so far, over all lights (for statistics).
+    pub fn filled(&self) -> usize {
+        self.lights
+            .iter()
+            .map(|g| g.cells.iter().filter(|c| c.load(Ordering::Relaxed) != UNFILLED).count())
+            .sum()
+    }
+}
