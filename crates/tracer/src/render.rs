@@ -489,6 +489,24 @@ mod tests {
     }
 
     #[test]
+    fn shadow_cells_trace_fewer_rays_and_render_the_same_bytes() {
+        let scene = shadow_test_scene();
+        let s = scene.settings;
+        let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+        let traced = TraceOptions { shadow_cells: false, ..TraceOptions::default() };
+        for adaptive in [true, false] {
+            let on = TraceOptions { adaptive_shadows: adaptive, ..TraceOptions::default() };
+            let off = TraceOptions { adaptive_shadows: adaptive, ..traced };
+            let (a, ca) = render_tile_with(&scene, &scene.camera, &s, tile, &on);
+            let (b, cb) = render_tile_with(&scene, &scene.camera, &s, tile, &off);
+            assert!(a == b, "shadow cells change pixels (adaptive: {adaptive})");
+            assert_eq!((ca.primary, ca.secondary), (cb.primary, cb.secondary));
+            assert!(ca.shadow * 2 < cb.shadow, "{} vs {} shadow rays traced", ca.shadow, cb.shadow);
+        }
+        assert!(scene.shadow_cells_filled() > 0);
+    }
+
+    #[test]
     fn simd_and_scalar_box_tests_render_the_same_bytes() {
         let scene = shadow_test_scene();
         let mut scalar = scene.clone();

@@ -120,7 +120,7 @@ impl Scene {
     /// `lights`) can hit anything, provided it stops short of the light (as
     /// the integrator's shadow rays do); false when that is not known. See
     /// [`crate::shadows`].
-    #[inline]
+    #[inline(always)]
     pub fn shadow_clear(&self, light: usize, origin: Vec3) -> bool {
         self.shadow_cells.clear(&self.bvh, light, origin)
     }

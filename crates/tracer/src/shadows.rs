@@ -180,7 +180,7 @@ impl ShadowCells {
     /// into the scene's lights) can be blocked, provided it stops short of
     /// the light (see [`Bvh::shaft_clear`]); false when that is not known.
     /// Fills the cell on first use.
-    #[inline]
+    #[inline(always)]
     pub fn clear(&self, bvh: &Bvh, light: usize, origin: Vec3) -> bool {
         let Some(grid) = self.lights.get(light) else { return false };
         let Some(index) = self.cell_of(origin) else { return false };
@@ -193,7 +193,7 @@ impl ShadowCells {
     }
 
     /// Index of the cell containing `p`, if `p` lies in the grid.
-    #[inline]
+    #[inline(always)]
     fn cell_of(&self, p: Vec3) -> Option<usize> {
         let rel = (p - self.origin) * self.inv_size;
         // Also false for NaN.

@@ -51,12 +51,15 @@ pub struct Shaft {
     count: usize,
     /// Bounding box of the region.
     bounds: Aabb,
+    /// Centre of the box the segments start from.
+    start: Vec3,
 }
 
 impl Shaft {
-    /// A region containing the convex hull of boxes `a` and `b`, widened by
-    /// `margin` world units on every side. `None` when a box is empty or
-    /// anything is not finite.
+    /// A region containing the convex hull of boxes `a` (where segments
+    /// start) and `b` (where they end, the light), widened by `margin` world
+    /// units on every side. `None` when a box is empty or anything is not
+    /// finite.
     pub fn between(a: &Aabb, b: &Aabb, margin: f32) -> Option<Shaft> {
         let finite = |x: &Aabb| x.min.is_finite() && x.max.is_finite() && x.min.cmple(x.max).all();
         if !(finite(a) && finite(b) && margin >= 0.0 && margin.is_finite()) {
@@ -67,6 +70,7 @@ impl Shaft {
             planes: [(Vec3::ZERO, 0.0); SHAFT_PLANES],
             count: 0,
             bounds: Aabb { min: union.min - Vec3::splat(margin), max: union.max + Vec3::splat(margin) },
+            start: (a.min + a.max) * 0.5,
         };
         let corners = |x: &Aabb| {
             let mut c = [Vec3::ZERO; 8];
@@ -284,8 +288,9 @@ fn clear_lanes(
             .iter()
             .map(|&q| n.dot(q) - d)
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), s| (lo.min(s), hi.max(s)));
-        // Which side of the plane the whole light lies on (closed), if one.
-        let (n, d, touch) = if lo >= -margin {
+        // Which side of the plane the whole light lies on (closed), if one;
+        // for a light in the plane, the side the segments start from.
+        let (n, d, touch) = if lo >= -margin && (hi > margin || n.dot(shaft.start) >= d) {
             (n, d, lo)
         } else if hi <= margin {
             (-n, -d, -hi)
@@ -302,4 +307,114 @@ fn clear_lanes(
         }
     }
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes::Triangle;
+
+    fn quad(c: [Vec3; 4]) -> [Triangle; 2] {
+        [Triangle { v: [c[0], c[1], c[2]] }, Triangle { v: [c[0], c[2], c[3]] }]
+    }
+
+    /// A floor (y = 0, 20 × 20), a 1 × 1 wall standing at x = 0 between
+    /// y = 1.5 and 2.5, and a square lamp 2 wide at y = 5 over (0, 0).
+    fn room() -> (Bvh, Vec<Vec3>) {
+        let s = 10.0;
+        let mut tris = quad([
+            Vec3::new(-s, 0.0, -s),
+            Vec3::new(-s, 0.0, s),
+            Vec3::new(s, 0.0, s),
+            Vec3::new(s, 0.0, -s),
+        ])
+        .to_vec();
+        tris.extend(quad([
+            Vec3::new(0.0, 1.5, -0.5),
+            Vec3::new(0.0, 2.5, -0.5),
+            Vec3::new(0.0, 2.5, 0.5),
+            Vec3::new(0.0, 1.5, 0.5),
+        ]));
+        let lamp = vec![
+            Vec3::new(-1.0, 5.0, -1.0),
+            Vec3::new(1.0, 5.0, -1.0),
+            Vec3::new(1.0, 5.0, 1.0),
+            Vec3::new(-1.0, 5.0, 1.0),
+        ];
+        (Bvh::build(&tris), lamp)
+    }
+
+    fn lamp_box(lamp: &[Vec3]) -> Aabb {
+        lamp.iter().fold(Aabb::EMPTY, |mut b, &p| {
+            b.grow(p);
+            b
+        })
+    }
+
+    #[test]
+    fn shaft_contains_every_segment_between_its_boxes() {
+        let a = Aabb { min: Vec3::new(3.0, -0.2, 1.0), max: Vec3::new(3.5, 0.3, 1.4) };
+        let b = Aabb { min: Vec3::new(-1.0, 5.0, -1.0), max: Vec3::new(1.0, 5.0, 1.0) };
+        let shaft = Shaft::between(&a, &b, 1e-5).unwrap();
+        assert!(shaft.count >= 4, "connecting planes: {}", shaft.count);
+        let mut r = 0x1234_5678_9abc_def0u64;
+        let mut f = || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            (r >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for _ in 0..10_000 {
+            let p = a.min + (a.max - a.min) * Vec3::new(f(), f(), f());
+            let q = b.min + (b.max - b.min) * Vec3::new(f(), f(), f());
+            assert!(shaft.contains(p.lerp(q, f())), "{p:?} → {q:?}");
+        }
+        // Points well off the hull are outside: beside the light, under the box.
+        assert!(!shaft.contains(Vec3::new(-1.0, 5.0, 3.0)));
+        assert!(!shaft.contains(Vec3::new(0.0, 2.0, 3.0)));
+        assert!(!shaft.contains(Vec3::new(3.25, 2.5, -2.0)));
+        assert!(Shaft::between(&Aabb::EMPTY, &b, 0.0).is_none());
+    }
+
+    #[test]
+    fn floor_cells_are_clear_except_in_the_walls_shadow() {
+        let (bvh, lamp) = room();
+        let lb = lamp_box(&lamp);
+        let cell =
+            |x: f32, z: f32| Aabb { min: Vec3::new(x, -0.1, z), max: Vec3::new(x + 0.5, 0.4, z + 0.5) };
+        // Far from the wall: clear, with the floor's two triangles as one plane.
+        let planes = bvh.shaft_clear(&Shaft::between(&cell(6.0, 6.0), &lb, 1e-5).unwrap(), &lamp, 1e-5);
+        let planes = planes.expect("clear");
+        assert_eq!(planes.len(), 1);
+        assert!(planes.admit(Vec3::new(6.2, 0.01, 6.2)), "above the floor");
+        assert!(!planes.admit(Vec3::new(6.2, -0.01, 6.2)), "under the floor");
+        assert!(!planes.admit(Vec3::new(6.2, 0.0, 6.2)), "on the floor");
+        // Under the wall, which the lamp lies on both sides of: not clear.
+        assert!(
+            bvh.shaft_clear(&Shaft::between(&cell(-0.25, -0.25), &lb, 1e-5).unwrap(), &lamp, 1e-5).is_none()
+        );
+        // A cell above the wall, beside the lamp: clear, no surface in it.
+        let high = Aabb { min: Vec3::new(0.6, 3.0, 0.6), max: Vec3::new(0.9, 3.3, 0.9) };
+        let planes = bvh.shaft_clear(&Shaft::between(&high, &lb, 1e-5).unwrap(), &lamp, 1e-5).expect("clear");
+        assert!(planes.is_empty());
+    }
+
+    #[test]
+    fn a_lamps_own_polygon_is_left_out_only_well_below_it() {
+        let (bvh, lamp) = room();
+        // The lamp drawn as two triangles in its own plane.
+        let mut tris: Vec<Triangle> = quad([lamp[0], lamp[3], lamp[2], lamp[1]]).to_vec();
+        tris.push(Triangle {
+            v: [Vec3::new(9.0, 0.0, 9.0), Vec3::new(9.5, 0.0, 9.0), Vec3::new(9.0, 0.0, 9.5)],
+        });
+        let drawn = Bvh::build(&tris);
+        let lb = lamp_box(&lamp);
+        let cell = Aabb { min: Vec3::new(3.0, 1.0, 3.0), max: Vec3::new(3.5, 1.5, 3.5) };
+        let planes =
+            drawn.shaft_clear(&Shaft::between(&cell, &lb, 1e-5).unwrap(), &lamp, 1e-5).expect("clear");
+        assert_eq!(planes.len(), 1);
+        assert!(planes.admit(Vec3::new(3.2, 1.2, 3.2)));
+        assert!(!planes.admit(Vec3::new(3.2, 5.0 - 1e-3, 3.2)), "a hair below the lamp");
+        let _ = bvh;
+    }
 }
