@@ -28,7 +28,14 @@
 //!   first, and the rest only when those disagree (a penumbra); where they
 //!   agree the remaining samples count as lit or shadowed like them
 //!   (`Integrator::area_adaptive`). [`Integrator::with_adaptive_shadows`]
-//!   switches this off for reference images.
+//!   switches this off for reference images. With more than
+//!   [`ADAPTIVE_TESTS`] and at most [`RATIO_MAX`] samples, and the whole light
+//!   above the horizon, the diffuse part is not averaged but computed exactly
+//!   (the polygon's projected solid angle) and scaled by the fraction the
+//!   samples find unblocked — the ratio estimator (`Integrator::area_ratio`):
+//!   lit surfaces carry no sampling noise. Where the scene's shadow cells
+//!   ([`crate::shadows`]) know a light to be unblocked, its shadow rays are
+//!   not traced.
 //! * Mirror: `tint ×` the radiance along `R = I − 2 (I·N) N`.
 //! * Dielectric: Snell refraction and Schlick-weighted reflection, total
 //!   internal reflection, `tint` applied to light transmitted into the medium.
@@ -609,6 +616,15 @@ impl<'a> Integrator<'a> {
             let n = self.light_samples_for(weight);
             let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
             let clear = self.shadow_clear(index, lobe.origin);
+            // With more than a handful of samples: the diffuse part exactly,
+            // scaled by the fraction of it the samples find unblocked.
+            if n > ADAPTIVE_TESTS as u32
+                && n <= RATIO_MAX as u32
+                && let Some(omega) = prepared.projected_solid_angle(sp.p, sp.ns, sp.ng)
+            {
+                total += self.area_ratio(sp, &lobe, &area, omega, clear, counts);
+                continue;
+            }
             let sum =
                 if !clear && self.adaptive_shadows && (ADAPTIVE_TESTS as u32) < n && n <= ADAPTIVE_MAX as u32
                 {
@@ -711,6 +727,123 @@ impl<'a> Integrator<'a> {
     }
 }
 
+impl Integrator<'_> {
+    /// An area light's contribution at `sp` by the ratio estimator (Heitz,
+    /// Hill & McGuire 2018, "Combining Analytic Direct Illumination and
+    /// Stochastic Shadows"): the diffuse part is the exact unshadowed
+    /// integral (`omega`, the light's projected solid angle, times the
+    /// radiance and the diffuse lobe) times the fraction of it that reaches
+    /// the point among the samples, `Σ visible wⱼ / Σ wⱼ` with `wⱼ` each
+    /// sample's unshadowed diffuse contribution; the Phong highlight is the
+    /// samples' plain average. Where the light is known to be fully visible
+    /// (a clear shadow cell, or corner tests that all reach it, see
+    /// [`Integrator::area_adaptive`]) the diffuse part needs no sample at
+    /// all, and the highlight none either where it cannot reach 10⁻³ of the
+    /// diffuse part ([`Lobe::highlight_negligible`]). Unshadowed surfaces are
+    /// thus free of sampling noise, and penumbrae keep the shading's shape.
+    /// The caller guarantees the whole light above both horizons at `sp`.
+    fn area_ratio(
+        &self,
+        sp: &SurfacePoint,
+        lobe: &Lobe,
+        area: &AreaSamples,
+        omega: f32,
+        clear: bool,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
+        let scene = self.scene;
+        let light = &area.light;
+        let radiance = light.radiance();
+        let unshadowed = lobe.diffuse * radiance * omega;
+        let highlight = lobe.has_spec && !lobe.highlight_negligible(sp, light);
+        if clear && !highlight {
+            return unshadowed;
+        }
+        let n = area.n as usize;
+        let set = self.light_set(&area.sampler);
+        // Per sample: the unshadowed irradiance times cos θ, the Phong
+        // factor, and whether it was traced and found blocked.
+        let mut w = [Vec3::ZERO; RATIO_MAX];
+        let mut phong = [0.0f32; RATIO_MAX];
+        let mut dirs = [Vec3::ZERO; RATIO_MAX];
+        let mut dists = [0.0f32; RATIO_MAX];
+        let mut us = [Vec2::ZERO; RATIO_MAX];
+        let mut valid = 0u64;
+        for j in 0..n {
+            let u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
+            us[j] = u;
+            let Some(ls) = light.sample(sp.p, u) else { continue };
+            let cos = sp.ns.dot(ls.dir);
+            if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
+                continue;
+            }
+            valid |= 1 << j;
+            w[j] = ls.irradiance * cos;
+            phong[j] = lobe.phong(ls.dir);
+            dirs[j] = ls.dir;
+            dists[j] = ls.dist;
+        }
+        let blocked_at = |j: usize, counts: &mut RayCounts| {
+            counts.shadow += 1;
+            scene.occluded(&Ray::new(lobe.origin, dirs[j]), 0.0, dists[j] * SHADOW_SHORTEN)
+        };
+        // Which samples reach the light: all of them in a clear cell, all or
+        // none where the corner tests agree, else each traced.
+        let mut visible = valid;
+        if !clear {
+            let mut tested = 0u64;
+            if self.adaptive_shadows {
+                let tests = spread_tests(&us[..n]);
+                let (mut seen, mut hidden) = (0u32, 0u32);
+                for &j in &tests {
+                    if tested & (1 << j) != 0 || valid & (1 << j) == 0 {
+                        continue;
+                    }
+                    tested |= 1 << j;
+                    if blocked_at(j, counts) {
+                        visible &= !(1 << j);
+                        hidden += 1;
+                    } else {
+                        seen += 1;
+                    }
+                }
+                let untraced = tests.iter().any(|&j| valid & (1 << j) == 0);
+                if !untraced && seen + hidden >= 2 && hidden == 0 {
+                    tested = valid;
+                } else if !untraced && seen + hidden >= 2 && seen == 0 {
+                    return Vec3::ZERO;
+                }
+            }
+            let mut rest = valid & !tested;
+            while rest != 0 {
+                let j = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                if blocked_at(j, counts) {
+                    visible &= !(1 << j);
+                }
+            }
+        }
+        let (mut sum_w, mut sum_vis, mut spec) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+        for j in 0..n {
+            if valid & (1 << j) == 0 {
+                continue;
+            }
+            sum_w += w[j];
+            if visible & (1 << j) != 0 {
+                sum_vis += w[j];
+                spec += w[j] * phong[j];
+            }
+        }
+        let diffuse = if visible == valid {
+            unshadowed
+        } else {
+            let ratio = Vec3::select(sum_w.cmpgt(Vec3::ZERO), sum_vis / sum_w, Vec3::ZERO);
+            unshadowed * ratio
+        };
+        if highlight { diffuse + lobe.spec * spec / n as f32 } else { diffuse }
+    }
+}
+
 /// Area lights with more samples per shading point than this are traced
 /// adaptively (see the module docs): this many test samples first.
 pub const ADAPTIVE_TESTS: usize = 4;
@@ -718,6 +851,11 @@ pub const ADAPTIVE_TESTS: usize = 4;
 /// Area lights with more samples per shading point than this are always
 /// traced exhaustively (the adaptive path keeps its samples on the stack).
 pub const ADAPTIVE_MAX: usize = 64;
+
+/// Area lights with at most this many samples per shading point (and more
+/// than [`ADAPTIVE_TESTS`]) use the ratio estimator
+/// (`Integrator::area_ratio`, which keeps its samples on the stack).
+pub const RATIO_MAX: usize = 16;
 
 /// The indices of the samples nearest the four corners of the unit square
 /// (smallest and largest `x + y` and `x − y`; the first on ties), which the
@@ -750,6 +888,42 @@ struct Lobe {
 }
 
 impl Lobe {
+    /// The Phong factor `max(0, R·L)^s` for light arriving along unit `dir`
+    /// (0 without a highlight).
+    #[inline(always)]
+    fn phong(&self, dir: Vec3) -> f32 {
+        if !self.has_spec {
+            return 0.0;
+        }
+        let rv = self.mirrored_view.dot(dir);
+        if rv > 0.0 { phong_lobe(rv, self.shininess) } else { 0.0 }
+    }
+
+    /// True when the highlight `spec · max(0, R·L)^s` cannot reach 10⁻³ of
+    /// the diffuse lobe (plus 10⁻⁵) for any direction `L` towards `light`
+    /// from `sp`: the mirrored view direction `R` lies outside the cone
+    /// around the light's bounding sphere by an angle whose cosine, raised to
+    /// `s`, is that small.
+    fn highlight_negligible(&self, sp: &SurfacePoint, light: &AreaSampler) -> bool {
+        let (centre, radius) = light.bounding_sphere();
+        let d = centre - sp.p;
+        let dist = d.length();
+        if !(dist > radius && dist.is_finite()) {
+            return false;
+        }
+        let cos_t = self.mirrored_view.dot(d / dist);
+        let sin_a = radius / dist;
+        let cos_a = (1.0 - sin_a * sin_a).max(0.0).sqrt();
+        if cos_t >= cos_a {
+            return false;
+        }
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        // cos(θ − α), the largest cosine between R and the cone.
+        let bound = (cos_t * cos_a + sin_t * sin_a).max(0.0);
+        self.spec.max_element() * phong_lobe(bound, self.shininess)
+            <= 1e-3 * self.diffuse.max_element() + 1e-5
+    }
+
     /// The contribution of light sample `ls` if it is not shadowed, or `None`
     /// when it lies below the shading or geometric horizon.
     #[inline(always)]

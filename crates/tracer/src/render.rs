@@ -251,7 +251,7 @@ pub struct TraceOptions {
     /// [`Integrator::with_adaptive_shadows`]); on by default.
     pub adaptive_shadows: bool,
     /// Trace camera rays in packets of a 4×2 block of pixels
-    /// ([`crate::Bvh::intersect8`], the same hits as single rays); on by default.
+    /// ([`crate::bvh::Bvh::intersect8`], the same hits as single rays); on by default.
     pub packets: bool,
     /// Answer shadow rays from the scene's shadow cells where they can
     /// ([`crate::shadows`], the same answers as tracing them); on by default.
@@ -486,6 +486,42 @@ mod tests {
         assert!(differ.iter().all(|&d| d <= 64), "{differ:?}");
         let mean = differ.iter().map(|&d| d as f32).sum::<f32>() / differ.len().max(1) as f32;
         assert!(mean < 16.0, "mean difference {mean}");
+    }
+
+    #[test]
+    fn ratio_estimator_is_noise_free_where_lit_and_close_to_a_converged_image() {
+        let scene = shadow_test_scene();
+        let s = RenderSettings { light_samples: 8, ..scene.settings };
+        let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+        // 1024 samples: above the ratio estimator's limit, the plain average,
+        // traced exhaustively.
+        let reference = RenderSettings { light_samples: 1024, ..s };
+        let exhaustive = TraceOptions { adaptive_shadows: false, ..TraceOptions::default() };
+        // Every sample traced, so that only the estimator differs (adaptive
+        // tracing's own error is the test above's).
+        let (a, _) = render_tile_with(&scene, &scene.camera, &s, tile, &exhaustive);
+        let (r, _) = render_tile_with(&scene, &scene.camera, &reference, tile, &exhaustive);
+        let diff: Vec<u8> = a.iter().zip(&r).map(|(x, y)| x.abs_diff(*y)).collect();
+        let mean = diff.iter().map(|&d| d as f32).sum::<f32>() / diff.len() as f32;
+        assert!(mean < 1.0, "mean difference {mean} from the converged image");
+        // Penumbrae keep eight samples' noise (a pixel whose eight samples
+        // all happen to be blocked is black), rarely and not far.
+        let big = diff.iter().filter(|&&d| d > 16).count();
+        assert!(big * 100 < diff.len(), "{big} of {} bytes off by more than 16", diff.len());
+        assert!(diff.iter().all(|&d| d <= 64), "max difference {:?}", diff.iter().max());
+        // In the open (the image's top-right corner: floor far from both
+        // occluders) eight samples give the converged value to the byte: the
+        // unshadowed diffuse light is exact, not sampled.
+        let (w, h) = (s.width as usize, s.height as usize);
+        let mut open = 0;
+        for y in 0..h / 6 {
+            for x in w - w / 6..w {
+                let i = 3 * (y * w + x);
+                assert!(diff[i..i + 3].iter().all(|&d| d <= 1), "pixel ({x}, {y}) differs");
+                open += 1;
+            }
+        }
+        assert!(open > 50);
     }
 
     #[test]
