@@ -761,68 +761,62 @@ impl Integrator<'_> {
         }
         let n = area.n as usize;
         let set = self.light_set(&area.sampler);
-        // Per sample: the unshadowed irradiance times cos θ, the Phong
-        // factor, and whether it was traced and found blocked.
-        let mut w = [Vec3::ZERO; RATIO_MAX];
-        let mut phong = [0.0f32; RATIO_MAX];
-        let mut dirs = [Vec3::ZERO; RATIO_MAX];
-        let mut dists = [0.0f32; RATIO_MAX];
         let mut us = [Vec2::ZERO; RATIO_MAX];
-        let mut valid = 0u64;
-        for j in 0..n {
-            let u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
-            us[j] = u;
-            let Some(ls) = light.sample(sp.p, u) else { continue };
-            let cos = sp.ns.dot(ls.dir);
-            if cos <= 0.0 || sp.ng.dot(ls.dir) <= 0.0 {
-                continue;
-            }
-            valid |= 1 << j;
-            w[j] = ls.irradiance * cos;
-            phong[j] = lobe.phong(ls.dir);
-            dirs[j] = ls.dir;
-            dists[j] = ls.dist;
+        for (j, u) in us[..n].iter_mut().enumerate() {
+            *u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
         }
-        let blocked_at = |j: usize, counts: &mut RayCounts| {
+        let mut samples = RatioSamples::default();
+        let blocked_at = |samples: &RatioSamples, j: usize, counts: &mut RayCounts| {
             counts.shadow += 1;
-            scene.occluded(&Ray::new(lobe.origin, dirs[j]), 0.0, dists[j] * SHADOW_SHORTEN)
+            let ray = Ray::new(lobe.origin, samples.dirs[j]);
+            scene.occluded(&ray, 0.0, samples.dists[j] * SHADOW_SHORTEN)
         };
         // Which samples reach the light: all of them in a clear cell, all or
         // none where the corner tests agree, else each traced.
-        let mut visible = valid;
+        let all = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+        let mut visible = all;
         if !clear {
             let mut tested = 0u64;
             if self.adaptive_shadows {
                 let tests = spread_tests(&us[..n]);
-                let (mut seen, mut hidden) = (0u32, 0u32);
+                let (mut seen, mut hidden, mut untraced) = (0u32, 0u32, false);
                 for &j in &tests {
-                    if tested & (1 << j) != 0 || valid & (1 << j) == 0 {
+                    if tested & (1 << j) != 0 {
                         continue;
                     }
                     tested |= 1 << j;
-                    if blocked_at(j, counts) {
+                    if !samples.eval(j, us[j], light, sp, lobe) {
+                        untraced = true;
+                    } else if blocked_at(&samples, j, counts) {
                         visible &= !(1 << j);
                         hidden += 1;
                     } else {
                         seen += 1;
                     }
                 }
-                let untraced = tests.iter().any(|&j| valid & (1 << j) == 0);
                 if !untraced && seen + hidden >= 2 && hidden == 0 {
-                    tested = valid;
+                    if !highlight {
+                        return unshadowed;
+                    }
+                    tested = all;
                 } else if !untraced && seen + hidden >= 2 && seen == 0 {
                     return Vec3::ZERO;
                 }
             }
-            let mut rest = valid & !tested;
-            while rest != 0 {
-                let j = rest.trailing_zeros() as usize;
-                rest &= rest - 1;
-                if blocked_at(j, counts) {
+            for j in 0..n {
+                if tested & (1 << j) == 0
+                    && samples.eval(j, us[j], light, sp, lobe)
+                    && blocked_at(&samples, j, counts)
+                {
                     visible &= !(1 << j);
                 }
             }
         }
+        for (j, &u) in us[..n].iter().enumerate() {
+            samples.eval(j, u, light, sp, lobe);
+        }
+        let (valid, w, phong) = (samples.valid, &samples.w, &samples.phong);
+        visible &= valid;
         let (mut sum_w, mut sum_vis, mut spec) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
         for j in 0..n {
             if valid & (1 << j) == 0 {
@@ -841,6 +835,44 @@ impl Integrator<'_> {
             unshadowed * ratio
         };
         if highlight { diffuse + lobe.spec * spec / n as f32 } else { diffuse }
+    }
+}
+
+/// The samples of [`Integrator::area_ratio`], each evaluated on first use.
+#[derive(Default)]
+struct RatioSamples {
+    /// Unshadowed irradiance times the receiver's cosine.
+    w: [Vec3; RATIO_MAX],
+    /// The Phong factor.
+    phong: [f32; RATIO_MAX],
+    /// Shadow ray direction and length.
+    dirs: [Vec3; RATIO_MAX],
+    dists: [f32; RATIO_MAX],
+    /// Samples evaluated, and those above both horizons.
+    done: u64,
+    valid: u64,
+}
+
+impl RatioSamples {
+    /// Evaluates sample `j` at the point `u` of the unit square, once;
+    /// true when it lies above both horizons.
+    #[inline(always)]
+    fn eval(&mut self, j: usize, u: Vec2, light: &AreaSampler, sp: &SurfacePoint, lobe: &Lobe) -> bool {
+        let bit = 1u64 << j;
+        if self.done & bit == 0 {
+            self.done |= bit;
+            if let Some(ls) = light.sample(sp.p, u) {
+                let cos = sp.ns.dot(ls.dir);
+                if cos > 0.0 && sp.ng.dot(ls.dir) > 0.0 {
+                    self.valid |= bit;
+                    self.w[j] = ls.irradiance * cos;
+                    self.phong[j] = lobe.phong(ls.dir);
+                    self.dirs[j] = ls.dir;
+                    self.dists[j] = ls.dist;
+                }
+            }
+        }
+        self.valid & bit != 0
     }
 }
 
