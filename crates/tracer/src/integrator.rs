@@ -803,9 +803,9 @@ impl Integrator<'_> {
                     return Vec3::ZERO;
                 }
             }
-            for j in 0..n {
+            for (j, &u) in us[..n].iter().enumerate() {
                 if tested & (1 << j) == 0
-                    && samples.eval(j, us[j], light, sp, lobe)
+                    && samples.eval(j, u, light, sp, lobe)
                     && blocked_at(&samples, j, counts)
                 {
                     visible &= !(1 << j);
