@@ -266,7 +266,7 @@ impl AreaSampler<'_> {
         }
         let mut sum = 0.0f32;
         for i in 0..k {
-            let (a, b) = (u[i], u[(i + 1) % k]);
+            let (a, b) = (u[i], u[if i + 1 == k { 0 } else { i + 1 }]);
             let c = a.cross(b);
             let s = c.length();
             if s > 0.0 {
