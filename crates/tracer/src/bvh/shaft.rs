@@ -72,44 +72,36 @@ impl Shaft {
             bounds: Aabb { min: union.min - Vec3::splat(margin), max: union.max + Vec3::splat(margin) },
             start: (a.min + a.max) * 0.5,
         };
-        let corners = |x: &Aabb| {
-            let mut c = [Vec3::ZERO; 8];
-            for (i, c) in c.iter_mut().enumerate() {
-                *c = Vec3::new(
-                    if i & 1 == 0 { x.min.x } else { x.max.x },
-                    if i & 2 == 0 { x.min.y } else { x.max.y },
-                    if i & 4 == 0 { x.min.z } else { x.max.z },
-                );
-            }
-            c
-        };
-        let all: Vec<Vec3> = corners(a).into_iter().chain(corners(b)).collect();
+        // The largest `n·x` over a box's corners (each coordinate at the end
+        // that maximises its term).
+        let reach = |n: Vec3, x: &Aabb| (n * x.min).max(n * x.max).element_sum();
         // In each projection, the hull edges joining a corner of one rectangle
         // to a corner of the other (the rectangles' own edges are the box's).
         for (i, j) in [(0, 1), (1, 2), (2, 0)] {
+            // A box's rectangle in this projection: its distinct corners.
             let rect = |x: &Aabb| {
-                let mut r: Vec<Vec2> = Vec::with_capacity(4);
-                for (u, v) in
-                    [(x.min[i], x.min[j]), (x.max[i], x.min[j]), (x.min[i], x.max[j]), (x.max[i], x.max[j])]
+                let mut r = [Vec2::ZERO; 4];
+                let mut len = 0;
+                for (u, v) in [(x.min[i], x.min[j]), (x.max[i], x.min[j]), (x.min[i], x.max[j]), (x.max[i], x.max[j])]
                 {
                     let p = Vec2::new(u, v);
-                    if !r.contains(&p) {
-                        r.push(p);
+                    if !r[..len].contains(&p) {
+                        r[len] = p;
+                        len += 1;
                     }
                 }
-                r
+                (r, len)
             };
-            let (ra, rb) = (rect(a), rect(b));
-            let pts: Vec<Vec2> = ra.iter().chain(&rb).copied().collect();
-            for &p in &ra {
-                for &q in &rb {
+            let ((ra, na), (rb, nb)) = (rect(a), rect(b));
+            for &p in &ra[..na] {
+                for &q in &rb[..nb] {
                     let e = q - p;
                     // Axis-aligned joins are faces of the bounding box already.
                     if e.x == 0.0 || e.y == 0.0 {
                         continue;
                     }
                     let n = Vec2::new(e.y, -e.x).normalize();
-                    let side = |s: f32| pts.iter().all(|&x| s * n.dot(x - p) <= 0.0);
+                    let side = |s: f32| ra[..na].iter().chain(&rb[..nb]).all(|&x| s * n.dot(x - p) <= 0.0);
                     let n = if side(1.0) {
                         n
                     } else if side(-1.0) {
@@ -120,8 +112,9 @@ impl Shaft {
                     let mut n3 = Vec3::ZERO;
                     n3[i] = n.x;
                     n3[j] = n.y;
-                    // The offset that keeps every corner inside, whatever the rounding above.
-                    let d = all.iter().map(|&c| n3.dot(c)).fold(f32::NEG_INFINITY, f32::max) + margin;
+                    // The offset that keeps both boxes inside, whatever the
+                    // rounding above (the margin covers this sum's own).
+                    let d = reach(n3, a).max(reach(n3, b)) + margin;
                     let duplicate = shaft.planes[..shaft.count].iter().any(|&(m, e)| m == n3 && e == d);
                     if !duplicate && shaft.count < SHAFT_PLANES && d.is_finite() {
                         shaft.planes[shaft.count] = (n3, d);
