@@ -773,7 +773,7 @@ impl Integrator<'_> {
         };
         // Which samples reach the light: all of them in a clear cell, all or
         // none where the corner tests agree, else each traced.
-        let all = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+        let all = (1u64 << n) - 1;
         let mut visible = all;
         if !clear {
             let mut tested = 0u64;
@@ -966,10 +966,8 @@ impl Lobe {
         }
         let mut f = self.diffuse;
         if self.has_spec {
-            let rv = self.mirrored_view.dot(ls.dir);
-            if rv > 0.0 {
-                f += self.spec * phong_lobe(rv, self.shininess);
-            }
+            // Adding +0 where the lobe is 0 leaves `f`'s bits as they are.
+            f += self.spec * self.phong(ls.dir);
         }
         Some((f * ls.irradiance * cos, *ls))
     }

@@ -82,7 +82,8 @@ impl Shaft {
             let rect = |x: &Aabb| {
                 let mut r = [Vec2::ZERO; 4];
                 let mut len = 0;
-                for (u, v) in [(x.min[i], x.min[j]), (x.max[i], x.min[j]), (x.min[i], x.max[j]), (x.max[i], x.max[j])]
+                for (u, v) in
+                    [(x.min[i], x.min[j]), (x.max[i], x.min[j]), (x.min[i], x.max[j]), (x.max[i], x.max[j])]
                 {
                     let p = Vec2::new(u, v);
                     if !r[..len].contains(&p) {
