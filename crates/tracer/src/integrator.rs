@@ -1039,6 +1039,58 @@ mod tests {
     }
 
     #[test]
+    fn highlight_is_negligible_only_far_from_the_mirror_direction() {
+        use crate::lights::Light;
+        // A 1 × 1 lamp 4 above the origin, shining down; a floor point at the origin.
+        let lamp = Light::Area {
+            vertices: vec![
+                Vec3::new(-0.5, 4.0, -0.5),
+                Vec3::new(0.5, 4.0, -0.5),
+                Vec3::new(0.5, 4.0, 0.5),
+                Vec3::new(-0.5, 4.0, 0.5),
+            ],
+            radiance: Vec3::ONE,
+        };
+        let light = lamp.area_sampler(Vec3::ZERO).expect("faces the floor");
+        let sp = SurfacePoint {
+            p: Vec3::ZERO,
+            ng: Vec3::Y,
+            ns: Vec3::Y,
+            uv: Vec2::ZERO,
+            front: true,
+            material: 0,
+            eps: 1e-5,
+            uv_per_world: 1.0,
+            cos_view: 1.0,
+        };
+        let lobe = |view: Vec3, shininess: f32| Lobe {
+            diffuse: Vec3::splat(0.5 / PI),
+            spec: Vec3::splat(0.3 * (shininess + 2.0) / (2.0 * PI)),
+            has_spec: true,
+            shininess,
+            mirrored_view: reflect(view.normalize(), Vec3::Y),
+            origin: Vec3::ZERO,
+        };
+        // Seen from straight above, the lamp sits in the mirror direction.
+        assert!(!lobe(Vec3::NEG_Y, 40.0).highlight_negligible(&sp, &light));
+        // At a grazing view the mirror direction is ~80° off the lamp: negligible for
+        // s = 40 (cos⁴⁰ 80° ≈ 10⁻³⁰), not for s = 1.
+        let grazing = Vec3::new(1.0, -0.18, 0.0);
+        assert!(lobe(grazing, 40.0).highlight_negligible(&sp, &light));
+        assert!(!lobe(grazing, 1.0).highlight_negligible(&sp, &light));
+        // And where it says so, no direction towards the lamp gets 10⁻³ of the diffuse lobe.
+        for (view, s) in [(Vec3::new(1.0, -0.6, 0.3), 40.0), (Vec3::new(1.0, -1.2, 0.0), 400.0)] {
+            let l = lobe(view, s);
+            assert!(l.highlight_negligible(&sp, &light), "{view:?}, s = {s}");
+            for k in 0..100 {
+                let u = Vec2::new((k % 10) as f32 / 9.0, (k / 10) as f32 / 9.0);
+                let ls = light.sample(Vec3::ZERO, u).unwrap();
+                assert!(l.spec.x * l.phong(ls.dir) <= 1e-3 * l.diffuse.x + 1e-5);
+            }
+        }
+    }
+
+    #[test]
     fn smooth_shading_interpolates_vertex_normals() {
         let n0 = Vec3::new(-0.5, 0.0, 1.0).normalize();
         let n1 = Vec3::new(0.5, 0.0, 1.0).normalize();
