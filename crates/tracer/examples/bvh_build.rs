@@ -7,7 +7,8 @@
 //! cargo run --release -p isin-tracer --example bvh_build -- ../shared/meshes/bunny/stanford-bunny.obj
 //! # options: --reps N (default 7), --split K (split every triangle 1 -> 4, K times), --trace,
 //! # --threads N (only N threads instead of 1 and 2), --rays N (probe rays, default 2^18),
-//! # --trace-reps N (default 5; 1 under callgrind)
+//! # --trace-reps N (default 5; 1 under callgrind), --hash (a hash of the whole tree: every node's
+//! # boxes and child words, the triangle blocks and lane ids, bit for bit via `Debug`)
 //! ```
 
 use isin_tracer::Vec3;
@@ -66,6 +67,28 @@ fn probe_rays(b: &Aabb, n: usize) -> (Vec<Ray>, Vec<Ray>) {
     (incoherent, primary)
 }
 
+/// FNV-1a over everything written to it (for [`tree_hash`]).
+struct Fnv(u64);
+
+impl std::fmt::Write for Fnv {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        for b in s.bytes() {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x100_0000_01b3);
+        }
+        Ok(())
+    }
+}
+
+/// A hash of the whole tree: its `Debug` form lists every node's boxes (shortest
+/// round-trip decimal of each `f32`, so every bit, the sign of zero included),
+/// child words, triangle blocks and lane ids.
+fn tree_hash(bvh: &Bvh) -> u64 {
+    use std::fmt::Write;
+    let mut h = Fnv(0xcbf2_9ce4_8422_2325);
+    write!(h, "{bvh:?}").expect("hashing cannot fail");
+    h.0
+}
+
 /// User + system CPU seconds of the whole process so far (Linux; 10 ms ticks).
 fn cpu_seconds() -> f64 {
     let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
@@ -87,6 +110,7 @@ fn main() {
     let mut reps = 7;
     let mut split = 0;
     let mut trace = false;
+    let mut hash = false;
     let mut rays = 1 << 18;
     let mut trace_reps = 5;
     let mut thread_counts = vec![1, 2];
@@ -97,6 +121,7 @@ fn main() {
             "--reps" => reps = it.next().and_then(|s| s.parse().ok()).expect("--reps N"),
             "--split" => split = it.next().and_then(|s| s.parse().ok()).expect("--split K"),
             "--trace" => trace = true,
+            "--hash" => hash = true,
             "--rays" => rays = it.next().and_then(|s| s.parse().ok()).expect("--rays N"),
             "--trace-reps" => trace_reps = it.next().and_then(|s| s.parse().ok()).expect("--trace-reps N"),
             "--threads" => {
@@ -146,6 +171,9 @@ fn main() {
             bvh.node_count(),
             bvh.memory_bytes() as f64 / tris.len() as f64
         );
+        if hash {
+            println!("  tree hash {:016x}", tree_hash(&bvh));
+        }
         println!("  peak RSS so far {:.0} MB", peak_rss_mb());
         if trace {
             for (name, rays) in [("incoherent", &incoherent), ("primary", &primary)] {
