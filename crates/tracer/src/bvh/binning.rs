@@ -23,6 +23,11 @@ pub(super) const PARALLEL_MIN: usize = 16 * 1024;
 /// Primitives per parallel chunk (fixed, so results never depend on the pool).
 pub(super) const CHUNK: usize = 4096;
 
+/// Runs of at least this many primitives are binned into two sets of bins (see `Bins::fill`).
+const TWO_SETS_MIN: usize = 64;
+
+const _: () = assert!(BINS.is_power_of_two());
+
 /// Maps centroids to bins for one node.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct BinMap {
@@ -105,26 +110,56 @@ pub(super) struct Bins {
 impl Bins {
     const EMPTY: Bins = Bins { boxes: [[Box4::EMPTY; BINS]; 3], counts: [[0; BINS]; 3] };
 
-    /// Adds `prims`.
+    /// Adds one primitive.
     #[inline(always)]
-    fn fill(&mut self, prims: &[PrimRef], map: &BinMap) {
-        for p in prims {
-            let b = map.bins(p.centroid());
-            for (axis, &bin) in b.iter().enumerate() {
-                self.boxes[axis][bin].grow_box(p.min(), p.max());
-                self.counts[axis][bin] += 1;
-            }
+    fn add(&mut self, p: &PrimRef, map: &BinMap) {
+        let b = map.bins(p.centroid());
+        for (axis, &bin) in b.iter().enumerate() {
+            // `bin < BINS` (see `BinMap::bins`); the mask only tells the compiler so.
+            let bin = bin & (BINS - 1);
+            self.boxes[axis][bin].grow_box(p.min(), p.max());
+            self.counts[axis][bin] += 1;
         }
     }
 
+    /// Adds `prims`. Longer runs alternate between two sets of bins merged at
+    /// the end: neighbouring primitives often fall in the same bins, and one set
+    /// would make each wait for the previous one's store. The merge is exact
+    /// (see the module docs), so the bins are those of one set.
+    #[inline(always)]
+    fn fill(&mut self, prims: &[PrimRef], map: &BinMap) {
+        if prims.len() < TWO_SETS_MIN {
+            for p in prims {
+                self.add(p, map);
+            }
+            return;
+        }
+        let mut odd = Bins::EMPTY;
+        let mut pairs = prims.chunks_exact(2);
+        for pair in &mut pairs {
+            self.add(&pair[0], map);
+            odd.add(&pair[1], map);
+        }
+        for p in pairs.remainder() {
+            self.add(p, map);
+        }
+        self.merge_from(&odd);
+    }
+
     fn merge(mut self, o: &Bins) -> Bins {
+        self.merge_from(o);
+        self
+    }
+
+    /// Adds the primitives binned in `o`.
+    #[inline(always)]
+    fn merge_from(&mut self, o: &Bins) {
         for axis in 0..3 {
             for i in 0..BINS {
                 self.boxes[axis][i] = self.boxes[axis][i].union(&o.boxes[axis][i]);
                 self.counts[axis][i] += o.counts[axis][i];
             }
         }
-        self
     }
 
     /// The bins of `prims` (in parallel chunks for large nodes).
