@@ -61,8 +61,12 @@ pub(super) fn split_tiny(
     if !commit(cost) {
         return None;
     }
+    // Fixed-size copies (n is 3 or 4), which compile to moves rather than a memcpy call.
     let mut tmp = [PrimRef::ZERO; TINY_MAX];
-    tmp[..n].copy_from_slice(prims);
+    tmp[..3].copy_from_slice(&prims[..3]);
+    if n == TINY_MAX {
+        tmp[3] = prims[3];
+    }
     let mut sides = Sides { mid: mask.count_ones() as usize, geo: [Box4::EMPTY; 2], cent: [Box4::EMPTY; 2] };
     sides.geo = [boxes[mask], boxes[full ^ mask]];
     let (mut l, mut r) = (0, sides.mid);
@@ -144,11 +148,12 @@ pub(super) fn split_small(
     for (s, &o) in sorted.iter_mut().zip(&order[..n]) {
         *s = prims[o as usize];
     }
-    prims.copy_from_slice(&sorted[..n]);
     let mut sides = Sides { mid, geo: [Box4::EMPTY; 2], cent: [Box4::EMPTY; 2] };
+    // The copy back is part of this loop (a bare copy loop would become a memcpy call).
     for (k, &o) in order[..n].iter().enumerate() {
         let side = usize::from(k >= mid);
-        let p = &sorted[k];
+        let p = sorted[k];
+        prims[k] = p;
         sides.geo[side].grow_box(p.min(), p.max());
         sides.cent[side].grow(cent[o as usize]);
     }
