@@ -36,7 +36,7 @@ use super::partition::{Sides, median, partition};
 use super::primref::{Box4, PrimRef, bounds_of};
 use super::sweep::{SMALL_MAX, TINY_MAX, split_small, split_tiny};
 use super::wide::{LEAF_COST, MERGE_TRAVERSAL_COST};
-use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_TRIANGLES, Node, PreTriangle};
+use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_TRIANGLES, Node};
 use crate::shapes::Triangle;
 use rayon::prelude::*;
 
@@ -111,7 +111,7 @@ pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<u32>) {
     let mut prims: Vec<PrimRef> = triangles
         .par_iter()
         .enumerate()
-        .map(|(i, t)| PrimRef::new(i as u32, t, &PreTriangle::new(t)))
+        .map(|(i, t)| PrimRef::from_triangle(i as u32, t))
         .collect();
     let (geo, cent) = if n >= PARALLEL_MIN {
         prims

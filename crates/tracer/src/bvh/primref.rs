@@ -10,6 +10,7 @@
 //! unions are associative and commutative — so any chunking of a parallel
 //! reduction gives the same bits, on every machine.
 
+#[cfg(test)]
 use super::PreTriangle;
 use crate::geometry::Aabb;
 use crate::shapes::Triangle;
@@ -100,13 +101,10 @@ impl PrimRef {
     /// A placeholder (scratch space).
     pub const ZERO: PrimRef = PrimRef { min: Vec4::ZERO, max: Vec4::ZERO };
 
-    /// The reference of triangle `id` (`tri`, precomputed as `pre`).
-    ///
-    /// The box covers both the input vertices and the ones the intersection test
-    /// reconstructs (`v0 + e1`, `v0 + e2`), so leaf boxes contain either exactly.
-    /// It is free of NaNs — NaN coordinates are ignored (such a triangle can never
-    /// be hit) and an axis with no number at all collapses to 0 — because the box
-    /// unions that follow are only order-independent on NaN-free boxes.
+    /// The reference of triangle `id` (`tri`, precomputed as `pre`) as
+    /// [`PrimRef::from_triangle`] makes it, in the straightforward form tests
+    /// compare it with.
+    #[cfg(test)]
     pub fn new(id: u32, tri: &Triangle, pre: &PreTriangle) -> Self {
         debug_assert!(id <= ID_MASK);
         let mut min = Vec4::INFINITY;
@@ -114,6 +112,36 @@ impl PrimRef {
         for p in tri.v.into_iter().chain(pre.vertices()) {
             // Comparisons are false on NaN: a NaN coordinate leaves the box as it is.
             let p = p.extend(0.0);
+            min = Vec4::select(p.cmplt(min), p, min);
+            max = Vec4::select(p.cmpgt(max), p, max);
+        }
+        let empty = min.cmpgt(max);
+        let (min, max) = (Vec4::select(empty, Vec4::ZERO, min), Vec4::select(empty, Vec4::ZERO, max));
+        PrimRef { min: min.with_w(f32::from_bits(ID_TAG | id)), max: max.with_w(0.0) }
+    }
+
+    /// The reference of triangle `id` (`tri`).
+    ///
+    /// The box covers both the input vertices and the ones the intersection test
+    /// reconstructs (`v0 + e1`, `v0 + e2`, see [`PreTriangle`](super::PreTriangle)),
+    /// so leaf boxes contain either exactly. It is free of NaNs — NaN coordinates
+    /// are ignored (such a triangle can never be hit) and an axis with no number at
+    /// all collapses to 0 — because the box unions that follow are only
+    /// order-independent on NaN-free boxes.
+    ///
+    /// In 4-lane vector arithmetic: the edges and reconstructed vertices are the
+    /// single-precision subtractions and additions `PreTriangle::new` performs,
+    /// lane by lane, so they have the same bits (a test compares with the
+    /// straightforward form).
+    #[inline(always)]
+    pub fn from_triangle(id: u32, tri: &Triangle) -> Self {
+        debug_assert!(id <= ID_MASK);
+        let [a, b, c] = tri.v.map(|v| v.extend(0.0));
+        let (e1, e2) = (b - a, c - a);
+        let mut min = Vec4::INFINITY;
+        let mut max = Vec4::NEG_INFINITY;
+        for p in [a, b, c, a, a + e1, a + e2] {
+            // Comparisons are false on NaN: a NaN coordinate leaves the box as it is.
             min = Vec4::select(p.cmplt(min), p, min);
             max = Vec4::select(p.cmpgt(max), p, max);
         }
@@ -198,6 +226,32 @@ mod tests {
         let q = PrimRef::new(7, &nan, &PreTriangle::new(&nan));
         assert!(!q.min().is_nan() && !q.max().truncate().is_nan());
         assert_eq!(q.id(), 7);
+    }
+
+    #[test]
+    fn from_triangle_is_new_bit_for_bit() {
+        let s = crate::sampling::Sampler::new(4, 4, 4, 4);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let specials = [0.0, -0.0, 1e-30, -1e38, 3e38, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+        let bits = |p: &PrimRef| (p.min.to_array().map(f32::to_bits), p.max.to_array().map(f32::to_bits));
+        for i in 0..20_000u32 {
+            let mut v = [0; 3].map(|_| Vec3::new(next(), next(), next()) * 200.0 - Vec3::splat(100.0));
+            if i % 3 == 0 {
+                // Coordinates that make the edges round, overflow or turn NaN.
+                let k = (next() * 3.0) as usize % 3;
+                let a = (next() * 3.0) as usize % 3;
+                v[k][a] = specials[i as usize / 3 % specials.len()];
+            }
+            if i % 7 == 0 {
+                v[1] = v[0]; // degenerate
+            }
+            let tri = Triangle { v };
+            assert_eq!(bits(&PrimRef::from_triangle(i, &tri)), bits(&PrimRef::new(i, &tri, &PreTriangle::new(&tri))));
+        }
     }
 
     #[test]
