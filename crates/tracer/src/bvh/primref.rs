@@ -68,6 +68,23 @@ impl Box4 {
         2.0 * ((p.x + p.y) + p.z)
     }
 
+    /// The areas of three boxes at once: lane `a` of the result is exactly
+    /// `boxes[a].area()` (the same operations in the same order, lane by lane:
+    /// the boxes' edge lengths transposed so that one vector holds the three `x`
+    /// lengths, one the `y` and one the `z`); lane `w` is meaningless.
+    #[inline(always)]
+    pub fn area3(boxes: &[Box4; 3]) -> Vec4 {
+        let edge = |b: &Box4| {
+            let e = b.max - b.min;
+            Vec4::select(e.cmpgt(Vec4::ZERO), e, Vec4::ZERO)
+        };
+        let [e0, e1, e2] = [edge(&boxes[0]), edge(&boxes[1]), edge(&boxes[2])];
+        let x = Vec4::new(e0.x, e1.x, e2.x, 0.0);
+        let y = Vec4::new(e0.y, e1.y, e2.y, 0.0);
+        let z = Vec4::new(e0.z, e1.z, e2.z, 0.0);
+        2.0 * ((x * y + y * z) + z * x)
+    }
+
     /// As an [`Aabb`].
     pub fn to_aabb(self) -> Aabb {
         Aabb { min: self.min.truncate(), max: self.max.truncate() }
@@ -251,6 +268,34 @@ mod tests {
             }
             let tri = Triangle { v };
             assert_eq!(bits(&PrimRef::from_triangle(i, &tri)), bits(&PrimRef::new(i, &tri, &PreTriangle::new(&tri))));
+        }
+    }
+
+    #[test]
+    fn three_areas_at_once_are_the_areas() {
+        let s = crate::sampling::Sampler::new(2, 3, 4, 5);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d) * 20.0 - 10.0
+        };
+        let specials = [0.0, -0.0, 1e-30, 3e38, -3e38, f32::INFINITY, f32::NEG_INFINITY];
+        for i in 0..20_000usize {
+            let boxes: [Box4; 3] = std::array::from_fn(|k| {
+                let a = Vec4::new(next(), next(), next(), next());
+                let mut b = a + Vec4::new(next(), next(), next(), 0.0).abs() * 0.3;
+                if (i + k) % 5 == 0 {
+                    b[(i / 5) % 3] = specials[(i / 15) % specials.len()];
+                }
+                if (i + k) % 11 == 0 {
+                    return Box4::EMPTY;
+                }
+                Box4 { min: a, max: b }
+            });
+            let v = Box4::area3(&boxes);
+            for k in 0..3 {
+                assert_eq!(v[k].to_bits(), boxes[k].area().to_bits(), "case {i} box {k}: {:?}", boxes[k]);
+            }
         }
     }
 
