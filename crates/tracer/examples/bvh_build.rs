@@ -8,8 +8,17 @@
 //! # options: --reps N (default 7), --split K (split every triangle 1 -> 4, K times), --trace,
 //! # --threads N (only N threads instead of 1 and 2), --rays N (probe rays, default 2^18),
 //! # --trace-reps N (default 5; 1 under callgrind), --hash (a hash of the whole tree: every node's
-//! # boxes and child words, the triangle blocks and lane ids, bit for bit via `Debug`)
+//! # boxes and child words, the triangle blocks and lane ids, bit for bit via `Debug`),
+//! # --memory fresh|reuse (glibc: every build on fresh pages, as a process's first build, or
+//! # every build on reused heap memory; default: whatever the allocator does)
 //! ```
+//!
+//! Why `--memory`: glibc serves the builder's megabyte arrays from fresh pages
+//! in a process's first build, and afterwards, depending on how earlier frees
+//! left the heap, either from reused memory or again from fresh pages (a page
+//! fault per 4 KiB). Which of the two a repeated build gets changes with
+//! unrelated allocations (measured: 0 or 2,256 page faults per bunny build for
+//! the same builder), so comparisons between builder versions should fix it.
 
 use isin_tracer::Vec3;
 use isin_tracer::bvh::Bvh;
@@ -89,6 +98,32 @@ fn tree_hash(bvh: &Bvh) -> u64 {
     h.0
 }
 
+/// Sets glibc's allocation policy for the builds (see the module docs):
+/// `fresh` maps every allocation of 64 KiB or more afresh (and unmaps it when
+/// freed); `reuse` serves everything from the heap and never returns it.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn set_memory_policy(policy: &str) {
+    unsafe extern "C" {
+        fn mallopt(param: i32, value: i32) -> i32;
+    }
+    const M_TRIM_THRESHOLD: i32 = -1;
+    const M_MMAP_THRESHOLD: i32 = -3;
+    let (mmap, trim) = match policy {
+        "fresh" => (64 << 10, 128 << 10),
+        "reuse" => (i32::MAX, i32::MAX),
+        other => panic!("--memory fresh|reuse, not {other}"),
+    };
+    // SAFETY: mallopt only changes glibc's allocation thresholds; it is called
+    // before any other thread exists.
+    let ok = unsafe { mallopt(M_MMAP_THRESHOLD, mmap) == 1 && mallopt(M_TRIM_THRESHOLD, trim) == 1 };
+    assert!(ok, "mallopt failed");
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn set_memory_policy(_: &str) {
+    panic!("--memory needs glibc");
+}
+
 /// User + system CPU seconds of the whole process so far (Linux; 10 ms ticks).
 fn cpu_seconds() -> f64 {
     let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
@@ -122,6 +157,7 @@ fn main() {
             "--split" => split = it.next().and_then(|s| s.parse().ok()).expect("--split K"),
             "--trace" => trace = true,
             "--hash" => hash = true,
+            "--memory" => set_memory_policy(it.next().expect("--memory fresh|reuse")),
             "--rays" => rays = it.next().and_then(|s| s.parse().ok()).expect("--rays N"),
             "--trace-reps" => trace_reps = it.next().and_then(|s| s.parse().ok()).expect("--trace-reps N"),
             "--threads" => {
