@@ -50,8 +50,10 @@ const _: () = assert!(MAX_TRIANGLES <= 1 << 30 && MEDIAN_DEPTH + 32 <= MAX_DEPTH
 /// A binary node as stored by the builder: the 32 bytes of a [`Node`] as words
 /// ([`store`], [`load`]). Arrays of words can be allocated zeroed, which the OS
 /// does lazily, page by page, as the (parallel) build writes them — instead of a
-/// serial pass over the whole array first. An all-zero slot (never written) is
-/// an interior node no one points to.
+/// serial pass over the whole array first (in a process's first build; later
+/// ones may get reused memory, which `calloc` clears). An all-zero slot is an
+/// interior node no one points to; the builder writes zeros to the slots no
+/// node uses, as they may have served as a partition's scratch space.
 pub(super) type Slot = [u32; 8];
 
 /// The slot of `n`.
@@ -134,13 +136,11 @@ pub(super) fn binary_tree(triangles: &[Triangle]) -> Binary {
         bounds_of(&prims)
     };
     let mut nodes: Vec<Slot> = vec![[0; 8]; 2 * n - 1];
-    let mut scratch: Vec<Slot> = if n >= PARALLEL_MIN { vec![[0; 8]; n] } else { Vec::new() };
     // marks[i]: the number of triangles of the leaf that starts at leaf-order
     // position i, else 0.
     let mut marks = vec![0u32; n];
     let root = Pos { index: 0, first: 0, depth: 0 };
-    build_node(&mut prims, &mut scratch, &mut nodes, &mut marks, root, geo, cent);
-    drop(scratch);
+    build_node(&mut prims, &mut nodes, &mut marks, root, geo, cent);
     let ids = prims.par_iter().map(PrimRef::id).collect();
     let leaves = marks.iter().enumerate().filter(|&(_, &c)| c != 0).map(|(i, &c)| (i as u32, c)).collect();
     Binary { nodes, ids, leaves }
@@ -158,13 +158,16 @@ struct Pos {
 }
 
 /// Builds the subtree over `prims` (box `geo`, centroid box `cent`) into `nodes`
-/// (its `2n − 1` slots, root first), marks its leaves in `marks` (as long as
-/// `prims`: a leaf's count at its first position, 0 elsewhere) and returns its
-/// SAH cost in the wide tree's model (times area). `scratch` is empty or as
-/// long as `prims`.
+/// (its `2n − 1` slots, root first; every one of them is written, unused ones
+/// with zeros), marks its leaves in `marks` (as long as `prims`: a leaf's count
+/// at its first position, 0 elsewhere) and returns its SAH cost in the wide
+/// tree's model (times area).
+///
+/// Until its children are built, a node's slots hold nothing: a large node's
+/// parallel partition uses its first `n` slots as scratch space (so the build
+/// needs no separate scratch array), which the children then overwrite.
 fn build_node(
     prims: &mut [PrimRef],
-    scratch: &mut [Slot],
     nodes: &mut [Slot],
     marks: &mut [u32],
     at: Pos,
@@ -175,15 +178,15 @@ fn build_node(
     debug_assert_eq!(nodes.len(), 2 * n - 1);
     let area = geo.area();
     let bounds = geo.to_aabb();
-    let Some(sides) = choose_split(prims, scratch, &geo, &cent, at.depth) else {
+    let Some(sides) = choose_split(prims, &mut nodes[..n], &geo, &cent, at.depth) else {
         nodes[0] = store(&Node::leaf(&bounds, at.first, n as u32));
+        // The other slots may hold an ancestor's scratch data.
+        nodes[1..].fill([0; 8]);
         marks[0] = n as u32;
         return LEAF_COST * area;
     };
     let mid = sides.mid;
     let (left, right) = prims.split_at_mut(mid);
-    let (scratch_l, scratch_r) =
-        if scratch.is_empty() { (&mut [][..], &mut [][..]) } else { scratch.split_at_mut(mid) };
     let (head, rest) = nodes.split_first_mut().expect("a node has a slot");
     let (nodes_l, nodes_r) = rest.split_at_mut(2 * mid - 1);
     let (marks_l, marks_r) = marks.split_at_mut(mid);
@@ -194,13 +197,13 @@ fn build_node(
     let [cent_l, cent_r] = sides.cent;
     let (cost_l, cost_r) = if n >= PARALLEL_THRESHOLD {
         rayon::join(
-            || build_node(left, scratch_l, nodes_l, marks_l, pos_l, geo_l, cent_l),
-            || build_node(right, scratch_r, nodes_r, marks_r, pos_r, geo_r, cent_r),
+            || build_node(left, nodes_l, marks_l, pos_l, geo_l, cent_l),
+            || build_node(right, nodes_r, marks_r, pos_r, geo_r, cent_r),
         )
     } else {
         (
-            build_node(left, scratch_l, nodes_l, marks_l, pos_l, geo_l, cent_l),
-            build_node(right, scratch_r, nodes_r, marks_r, pos_r, geo_r, cent_r),
+            build_node(left, nodes_l, marks_l, pos_l, geo_l, cent_l),
+            build_node(right, nodes_r, marks_r, pos_r, geo_r, cent_r),
         )
     };
     let split = MERGE_TRAVERSAL_COST * area + cost_l + cost_r;
@@ -223,6 +226,7 @@ fn build_node(
 
 /// Decides how to split `prims`; on a split, partitions them and returns the
 /// sides (the left one always has `1..n` primitives). `None` means make a leaf.
+/// `scratch` (as long as `prims`) is the parallel partition's scratch space.
 fn choose_split(
     prims: &mut [PrimRef],
     scratch: &mut [Slot],
@@ -301,6 +305,22 @@ mod tests {
             assert!(other.nodes == one.nodes, "binary nodes differ on {threads} threads");
             assert!(other.ids == one.ids, "leaf order differs on {threads} threads");
             assert!(other.leaves == one.leaves, "leaves differ on {threads} threads");
+        }
+        // Large nodes partitioned through their own slots: every slot no node
+        // uses was cleared again.
+        let mut used = vec![false; one.nodes.len()];
+        let mut todo = vec![0usize];
+        while let Some(i) = todo.pop() {
+            used[i] = true;
+            let node = load(&one.nodes[i]);
+            if !node.is_leaf() {
+                todo.extend([i + 1, node.offset as usize]);
+            }
+        }
+        let unused = used.iter().filter(|&&u| !u).count();
+        assert!(unused > tris.len() / 2, "leaves hold several triangles: {unused} unused slots");
+        for (slot, _) in one.nodes.iter().zip(&used).filter(|&(_, &u)| !u) {
+            assert_eq!(*slot, [0; 8], "an unused slot kept scratch data");
         }
         let one = pool(1).install(|| Bvh::build(&tris));
         let two = pool(2).install(|| Bvh::build(&tris));
