@@ -122,11 +122,8 @@ pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<u32>) {
 /// The binary tree over `triangles` (not empty), the leaf order and the leaves.
 pub(super) fn binary_tree(triangles: &[Triangle]) -> Binary {
     let n = triangles.len();
-    let mut prims: Vec<PrimRef> = triangles
-        .par_iter()
-        .enumerate()
-        .map(|(i, t)| PrimRef::from_triangle(i as u32, t))
-        .collect();
+    let mut prims: Vec<PrimRef> =
+        triangles.par_iter().enumerate().map(|(i, t)| PrimRef::from_triangle(i as u32, t)).collect();
     let (geo, cent) = if n >= PARALLEL_MIN {
         prims
             .par_chunks(super::binning::CHUNK)

@@ -267,7 +267,10 @@ mod tests {
                 v[1] = v[0]; // degenerate
             }
             let tri = Triangle { v };
-            assert_eq!(bits(&PrimRef::from_triangle(i, &tri)), bits(&PrimRef::new(i, &tri, &PreTriangle::new(&tri))));
+            assert_eq!(
+                bits(&PrimRef::from_triangle(i, &tri)),
+                bits(&PrimRef::new(i, &tri, &PreTriangle::new(&tri)))
+            );
         }
     }
 
