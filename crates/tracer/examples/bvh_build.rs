@@ -133,6 +133,14 @@ fn cpu_seconds() -> f64 {
     (tick(11) + tick(12)) / 100.0
 }
 
+/// Minor page faults of the whole process so far (Linux; NaN elsewhere): a
+/// build on fresh memory takes one per 4 KiB page it writes first.
+fn minor_faults() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let Some((_, rest)) = stat.rsplit_once(')') else { return f64::NAN };
+    rest.split_whitespace().nth(7).and_then(|s| s.parse::<f64>().ok()).unwrap_or(f64::NAN)
+}
+
 /// The process's peak resident set size (VmHWM) in MB (Linux; NaN elsewhere).
 fn peak_rss_mb() -> f64 {
     let Ok(status) = std::fs::read_to_string("/proc/self/status") else { return f64::NAN };
@@ -177,7 +185,7 @@ fn main() {
         for &threads in &thread_counts {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
             let mut times = Vec::new();
-            let cpu0 = cpu_seconds();
+            let (cpu0, faults0) = (cpu_seconds(), minor_faults());
             for _ in 0..reps {
                 drop(last.take());
                 let t0 = Instant::now();
@@ -186,9 +194,11 @@ fn main() {
                 last = Some(bvh);
             }
             let cpu_ms = (cpu_seconds() - cpu0) * 1e3 / reps as f64;
+            let faults = (minor_faults() - faults0) / reps as f64;
             times.sort_by(f64::total_cmp);
             println!(
-                "  {threads}T build: best {:.2} ms, median {:.2} ms, CPU {cpu_ms:.1} ms per build",
+                "  {threads}T build: best {:.2} ms, median {:.2} ms, CPU {cpu_ms:.1} ms per build, \
+                 {faults:.0} page faults per build",
                 times[0],
                 times[times.len() / 2]
             );
