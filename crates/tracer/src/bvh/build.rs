@@ -268,7 +268,7 @@ mod tests {
     use glam::Vec3;
 
     /// Random small triangles in clusters, with duplicates and degenerate ones,
-    /// enough of them for the parallel binning, partition and collapse paths.
+    /// enough of them for the parallel binning and partition paths.
     fn soup(n: usize) -> Vec<Triangle> {
         let s = Sampler::new(7, 7, 7, 7);
         let mut d = 0;
