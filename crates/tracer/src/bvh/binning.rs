@@ -186,11 +186,11 @@ impl Bins {
             bins.fill(prims, map);
         }
         let mut best: Option<Split> = None;
-        for axis in 0..3 {
+        for (axis, found) in sweep3(&bins).into_iter().enumerate() {
             if !map.ok[axis] {
                 continue;
             }
-            if let Some((bin, cost)) = sweep(&bins.boxes[axis], &bins.counts[axis]) {
+            if let Some((bin, cost)) = found {
                 if best.is_none_or(|b| cost < b.cost) {
                     best = Some(Split { axis, bin, cost });
                 }
@@ -200,8 +200,60 @@ impl Bins {
     }
 }
 
+/// [`sweep`] of each axis's bins, the three side by side, one vector lane per
+/// axis: the same operations on each lane as `sweep` on that axis (see
+/// `Box4::area3`), so the same answers, bit for bit (a test compares).
+fn sweep3(bins: &Bins) -> [Option<(usize, f32)>; 3] {
+    let counts = |i: usize, cnt: &mut [u32; 3]| {
+        for (c, axis) in cnt.iter_mut().zip(&bins.counts) {
+            *c += axis[i];
+        }
+        Vec4::new(cnt[0] as f32, cnt[1] as f32, cnt[2] as f32, 0.0)
+    };
+    let grow = |i: usize, acc: &mut [Box4; 3]| {
+        for (a, axis) in acc.iter_mut().zip(&bins.boxes) {
+            *a = a.union(&axis[i]);
+        }
+    };
+    // right_cost[i]: area * count of bins i+1.. (NaN where there are none).
+    let mut right_cost = [Vec4::NAN; BINS];
+    let (mut acc, mut cnt) = ([Box4::EMPTY; 3], [0u32; 3]);
+    for i in (1..BINS).rev() {
+        grow(i, &mut acc);
+        let c = counts(i, &mut cnt);
+        right_cost[i - 1] = Vec4::select(c.cmpgt(Vec4::ZERO), Box4::area3(&acc) * c, Vec4::NAN);
+    }
+    grow(0, &mut acc);
+    let node_cost = TRAVERSAL_COST * Box4::area3(&acc);
+    let (mut acc, mut cnt) = ([Box4::EMPTY; 3], [0u32; 3]);
+    let mut cost = [Vec4::ZERO; BINS];
+    for i in 0..BINS - 1 {
+        grow(i, &mut acc);
+        let c = counts(i, &mut cnt);
+        cost[i] = node_cost + Box4::area3(&acc) * c + right_cost[i];
+    }
+    // Each axis's choice exactly as in `sweep`.
+    std::array::from_fn(|axis| {
+        let mut best: Option<(usize, f32)> = None;
+        let mut cnt = 0u32;
+        for i in 0..BINS - 1 {
+            cnt += bins.counts[axis][i];
+            if cnt == 0 || right_cost[i][axis].is_nan() {
+                continue;
+            }
+            let c = cost[i][axis];
+            if best.is_none_or(|(_, b)| c < b) {
+                best = Some((i, c));
+            }
+        }
+        best
+    })
+}
+
 /// The cheapest boundary of one axis's bins: `(last bin of the left side, cost)`,
 /// ties going to the lower bin; only boundaries with primitives on both sides.
+/// The one-axis form of [`sweep3`] (tests compare them).
+#[cfg(test)]
 fn sweep(boxes: &[Box4; BINS], counts: &[u32; BINS]) -> Option<(usize, f32)> {
     // right_cost[i]: area * count of bins i+1.. (the right side of boundary i).
     let mut right_cost = [f32::NAN; BINS];
@@ -276,6 +328,44 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn three_axis_sweep_is_the_one_axis_sweep() {
+        let s = crate::sampling::Sampler::new(6, 5, 4, 3);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let specials = [0.0, -0.0, 1e-30, 3e38, f32::INFINITY, f32::NEG_INFINITY];
+        let mut found = 0;
+        for case in 0..3000usize {
+            let mut bins = Bins::EMPTY;
+            for axis in 0..3 {
+                for bin in 0..BINS {
+                    // Empty bins now and then (runs of them, and whole axes).
+                    if (case + axis) % 13 == 0 || next() < 0.3 {
+                        continue;
+                    }
+                    let lo = Vec4::new(next(), next(), next(), 0.0) * 10.0 - Vec4::splat(5.0);
+                    let mut hi = lo + Vec4::new(next(), next(), next(), 0.0);
+                    if case % 7 == 0 {
+                        hi[bin % 3] = specials[(case / 7 + bin) % specials.len()];
+                    }
+                    bins.boxes[axis][bin] = Box4 { min: lo, max: hi };
+                    bins.counts[axis][bin] = 1 + (next() * 50.0) as u32;
+                }
+            }
+            let three = sweep3(&bins);
+            for axis in 0..3 {
+                let one = sweep(&bins.boxes[axis], &bins.counts[axis]);
+                let bits = |r: Option<(usize, f32)>| r.map(|(b, c)| (b, c.to_bits()));
+                assert_eq!(bits(three[axis]), bits(one), "case {case} axis {axis}");
+                found += usize::from(one.is_some());
+            }
+        }
+        assert!(found > 5000, "{found} splits found");
     }
 
     #[test]
