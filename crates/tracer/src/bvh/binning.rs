@@ -357,11 +357,10 @@ mod tests {
                     bins.counts[axis][bin] = 1 + (next() * 50.0) as u32;
                 }
             }
-            let three = sweep3(&bins);
-            for axis in 0..3 {
+            for (axis, three) in sweep3(&bins).into_iter().enumerate() {
                 let one = sweep(&bins.boxes[axis], &bins.counts[axis]);
                 let bits = |r: Option<(usize, f32)>| r.map(|(b, c)| (b, c.to_bits()));
-                assert_eq!(bits(three[axis]), bits(one), "case {case} axis {axis}");
+                assert_eq!(bits(three), bits(one), "case {case} axis {axis}");
                 found += usize::from(one.is_some());
             }
         }
