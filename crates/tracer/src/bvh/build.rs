@@ -77,15 +77,17 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     if triangles.is_empty() {
         return Bvh::default();
     }
-    let Binary { nodes, ids, leaves } = binary_tree(triangles);
+    let Binary { nodes, mut ids, leaves } = binary_tree(triangles);
     let bounds = load(&nodes[0]).bounds();
     // The leaves' triangles are packed into blocks while the wide tree is
     // collapsed; then the wide leaves are pointed at their lanes.
     let (mut tree, (blocks, prim_ids, starts)) =
         rayon::join(|| super::wide::collapse(&nodes), || super::blocks::pack(&leaves, triangles, &ids));
     drop(nodes);
+    // The leaf order is packed into the blocks' lane ids: its words can serve
+    // as the leaves' lane map.
+    super::wide::place_leaves(&mut tree, &leaves, &starts, &mut ids);
     drop(ids);
-    super::wide::place_leaves(&mut tree, &leaves, &starts, triangles.len());
     let super::wide::Collapsed { wide, narrow } = tree;
     let mut bvh = Bvh {
         bounds,
@@ -138,8 +140,10 @@ pub(super) fn binary_tree(triangles: &[Triangle]) -> Binary {
     let mut marks = vec![0u32; n];
     let root = Pos { index: 0, first: 0, depth: 0 };
     build_node(&mut prims, &mut nodes, &mut marks, root, geo, cent);
-    let ids = prims.par_iter().map(PrimRef::id).collect();
     let leaves = marks.iter().enumerate().filter(|&(_, &c)| c != 0).map(|(i, &c)| (i as u32, c)).collect();
+    // The marks are read: their words take the leaf order (no fresh memory).
+    let mut ids = marks;
+    ids.par_iter_mut().zip(prims.par_iter()).for_each(|(id, p)| *id = p.id());
     Binary { nodes, ids, leaves }
 }
 

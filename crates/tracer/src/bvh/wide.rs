@@ -341,13 +341,15 @@ pub(super) fn collapse(nodes: &[Slot]) -> Collapsed {
 
 /// Points every leaf slot of `tree` (whose words still hold the leaf's first
 /// triangle in leaf order) at its lanes: `leaves[i]` is `(first, count)` of a
-/// leaf and `starts[i]` its first lane (`blocks::pack`); `n` triangles.
-pub(super) fn place_leaves(tree: &mut Collapsed, leaves: &[(u32, u32)], starts: &[u32], n: usize) {
-    let mut lane_of = vec![0u32; n];
+/// leaf and `starts[i]` its first lane (`blocks::pack`). `lane_of` is scratch
+/// space, one word per triangle with any contents (only the words at leaves'
+/// first triangles are read, and they are written first): the builder passes a
+/// buffer it no longer needs rather than have fresh memory allocated.
+pub(super) fn place_leaves(tree: &mut Collapsed, leaves: &[(u32, u32)], starts: &[u32], lane_of: &mut [u32]) {
     for (&(first, _), &start) in leaves.iter().zip(starts) {
         lane_of[first as usize] = start;
     }
-    let lane_of = &lane_of[..];
+    let lane_of = &*lane_of;
     rayon::join(
         || tree.wide.par_iter_mut().for_each(|w| w.place_leaves(lane_of)),
         || tree.narrow.par_iter_mut().for_each(|w| w.place_leaves(lane_of)),
