@@ -200,7 +200,7 @@ impl Bins {
     }
 }
 
-/// [`sweep`] of each axis's bins, the three side by side, one vector lane per
+/// `sweep` of each axis's bins, the three side by side, one vector lane per
 /// axis: the same operations on each lane as `sweep` on that axis (see
 /// `Box4::area3`), so the same answers, bit for bit (a test compares).
 fn sweep3(bins: &Bins) -> [Option<(usize, f32)>; 3] {

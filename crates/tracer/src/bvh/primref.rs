@@ -6,7 +6,7 @@
 //! reaches the tree (a primitive reference keeps its input index there).
 //!
 //! Determinism: the builder only ever feeds these boxes NaN-free coordinates
-//! (see [`PrimRef::new`]), where vector and scalar min/max agree exactly and box
+//! (see [`PrimRef::from_triangle`]), where vector and scalar min/max agree exactly and box
 //! unions are associative and commutative — so any chunking of a parallel
 //! reduction gives the same bits, on every machine.
 
