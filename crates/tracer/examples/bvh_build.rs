@@ -7,8 +7,18 @@
 //! cargo run --release -p isin-tracer --example bvh_build -- ../shared/meshes/bunny/stanford-bunny.obj
 //! # options: --reps N (default 7), --split K (split every triangle 1 -> 4, K times), --trace,
 //! # --threads N (only N threads instead of 1 and 2), --rays N (probe rays, default 2^18),
-//! # --trace-reps N (default 5; 1 under callgrind)
+//! # --trace-reps N (default 5; 1 under callgrind), --hash (a hash of the whole tree: every node's
+//! # boxes and child words, the triangle blocks and lane ids, bit for bit via `Debug`),
+//! # --memory fresh|reuse (glibc: every build on fresh pages, as a process's first build, or
+//! # every build on reused heap memory; default: whatever the allocator does)
 //! ```
+//!
+//! Why `--memory`: glibc serves the builder's megabyte arrays from fresh pages
+//! in a process's first build, and afterwards, depending on how earlier frees
+//! left the heap, either from reused memory or again from fresh pages (a page
+//! fault per 4 KiB). Which of the two a repeated build gets changes with
+//! unrelated allocations (measured: 0 or 2,256 page faults per bunny build for
+//! the same builder), so comparisons between builder versions should fix it.
 
 use isin_tracer::Vec3;
 use isin_tracer::bvh::Bvh;
@@ -66,6 +76,54 @@ fn probe_rays(b: &Aabb, n: usize) -> (Vec<Ray>, Vec<Ray>) {
     (incoherent, primary)
 }
 
+/// FNV-1a over everything written to it (for [`tree_hash`]).
+struct Fnv(u64);
+
+impl std::fmt::Write for Fnv {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        for b in s.bytes() {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x100_0000_01b3);
+        }
+        Ok(())
+    }
+}
+
+/// A hash of the whole tree: its `Debug` form lists every node's boxes (shortest
+/// round-trip decimal of each `f32`, so every bit, the sign of zero included),
+/// child words, triangle blocks and lane ids.
+fn tree_hash(bvh: &Bvh) -> u64 {
+    use std::fmt::Write;
+    let mut h = Fnv(0xcbf2_9ce4_8422_2325);
+    write!(h, "{bvh:?}").expect("hashing cannot fail");
+    h.0
+}
+
+/// Sets glibc's allocation policy for the builds (see the module docs):
+/// `fresh` maps every allocation of 64 KiB or more afresh (and unmaps it when
+/// freed); `reuse` serves everything from the heap and never returns it.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn set_memory_policy(policy: &str) {
+    unsafe extern "C" {
+        fn mallopt(param: i32, value: i32) -> i32;
+    }
+    const M_TRIM_THRESHOLD: i32 = -1;
+    const M_MMAP_THRESHOLD: i32 = -3;
+    let (mmap, trim) = match policy {
+        "fresh" => (64 << 10, 128 << 10),
+        "reuse" => (i32::MAX, i32::MAX),
+        other => panic!("--memory fresh|reuse, not {other}"),
+    };
+    // SAFETY: mallopt only changes glibc's allocation thresholds; it is called
+    // before any other thread exists.
+    let ok = unsafe { mallopt(M_MMAP_THRESHOLD, mmap) == 1 && mallopt(M_TRIM_THRESHOLD, trim) == 1 };
+    assert!(ok, "mallopt failed");
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn set_memory_policy(_: &str) {
+    panic!("--memory needs glibc");
+}
+
 /// User + system CPU seconds of the whole process so far (Linux; 10 ms ticks).
 fn cpu_seconds() -> f64 {
     let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
@@ -73,6 +131,14 @@ fn cpu_seconds() -> f64 {
     let f: Vec<&str> = rest.split_whitespace().collect();
     let tick = |i: usize| f.get(i).and_then(|s| s.parse::<f64>().ok()).unwrap_or(f64::NAN);
     (tick(11) + tick(12)) / 100.0
+}
+
+/// Minor page faults of the whole process so far (Linux; NaN elsewhere): a
+/// build on fresh memory takes one per 4 KiB page it writes first.
+fn minor_faults() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let Some((_, rest)) = stat.rsplit_once(')') else { return f64::NAN };
+    rest.split_whitespace().nth(7).and_then(|s| s.parse::<f64>().ok()).unwrap_or(f64::NAN)
 }
 
 /// The process's peak resident set size (VmHWM) in MB (Linux; NaN elsewhere).
@@ -87,6 +153,7 @@ fn main() {
     let mut reps = 7;
     let mut split = 0;
     let mut trace = false;
+    let mut hash = false;
     let mut rays = 1 << 18;
     let mut trace_reps = 5;
     let mut thread_counts = vec![1, 2];
@@ -97,6 +164,8 @@ fn main() {
             "--reps" => reps = it.next().and_then(|s| s.parse().ok()).expect("--reps N"),
             "--split" => split = it.next().and_then(|s| s.parse().ok()).expect("--split K"),
             "--trace" => trace = true,
+            "--hash" => hash = true,
+            "--memory" => set_memory_policy(it.next().expect("--memory fresh|reuse")),
             "--rays" => rays = it.next().and_then(|s| s.parse().ok()).expect("--rays N"),
             "--trace-reps" => trace_reps = it.next().and_then(|s| s.parse().ok()).expect("--trace-reps N"),
             "--threads" => {
@@ -116,7 +185,7 @@ fn main() {
         for &threads in &thread_counts {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
             let mut times = Vec::new();
-            let cpu0 = cpu_seconds();
+            let (cpu0, faults0) = (cpu_seconds(), minor_faults());
             for _ in 0..reps {
                 drop(last.take());
                 let t0 = Instant::now();
@@ -125,9 +194,11 @@ fn main() {
                 last = Some(bvh);
             }
             let cpu_ms = (cpu_seconds() - cpu0) * 1e3 / reps as f64;
+            let faults = (minor_faults() - faults0) / reps as f64;
             times.sort_by(f64::total_cmp);
             println!(
-                "  {threads}T build: best {:.2} ms, median {:.2} ms, CPU {cpu_ms:.1} ms per build",
+                "  {threads}T build: best {:.2} ms, median {:.2} ms, CPU {cpu_ms:.1} ms per build, \
+                 {faults:.0} page faults per build",
                 times[0],
                 times[times.len() / 2]
             );
@@ -146,6 +217,9 @@ fn main() {
             bvh.node_count(),
             bvh.memory_bytes() as f64 / tris.len() as f64
         );
+        if hash {
+            println!("  tree hash {:016x}", tree_hash(&bvh));
+        }
         println!("  peak RSS so far {:.0} MB", peak_rss_mb());
         if trace {
             for (name, rays) in [("incoherent", &incoherent), ("primary", &primary)] {

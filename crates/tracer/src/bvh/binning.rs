@@ -23,6 +23,11 @@ pub(super) const PARALLEL_MIN: usize = 16 * 1024;
 /// Primitives per parallel chunk (fixed, so results never depend on the pool).
 pub(super) const CHUNK: usize = 4096;
 
+/// Runs of at least this many primitives are binned into two sets of bins (see `Bins::fill`).
+const TWO_SETS_MIN: usize = 64;
+
+const _: () = assert!(BINS.is_power_of_two());
+
 /// Maps centroids to bins for one node.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct BinMap {
@@ -105,56 +110,87 @@ pub(super) struct Bins {
 impl Bins {
     const EMPTY: Bins = Bins { boxes: [[Box4::EMPTY; BINS]; 3], counts: [[0; BINS]; 3] };
 
-    /// Adds `prims`.
+    /// Adds one primitive.
     #[inline(always)]
-    fn fill(&mut self, prims: &[PrimRef], map: &BinMap) {
-        for p in prims {
-            let b = map.bins(p.centroid());
-            for (axis, &bin) in b.iter().enumerate() {
-                self.boxes[axis][bin].grow_box(p.min(), p.max());
-                self.counts[axis][bin] += 1;
-            }
+    fn add(&mut self, p: &PrimRef, map: &BinMap) {
+        let b = map.bins(p.centroid());
+        for (axis, &bin) in b.iter().enumerate() {
+            // `bin < BINS` (see `BinMap::bins`); the mask only tells the compiler so.
+            let bin = bin & (BINS - 1);
+            self.boxes[axis][bin].grow_box(p.min(), p.max());
+            self.counts[axis][bin] += 1;
         }
     }
 
+    /// Adds `prims`. Longer runs alternate between two sets of bins merged at
+    /// the end: neighbouring primitives often fall in the same bins, and one set
+    /// would make each wait for the previous one's store. The merge is exact
+    /// (see the module docs), so the bins are those of one set.
+    #[inline(always)]
+    fn fill(&mut self, prims: &[PrimRef], map: &BinMap) {
+        if prims.len() < TWO_SETS_MIN {
+            for p in prims {
+                self.add(p, map);
+            }
+            return;
+        }
+        let mut odd = Bins::EMPTY;
+        let mut pairs = prims.chunks_exact(2);
+        for pair in &mut pairs {
+            self.add(&pair[0], map);
+            odd.add(&pair[1], map);
+        }
+        for p in pairs.remainder() {
+            self.add(p, map);
+        }
+        self.merge_from(&odd);
+    }
+
     fn merge(mut self, o: &Bins) -> Bins {
+        self.merge_from(o);
+        self
+    }
+
+    /// Adds the primitives binned in `o`.
+    #[inline(always)]
+    fn merge_from(&mut self, o: &Bins) {
         for axis in 0..3 {
             for i in 0..BINS {
                 self.boxes[axis][i] = self.boxes[axis][i].union(&o.boxes[axis][i]);
                 self.counts[axis][i] += o.counts[axis][i];
             }
         }
-        self
     }
 
-    /// The bins of `prims` (in parallel chunks for large nodes).
-    fn of(prims: &[PrimRef], map: &BinMap) -> Bins {
-        if prims.len() >= PARALLEL_MIN {
-            return prims
-                .par_chunks(CHUNK)
-                .map(|c| {
-                    let mut bins = Bins::EMPTY;
-                    bins.fill(c, map);
-                    bins
-                })
-                .reduce(|| Bins::EMPTY, |a, b| a.merge(&b));
-        }
-        let mut bins = Bins::EMPTY;
-        bins.fill(prims, map);
-        bins
+    /// The bins of `prims`, binned in parallel chunks (large nodes).
+    fn of_par(prims: &[PrimRef], map: &BinMap) -> Bins {
+        prims
+            .par_chunks(CHUNK)
+            .map(|c| {
+                let mut bins = Bins::EMPTY;
+                bins.fill(c, map);
+                bins
+            })
+            .reduce(|| Bins::EMPTY, |a, b| a.merge(&b))
     }
 
     /// The cheapest bin-boundary split of `prims` over the binnable axes (ties go
     /// to the lower axis, then the lower bin), or `None` when no boundary has
     /// primitives on both sides.
     pub(super) fn best_split(prims: &[PrimRef], map: &BinMap) -> Option<Split> {
-        let bins = Bins::of(prims, map);
+        // Filled in place (not returned from a function): the bins are 1.7 kB.
+        let mut bins = Bins::EMPTY;
+        if prims.len() >= PARALLEL_MIN {
+            bins = Bins::of_par(prims, map);
+        } else {
+            bins.fill(prims, map);
+        }
         let mut best: Option<Split> = None;
-        for axis in 0..3 {
+        for (axis, found) in sweep3(&bins).into_iter().enumerate() {
             if !map.ok[axis] {
                 continue;
             }
-            if let Some((bin, cost)) = sweep(&bins.boxes[axis], &bins.counts[axis]) {
+            if let Some((bin, cost)) = found {
                 if best.is_none_or(|b| cost < b.cost) {
                     best = Some(Split { axis, bin, cost });
                 }
@@ -164,8 +200,60 @@ impl Bins {
     }
 }
 
+/// `sweep` of each axis's bins, the three side by side, one vector lane per
+/// axis: the same operations on each lane as `sweep` on that axis (see
+/// `Box4::area3`), so the same answers, bit for bit (a test compares).
+fn sweep3(bins: &Bins) -> [Option<(usize, f32)>; 3] {
+    let counts = |i: usize, cnt: &mut [u32; 3]| {
+        for (c, axis) in cnt.iter_mut().zip(&bins.counts) {
+            *c += axis[i];
+        }
+        Vec4::new(cnt[0] as f32, cnt[1] as f32, cnt[2] as f32, 0.0)
+    };
+    let grow = |i: usize, acc: &mut [Box4; 3]| {
+        for (a, axis) in acc.iter_mut().zip(&bins.boxes) {
+            *a = a.union(&axis[i]);
+        }
+    };
+    // right_cost[i]: area * count of bins i+1.. (NaN where there are none).
+    let mut right_cost = [Vec4::NAN; BINS];
+    let (mut acc, mut cnt) = ([Box4::EMPTY; 3], [0u32; 3]);
+    for i in (1..BINS).rev() {
+        grow(i, &mut acc);
+        let c = counts(i, &mut cnt);
+        right_cost[i - 1] = Vec4::select(c.cmpgt(Vec4::ZERO), Box4::area3(&acc) * c, Vec4::NAN);
+    }
+    grow(0, &mut acc);
+    let node_cost = TRAVERSAL_COST * Box4::area3(&acc);
+    let (mut acc, mut cnt) = ([Box4::EMPTY; 3], [0u32; 3]);
+    let mut cost = [Vec4::ZERO; BINS];
+    for i in 0..BINS - 1 {
+        grow(i, &mut acc);
+        let c = counts(i, &mut cnt);
+        cost[i] = node_cost + Box4::area3(&acc) * c + right_cost[i];
+    }
+    // Each axis's choice exactly as in `sweep`.
+    std::array::from_fn(|axis| {
+        let mut best: Option<(usize, f32)> = None;
+        let mut cnt = 0u32;
+        for i in 0..BINS - 1 {
+            cnt += bins.counts[axis][i];
+            if cnt == 0 || right_cost[i][axis].is_nan() {
+                continue;
+            }
+            let c = cost[i][axis];
+            if best.is_none_or(|(_, b)| c < b) {
+                best = Some((i, c));
+            }
+        }
+        best
+    })
+}
+
 /// The cheapest boundary of one axis's bins: `(last bin of the left side, cost)`,
 /// ties going to the lower bin; only boundaries with primitives on both sides.
+/// The one-axis form of [`sweep3`] (tests compare them).
+#[cfg(test)]
 fn sweep(boxes: &[Box4; BINS], counts: &[u32; BINS]) -> Option<(usize, f32)> {
     // right_cost[i]: area * count of bins i+1.. (the right side of boundary i).
     let mut right_cost = [f32::NAN; BINS];
@@ -243,6 +331,43 @@ mod tests {
     }
 
     #[test]
+    fn three_axis_sweep_is_the_one_axis_sweep() {
+        let s = crate::sampling::Sampler::new(6, 5, 4, 3);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let specials = [0.0, -0.0, 1e-30, 3e38, f32::INFINITY, f32::NEG_INFINITY];
+        let mut found = 0;
+        for case in 0..3000usize {
+            let mut bins = Bins::EMPTY;
+            for axis in 0..3 {
+                for bin in 0..BINS {
+                    // Empty bins now and then (runs of them, and whole axes).
+                    if (case + axis) % 13 == 0 || next() < 0.3 {
+                        continue;
+                    }
+                    let lo = Vec4::new(next(), next(), next(), 0.0) * 10.0 - Vec4::splat(5.0);
+                    let mut hi = lo + Vec4::new(next(), next(), next(), 0.0);
+                    if case % 7 == 0 {
+                        hi[bin % 3] = specials[(case / 7 + bin) % specials.len()];
+                    }
+                    bins.boxes[axis][bin] = Box4 { min: lo, max: hi };
+                    bins.counts[axis][bin] = 1 + (next() * 50.0) as u32;
+                }
+            }
+            for (axis, three) in sweep3(&bins).into_iter().enumerate() {
+                let one = sweep(&bins.boxes[axis], &bins.counts[axis]);
+                let bits = |r: Option<(usize, f32)>| r.map(|(b, c)| (b, c.to_bits()));
+                assert_eq!(bits(three), bits(one), "case {case} axis {axis}");
+                found += usize::from(one.is_some());
+            }
+        }
+        assert!(found > 5000, "{found} splits found");
+    }
+
+    #[test]
     fn parallel_binning_equals_sequential_and_splits_two_clusters() {
         // Two clusters far apart along x: the best split separates them.
         let prims: Vec<PrimRef> = (0..40_000u32)
@@ -250,7 +375,7 @@ mod tests {
             .collect();
         let (_, cent) = super::super::primref::bounds_of(&prims);
         let map = BinMap::new(&cent).expect("binnable");
-        let par = Bins::of(&prims, &map);
+        let par = Bins::of_par(&prims, &map);
         let mut seq = Bins::EMPTY;
         seq.fill(&prims, &map);
         assert_eq!(par.boxes, seq.boxes);

@@ -175,14 +175,16 @@ pub(super) fn hits_sse(block: &TriBlock, r: &RaySse, t_min: f32, t_max: f32, lan
 ///
 /// Best fit: a leaf goes into the most recently opened block with the fewest
 /// free lanes that still holds it, else into a new block; a pure function of
-/// its input.
+/// its input. The placement is one cheap sequential pass over the leaves;
+/// the blocks themselves (gathering and precomputing the triangles, most of
+/// the work) are then made in parallel, each from its four lane ids.
 pub(super) fn pack(
     leaves: &[(u32, u32)],
     triangles: &[Triangle],
     ids: &[u32],
 ) -> (Vec<TriBlock>, Vec<u32>, Vec<u32>) {
-    let mut blocks: Vec<TriBlock> = Vec::with_capacity(ids.len() / 3 + 1);
-    let mut lane_ids: Vec<u32> = Vec::with_capacity(blocks.capacity() * 4);
+    use rayon::prelude::*;
+    let mut lane_ids: Vec<u32> = Vec::with_capacity((ids.len() / 3 + 1) * 4);
     let mut starts = Vec::with_capacity(leaves.len());
     // open[f]: blocks with exactly f free lanes (at the end), most recent last.
     let mut open: [Vec<u32>; 4] = Default::default();
@@ -191,21 +193,29 @@ pub(super) fn pack(
         debug_assert!((1..=4).contains(&count));
         let found = (count..4).find_map(|f| open[f].pop().map(|b| (b, f)));
         let (block, free) = found.unwrap_or_else(|| {
-            blocks.push(TriBlock::EMPTY);
             lane_ids.extend([u32::MAX; 4]);
-            (blocks.len() as u32 - 1, 4)
+            (lane_ids.len() as u32 / 4 - 1, 4)
         });
         let lane = 4 - free;
-        for i in 0..count {
-            let src = first as usize + i;
-            blocks[block as usize].set(lane + i, &PreTriangle::new(&triangles[ids[src] as usize]));
-            lane_ids[block as usize * 4 + lane + i] = ids[src];
-        }
+        let at = block as usize * 4 + lane;
+        lane_ids[at..at + count].copy_from_slice(&ids[first as usize..first as usize + count]);
         if free > count {
             open[free - count].push(block);
         }
         starts.push(block * 4 + lane as u32);
     }
+    let blocks = lane_ids
+        .par_chunks(4)
+        .map(|lanes| {
+            let mut block = TriBlock::EMPTY;
+            for (lane, &id) in lanes.iter().enumerate() {
+                if id != u32::MAX {
+                    block.set(lane, &PreTriangle::new(&triangles[id as usize]));
+                }
+            }
+            block
+        })
+        .collect();
     (blocks, lane_ids, starts)
 }
 

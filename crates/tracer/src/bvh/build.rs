@@ -36,7 +36,7 @@ use super::partition::{Sides, median, partition};
 use super::primref::{Box4, PrimRef, bounds_of};
 use super::sweep::{SMALL_MAX, TINY_MAX, split_small, split_tiny};
 use super::wide::{LEAF_COST, MERGE_TRAVERSAL_COST};
-use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_TRIANGLES, Node, PreTriangle};
+use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_TRIANGLES, Node};
 use crate::shapes::Triangle;
 use rayon::prelude::*;
 
@@ -50,8 +50,10 @@ const _: () = assert!(MAX_TRIANGLES <= 1 << 30 && MEDIAN_DEPTH + 32 <= MAX_DEPTH
 /// A binary node as stored by the builder: the 32 bytes of a [`Node`] as words
 /// ([`store`], [`load`]). Arrays of words can be allocated zeroed, which the OS
 /// does lazily, page by page, as the (parallel) build writes them — instead of a
-/// serial pass over the whole array first. An all-zero slot (never written) is
-/// an interior node no one points to.
+/// serial pass over the whole array first (in a process's first build; later
+/// ones may get reused memory, which `calloc` clears). An all-zero slot is an
+/// interior node no one points to; the builder writes zeros to the slots no
+/// node uses, as they may have served as a partition's scratch space.
 pub(super) type Slot = [u32; 8];
 
 /// The slot of `n`.
@@ -75,19 +77,17 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     if triangles.is_empty() {
         return Bvh::default();
     }
-    let (nodes, ids) = binary(triangles);
+    let Binary { nodes, mut ids, leaves } = binary_tree(triangles);
     let bounds = load(&nodes[0]).bounds();
-    // The leaves, in leaf order: the only leaf slots left (see `build_node`),
-    // and the array is in depth-first order. Their triangles are packed into
-    // blocks while the wide tree is collapsed; then the wide leaves are pointed
-    // at their lanes.
-    let leaves: Vec<(u32, u32)> =
-        nodes.par_iter().filter_map(|s| (s[7] != 0).then_some((s[3], s[7]))).collect();
+    // The leaves' triangles are packed into blocks while the wide tree is
+    // collapsed; then the wide leaves are pointed at their lanes.
     let (mut tree, (blocks, prim_ids, starts)) =
         rayon::join(|| super::wide::collapse(&nodes), || super::blocks::pack(&leaves, triangles, &ids));
     drop(nodes);
+    // The leaf order is packed into the blocks' lane ids: its words can serve
+    // as the leaves' lane map.
+    super::wide::place_leaves(&mut tree, &leaves, &starts, &mut ids);
     drop(ids);
-    super::wide::place_leaves(&mut tree, &leaves, &starts, triangles.len());
     let super::wide::Collapsed { wide, narrow } = tree;
     let mut bvh = Bvh {
         bounds,
@@ -104,15 +104,28 @@ pub(super) fn build(triangles: &[Triangle]) -> Bvh {
     bvh
 }
 
-/// The binary tree over `triangles` (not empty; depth-first with unused slots,
-/// see the module docs) and the input indices of the triangles in leaf order.
+/// What [`binary_tree`] makes.
+pub(super) struct Binary {
+    /// The binary tree (depth-first with unused slots, all zero; see the module docs).
+    pub(super) nodes: Vec<Slot>,
+    /// The input indices of the triangles in leaf order.
+    pub(super) ids: Vec<u32>,
+    /// The tree's leaves in leaf order: `(first, count)` in leaf order.
+    pub(super) leaves: Vec<(u32, u32)>,
+}
+
+/// The binary tree over `triangles` and the leaf order (tests).
+#[cfg(test)]
 pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<u32>) {
+    let Binary { nodes, ids, .. } = binary_tree(triangles);
+    (nodes, ids)
+}
+
+/// The binary tree over `triangles` (not empty), the leaf order and the leaves.
+pub(super) fn binary_tree(triangles: &[Triangle]) -> Binary {
     let n = triangles.len();
-    let mut prims: Vec<PrimRef> = triangles
-        .par_iter()
-        .enumerate()
-        .map(|(i, t)| PrimRef::new(i as u32, t, &PreTriangle::new(t)))
-        .collect();
+    let mut prims: Vec<PrimRef> =
+        triangles.par_iter().enumerate().map(|(i, t)| PrimRef::from_triangle(i as u32, t)).collect();
     let (geo, cent) = if n >= PARALLEL_MIN {
         prims
             .par_chunks(super::binning::CHUNK)
@@ -122,12 +135,16 @@ pub(super) fn binary(triangles: &[Triangle]) -> (Vec<Slot>, Vec<u32>) {
         bounds_of(&prims)
     };
     let mut nodes: Vec<Slot> = vec![[0; 8]; 2 * n - 1];
-    let mut scratch: Vec<Slot> = if n >= PARALLEL_MIN { vec![[0; 8]; n] } else { Vec::new() };
+    // marks[i]: the number of triangles of the leaf that starts at leaf-order
+    // position i, else 0.
+    let mut marks = vec![0u32; n];
     let root = Pos { index: 0, first: 0, depth: 0 };
-    build_node(&mut prims, &mut scratch, &mut nodes, root, geo, cent);
-    drop(scratch);
-    let ids = prims.par_iter().map(PrimRef::id).collect();
-    (nodes, ids)
+    build_node(&mut prims, &mut nodes, &mut marks, root, geo, cent);
+    let leaves = marks.iter().enumerate().filter(|&(_, &c)| c != 0).map(|(i, &c)| (i as u32, c)).collect();
+    // The marks are read: their words take the leaf order (no fresh memory).
+    let mut ids = marks;
+    ids.par_iter_mut().zip(prims.par_iter()).for_each(|(id, p)| *id = p.id());
+    Binary { nodes, ids, leaves }
 }
 
 /// Where a subtree goes.
@@ -142,12 +159,18 @@ struct Pos {
 }
 
 /// Builds the subtree over `prims` (box `geo`, centroid box `cent`) into `nodes`
-/// (its `2n − 1` slots, root first) and returns its SAH cost in the wide tree's
-/// model (times area). `scratch` is empty or as long as `prims`.
+/// (its `2n − 1` slots, root first; every one of them is written, unused ones
+/// with zeros), marks its leaves in `marks` (as long as `prims`: a leaf's count
+/// at its first position, 0 elsewhere) and returns its SAH cost in the wide
+/// tree's model (times area).
+///
+/// Until its children are built, a node's slots hold nothing: a large node's
+/// parallel partition uses its first `n` slots as scratch space (so the build
+/// needs no separate scratch array), which the children then overwrite.
 fn build_node(
     prims: &mut [PrimRef],
-    scratch: &mut [Slot],
     nodes: &mut [Slot],
+    marks: &mut [u32],
     at: Pos,
     geo: Box4,
     cent: Box4,
@@ -156,16 +179,18 @@ fn build_node(
     debug_assert_eq!(nodes.len(), 2 * n - 1);
     let area = geo.area();
     let bounds = geo.to_aabb();
-    let Some(sides) = choose_split(prims, scratch, &geo, &cent, at.depth) else {
+    let Some(sides) = choose_split(prims, &mut nodes[..n], &geo, &cent, at.depth) else {
         nodes[0] = store(&Node::leaf(&bounds, at.first, n as u32));
+        // The other slots may hold an ancestor's scratch data.
+        nodes[1..].fill([0; 8]);
+        marks[0] = n as u32;
         return LEAF_COST * area;
     };
     let mid = sides.mid;
     let (left, right) = prims.split_at_mut(mid);
-    let (scratch_l, scratch_r) =
-        if scratch.is_empty() { (&mut [][..], &mut [][..]) } else { scratch.split_at_mut(mid) };
     let (head, rest) = nodes.split_first_mut().expect("a node has a slot");
     let (nodes_l, nodes_r) = rest.split_at_mut(2 * mid - 1);
+    let (marks_l, marks_r) = marks.split_at_mut(mid);
     let second = at.index + 2 * mid as u32;
     let pos_l = Pos { index: at.index + 1, first: at.first, depth: at.depth + 1 };
     let pos_r = Pos { index: second, first: at.first + mid as u32, depth: at.depth + 1 };
@@ -173,13 +198,13 @@ fn build_node(
     let [cent_l, cent_r] = sides.cent;
     let (cost_l, cost_r) = if n >= PARALLEL_THRESHOLD {
         rayon::join(
-            || build_node(left, scratch_l, nodes_l, pos_l, geo_l, cent_l),
-            || build_node(right, scratch_r, nodes_r, pos_r, geo_r, cent_r),
+            || build_node(left, nodes_l, marks_l, pos_l, geo_l, cent_l),
+            || build_node(right, nodes_r, marks_r, pos_r, geo_r, cent_r),
         )
     } else {
         (
-            build_node(left, scratch_l, nodes_l, pos_l, geo_l, cent_l),
-            build_node(right, scratch_r, nodes_r, pos_r, geo_r, cent_r),
+            build_node(left, nodes_l, marks_l, pos_l, geo_l, cent_l),
+            build_node(right, nodes_r, marks_r, pos_r, geo_r, cent_r),
         )
     };
     let split = MERGE_TRAVERSAL_COST * area + cost_l + cost_r;
@@ -187,9 +212,12 @@ fn build_node(
     if n <= MAX_LEAF_SIZE && merged <= split {
         *head = store(&Node::leaf(&bounds, at.first, n as u32));
         // The merged children are unreachable: clear them, so that every leaf
-        // slot left in the array is a leaf of the tree.
+        // slot left in the array is a leaf of the tree, and their marks.
         nodes_l.fill([0; 8]);
         nodes_r.fill([0; 8]);
+        marks_l.fill(0);
+        marks_r.fill(0);
+        marks_l[0] = n as u32;
         merged
     } else {
         *head = store(&Node::interior(&bounds, second));
@@ -199,6 +227,7 @@ fn build_node(
 
 /// Decides how to split `prims`; on a split, partitions them and returns the
 /// sides (the left one always has `1..n` primitives). `None` means make a leaf.
+/// `scratch` (as long as `prims`) is the parallel partition's scratch space.
 fn choose_split(
     prims: &mut [PrimRef],
     scratch: &mut [Slot],
@@ -243,7 +272,7 @@ mod tests {
     use glam::Vec3;
 
     /// Random small triangles in clusters, with duplicates and degenerate ones,
-    /// enough of them for the parallel binning, partition and collapse paths.
+    /// enough of them for the parallel binning and partition paths.
     fn soup(n: usize) -> Vec<Triangle> {
         let s = Sampler::new(7, 7, 7, 7);
         let mut d = 0;
@@ -271,11 +300,28 @@ mod tests {
     fn parallel_build_is_the_one_thread_build() {
         let tris = soup(3 * PARALLEL_MIN + 123);
         let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool");
-        let (nodes1, ids1) = pool(1).install(|| binary(&tris));
+        let one = pool(1).install(|| binary_tree(&tris));
         for threads in [2, 3] {
-            let (nodes, ids) = pool(threads).install(|| binary(&tris));
-            assert!(nodes == nodes1, "binary nodes differ on {threads} threads");
-            assert!(ids == ids1, "leaf order differs on {threads} threads");
+            let other = pool(threads).install(|| binary_tree(&tris));
+            assert!(other.nodes == one.nodes, "binary nodes differ on {threads} threads");
+            assert!(other.ids == one.ids, "leaf order differs on {threads} threads");
+            assert!(other.leaves == one.leaves, "leaves differ on {threads} threads");
+        }
+        // Large nodes partitioned through their own slots: every slot no node
+        // uses was cleared again.
+        let mut used = vec![false; one.nodes.len()];
+        let mut todo = vec![0usize];
+        while let Some(i) = todo.pop() {
+            used[i] = true;
+            let node = load(&one.nodes[i]);
+            if !node.is_leaf() {
+                todo.extend([i + 1, node.offset as usize]);
+            }
+        }
+        let unused = used.iter().filter(|&&u| !u).count();
+        assert!(unused > tris.len() / 2, "leaves hold several triangles: {unused} unused slots");
+        for (slot, _) in one.nodes.iter().zip(&used).filter(|&(_, &u)| !u) {
+            assert_eq!(*slot, [0; 8], "an unused slot kept scratch data");
         }
         let one = pool(1).install(|| Bvh::build(&tris));
         let two = pool(2).install(|| Bvh::build(&tris));
@@ -287,7 +333,11 @@ mod tests {
     #[test]
     fn builder_leaves_cover_every_triangle_once_in_order() {
         let tris = soup(5000);
-        let (nodes, ids) = binary(&tris);
+        let Binary { nodes, ids, leaves } = binary_tree(&tris);
+        // The leaf list is the leaf slots of the array, in order.
+        let slots: Vec<(u32, u32)> =
+            nodes.iter().filter(|s| s[7] != 0).map(|s| (load(s).offset, load(s).count)).collect();
+        assert_eq!(leaves, slots);
         // Walk the reachable tree: leaves tile 0..n in depth-first order.
         let (mut next, mut todo) = (0u32, vec![0usize]);
         while let Some(i) = todo.pop() {

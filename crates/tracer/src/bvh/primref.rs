@@ -6,10 +6,11 @@
 //! reaches the tree (a primitive reference keeps its input index there).
 //!
 //! Determinism: the builder only ever feeds these boxes NaN-free coordinates
-//! (see [`PrimRef::new`]), where vector and scalar min/max agree exactly and box
+//! (see [`PrimRef::from_triangle`]), where vector and scalar min/max agree exactly and box
 //! unions are associative and commutative — so any chunking of a parallel
 //! reduction gives the same bits, on every machine.
 
+#[cfg(test)]
 use super::PreTriangle;
 use crate::geometry::Aabb;
 use crate::shapes::Triangle;
@@ -67,6 +68,23 @@ impl Box4 {
         2.0 * ((p.x + p.y) + p.z)
     }
 
+    /// The areas of three boxes at once: lane `a` of the result is exactly
+    /// `boxes[a].area()` (the same operations in the same order, lane by lane:
+    /// the boxes' edge lengths transposed so that one vector holds the three `x`
+    /// lengths, one the `y` and one the `z`); lane `w` is meaningless.
+    #[inline(always)]
+    pub fn area3(boxes: &[Box4; 3]) -> Vec4 {
+        let edge = |b: &Box4| {
+            let e = b.max - b.min;
+            Vec4::select(e.cmpgt(Vec4::ZERO), e, Vec4::ZERO)
+        };
+        let [e0, e1, e2] = [edge(&boxes[0]), edge(&boxes[1]), edge(&boxes[2])];
+        let x = Vec4::new(e0.x, e1.x, e2.x, 0.0);
+        let y = Vec4::new(e0.y, e1.y, e2.y, 0.0);
+        let z = Vec4::new(e0.z, e1.z, e2.z, 0.0);
+        2.0 * ((x * y + y * z) + z * x)
+    }
+
     /// As an [`Aabb`].
     pub fn to_aabb(self) -> Aabb {
         Aabb { min: self.min.truncate(), max: self.max.truncate() }
@@ -100,13 +118,10 @@ impl PrimRef {
     /// A placeholder (scratch space).
     pub const ZERO: PrimRef = PrimRef { min: Vec4::ZERO, max: Vec4::ZERO };
 
-    /// The reference of triangle `id` (`tri`, precomputed as `pre`).
-    ///
-    /// The box covers both the input vertices and the ones the intersection test
-    /// reconstructs (`v0 + e1`, `v0 + e2`), so leaf boxes contain either exactly.
-    /// It is free of NaNs — NaN coordinates are ignored (such a triangle can never
-    /// be hit) and an axis with no number at all collapses to 0 — because the box
-    /// unions that follow are only order-independent on NaN-free boxes.
+    /// The reference of triangle `id` (`tri`, precomputed as `pre`) as
+    /// [`PrimRef::from_triangle`] makes it, in the straightforward form tests
+    /// compare it with.
+    #[cfg(test)]
     pub fn new(id: u32, tri: &Triangle, pre: &PreTriangle) -> Self {
         debug_assert!(id <= ID_MASK);
         let mut min = Vec4::INFINITY;
@@ -114,6 +129,36 @@ impl PrimRef {
         for p in tri.v.into_iter().chain(pre.vertices()) {
             // Comparisons are false on NaN: a NaN coordinate leaves the box as it is.
             let p = p.extend(0.0);
+            min = Vec4::select(p.cmplt(min), p, min);
+            max = Vec4::select(p.cmpgt(max), p, max);
+        }
+        let empty = min.cmpgt(max);
+        let (min, max) = (Vec4::select(empty, Vec4::ZERO, min), Vec4::select(empty, Vec4::ZERO, max));
+        PrimRef { min: min.with_w(f32::from_bits(ID_TAG | id)), max: max.with_w(0.0) }
+    }
+
+    /// The reference of triangle `id` (`tri`).
+    ///
+    /// The box covers both the input vertices and the ones the intersection test
+    /// reconstructs (`v0 + e1`, `v0 + e2`, see [`PreTriangle`](super::PreTriangle)),
+    /// so leaf boxes contain either exactly. It is free of NaNs — NaN coordinates
+    /// are ignored (such a triangle can never be hit) and an axis with no number at
+    /// all collapses to 0 — because the box unions that follow are only
+    /// order-independent on NaN-free boxes.
+    ///
+    /// In 4-lane vector arithmetic: the edges and reconstructed vertices are the
+    /// single-precision subtractions and additions `PreTriangle::new` performs,
+    /// lane by lane, so they have the same bits (a test compares with the
+    /// straightforward form).
+    #[inline(always)]
+    pub fn from_triangle(id: u32, tri: &Triangle) -> Self {
+        debug_assert!(id <= ID_MASK);
+        let [a, b, c] = tri.v.map(|v| v.extend(0.0));
+        let (e1, e2) = (b - a, c - a);
+        let mut min = Vec4::INFINITY;
+        let mut max = Vec4::NEG_INFINITY;
+        for p in [a, b, c, a, a + e1, a + e2] {
+            // Comparisons are false on NaN: a NaN coordinate leaves the box as it is.
             min = Vec4::select(p.cmplt(min), p, min);
             max = Vec4::select(p.cmpgt(max), p, max);
         }
@@ -198,6 +243,63 @@ mod tests {
         let q = PrimRef::new(7, &nan, &PreTriangle::new(&nan));
         assert!(!q.min().is_nan() && !q.max().truncate().is_nan());
         assert_eq!(q.id(), 7);
+    }
+
+    #[test]
+    fn from_triangle_is_new_bit_for_bit() {
+        let s = crate::sampling::Sampler::new(4, 4, 4, 4);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let specials = [0.0, -0.0, 1e-30, -1e38, 3e38, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+        let bits = |p: &PrimRef| (p.min.to_array().map(f32::to_bits), p.max.to_array().map(f32::to_bits));
+        for i in 0..20_000u32 {
+            let mut v = [0; 3].map(|_| Vec3::new(next(), next(), next()) * 200.0 - Vec3::splat(100.0));
+            if i % 3 == 0 {
+                // Coordinates that make the edges round, overflow or turn NaN.
+                let k = (next() * 3.0) as usize % 3;
+                let a = (next() * 3.0) as usize % 3;
+                v[k][a] = specials[i as usize / 3 % specials.len()];
+            }
+            if i % 7 == 0 {
+                v[1] = v[0]; // degenerate
+            }
+            let tri = Triangle { v };
+            assert_eq!(
+                bits(&PrimRef::from_triangle(i, &tri)),
+                bits(&PrimRef::new(i, &tri, &PreTriangle::new(&tri)))
+            );
+        }
+    }
+
+    #[test]
+    fn three_areas_at_once_are_the_areas() {
+        let s = crate::sampling::Sampler::new(2, 3, 4, 5);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d) * 20.0 - 10.0
+        };
+        let specials = [0.0, -0.0, 1e-30, 3e38, -3e38, f32::INFINITY, f32::NEG_INFINITY];
+        for i in 0..20_000usize {
+            let boxes: [Box4; 3] = std::array::from_fn(|k| {
+                let a = Vec4::new(next(), next(), next(), next());
+                let mut b = a + Vec4::new(next(), next(), next(), 0.0).abs() * 0.3;
+                if (i + k) % 5 == 0 {
+                    b[(i / 5) % 3] = specials[(i / 15) % specials.len()];
+                }
+                if (i + k) % 11 == 0 {
+                    return Box4::EMPTY;
+                }
+                Box4 { min: a, max: b }
+            });
+            let v = Box4::area3(&boxes);
+            for k in 0..3 {
+                assert_eq!(v[k].to_bits(), boxes[k].area().to_bits(), "case {i} box {k}: {:?}", boxes[k]);
+            }
+        }
     }
 
     #[test]

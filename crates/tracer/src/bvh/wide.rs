@@ -341,13 +341,15 @@ pub(super) fn collapse(nodes: &[Slot]) -> Collapsed {
 
 /// Points every leaf slot of `tree` (whose words still hold the leaf's first
 /// triangle in leaf order) at its lanes: `leaves[i]` is `(first, count)` of a
-/// leaf and `starts[i]` its first lane (`blocks::pack`); `n` triangles.
-pub(super) fn place_leaves(tree: &mut Collapsed, leaves: &[(u32, u32)], starts: &[u32], n: usize) {
-    let mut lane_of = vec![0u32; n];
+/// leaf and `starts[i]` its first lane (`blocks::pack`). `lane_of` is scratch
+/// space, one word per triangle with any contents (only the words at leaves'
+/// first triangles are read, and they are written first): the builder passes a
+/// buffer it no longer needs rather than have fresh memory allocated.
+pub(super) fn place_leaves(tree: &mut Collapsed, leaves: &[(u32, u32)], starts: &[u32], lane_of: &mut [u32]) {
     for (&(first, _), &start) in leaves.iter().zip(starts) {
         lane_of[first as usize] = start;
     }
-    let lane_of = &lane_of[..];
+    let lane_of = &*lane_of;
     rayon::join(
         || tree.wide.par_iter_mut().for_each(|w| w.place_leaves(lane_of)),
         || tree.narrow.par_iter_mut().for_each(|w| w.place_leaves(lane_of)),
@@ -361,10 +363,6 @@ pub(super) const MERGE_TRAVERSAL_COST: f32 = 1.0;
 /// SAH cost of testing one leaf, in the same unit: its 1..=4 triangles are
 /// tested at once (see `blocks`), so the cost does not depend on how many.
 pub(super) const LEAF_COST: f32 = 1.5;
-
-/// The root wide node collapses its children's subtrees in parallel (up to eight tasks;
-/// deeper levels would only copy the nodes more often).
-const PARALLEL_DEPTH: usize = 1;
 
 /// A child of a wide node: its binary node's index, the node and its box's area.
 type Kid = (usize, Node, f32);
@@ -402,9 +400,14 @@ fn frontier(nodes: &[Slot], i: usize, node: &Node) -> ([Kid; W], usize) {
 /// Appends the node for binary interior node `node`, at index `i` and `depth`
 /// wide levels below the root, and its subtree (depth-first, children in slot
 /// order); returns its child word. It is a narrow node when it has at most four
-/// children (never the root). Near the root the children's subtrees are
-/// collapsed in parallel into their own vectors and then appended with their
-/// child indices shifted: the same nodes in the same order.
+/// children (never the root).
+///
+/// Sequential: the build runs it next to the parallel `blocks::pack`, which
+/// takes a little longer, so a second thread has the packing to share. (It
+/// used to collapse the root's children's subtrees in parallel, into vectors of
+/// their own that were then copied into place: a third more fresh memory for
+/// the nodes, and page faults cost this machine about 1.5 µs per 4 KiB page,
+/// serialised across threads.)
 fn collapse_node(nodes: &[Slot], i: usize, node: &Node, depth: usize, out: &mut Collapsed) -> u32 {
     let (kids, len) = frontier(nodes, i, node);
     if depth > 0 && len <= W4 {
@@ -425,49 +428,13 @@ fn collapse_node(nodes: &[Slot], i: usize, node: &Node, depth: usize, out: &mut 
     let at = out.wide.len();
     out.wide.push(WideNode::EMPTY);
     let mut wide = WideNode::EMPTY;
-    if depth < PARALLEL_DEPTH {
-        let subs: Vec<Option<(u32, Collapsed)>> = kids[..len]
-            .par_iter()
-            .map(|(k, n, _)| {
-                (!n.is_leaf()).then(|| {
-                    let mut sub = Collapsed::default();
-                    let word = collapse_node(nodes, *k, n, depth + 1, &mut sub);
-                    (word, sub)
-                })
-            })
-            .collect();
-        for (slot, ((_, n, _), sub)) in kids[..len].iter().zip(subs).enumerate() {
-            wide.set(slot, n);
-            wide.child[slot] = match sub {
-                None => leaf_word(n.offset, n.count),
-                Some((word, sub)) => {
-                    let (wb, nb) = (out.wide.len() as u32, out.narrow.len() as u32);
-                    let shift = |c: u32| match c {
-                        c if c & LEAF != 0 => c,
-                        c if c & NARROW != 0 => c + nb,
-                        c => c + wb,
-                    };
-                    out.wide.extend(sub.wide.into_iter().map(|mut w| {
-                        w.child = w.child.map(shift);
-                        w
-                    }));
-                    out.narrow.extend(sub.narrow.into_iter().map(|mut w| {
-                        w.child = w.child.map(shift);
-                        w
-                    }));
-                    shift(word)
-                }
-            };
-        }
-    } else {
-        for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
-            wide.set(slot, n);
-            wide.child[slot] = if n.is_leaf() {
-                leaf_word(n.offset, n.count)
-            } else {
-                collapse_node(nodes, *k, n, depth + 1, out)
-            };
-        }
+    for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
+        wide.set(slot, n);
+        wide.child[slot] = if n.is_leaf() {
+            leaf_word(n.offset, n.count)
+        } else {
+            collapse_node(nodes, *k, n, depth + 1, out)
+        };
     }
     out.wide[at] = wide;
     at as u32
