@@ -9,7 +9,8 @@
 //! valgrind --tool=callgrind target/release/examples/frames scenes/paper.toml 320 240 3
 //! ```
 //!
-//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells]`.
+//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells]` (the last
+//! fills the cells around every surface before the first frame, as a slave does).
 
 use isin_tracer::render::{TraceOptions, render_frame_with};
 use isin_tracer::{AssetSource, RenderSettings, load_scene};
@@ -26,7 +27,7 @@ impl AssetSource for Dir {
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: frames SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells]";
+    let usage = "usage: frames SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells]";
     let [scene_path, width, height, frames] = args.get(..4).ok_or(usage)? else { return Err(usage.into()) };
     let number = |s: &String| s.parse::<u32>().map_err(|e| format!("{s}: {e}"));
     let (width, height, frames) = (number(width)?, number(height)?, number(frames)?);
@@ -39,6 +40,15 @@ fn main() -> Result<(), String> {
     let settings = RenderSettings { width, height, ..scene.settings };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().map_err(|e| e.to_string())?;
     pool.install(|| {
+        if args.iter().any(|a| a == "--fill-cells") {
+            let t = Instant::now();
+            scene.fill_shadow_cells();
+            println!(
+                "filled {} shadow cells in {:.1} ms",
+                scene.shadow_cells_filled(),
+                t.elapsed().as_secs_f64() * 1e3
+            );
+        }
         for i in 0..frames {
             let t = Instant::now();
             let (_, counts) = render_frame_with(&scene, &scene.camera, &settings, 32, &options, &|_| {});

@@ -125,6 +125,13 @@ impl Scene {
         self.shadow_cells.clear(&self.bvh, light, origin)
     }
 
+    /// Fills the shadow cells around every surface now, in parallel, rather
+    /// than as frames first need them (see [`ShadowCells::fill_surface_cells`]):
+    /// for renderers that keep a scene for many frames, such as a cluster's slaves.
+    pub fn fill_shadow_cells(&self) {
+        self.shadow_cells.fill_surface_cells(&self.bvh, &self.triangles);
+    }
+
     /// Shadow cells filled so far, over all lights.
     pub fn shadow_cells_filled(&self) -> usize {
         self.shadow_cells.filled()

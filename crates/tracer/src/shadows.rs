@@ -28,7 +28,9 @@
 use crate::bvh::{Bvh, Shaft, SurfacePlanes};
 use crate::geometry::Aabb;
 use crate::lights::Light;
+use crate::shapes::Triangle;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicU16, Ordering};
 use std::sync::{Mutex, OnceLock};
 
@@ -235,6 +237,48 @@ impl ShadowCells {
         let hi = self.origin + (c + Vec3::ONE) * self.size + Vec3::splat(self.shaft_margin);
         let shaft = Shaft::between(&Aabb { min: lo, max: hi }, &grid.bounds, self.shaft_margin)?;
         bvh.shaft_clear(&shaft, &grid.points, self.plane_margin)
+    }
+
+    /// Fills, in parallel, every light's cells that a triangle's box
+    /// overlaps — where shading points lie — so that a session's frames do
+    /// not pay for them (the cells a shading point finds unfilled, e.g. just
+    /// off a surface across a cell boundary, still fill on demand). Each
+    /// process of a cluster fills its own; doing it at load keeps every
+    /// slave's frames free of it.
+    pub fn fill_surface_cells(&self, bvh: &Bvh, triangles: &[Triangle]) {
+        let count = self.lights.iter().map(|g| g.cells.len()).max().unwrap_or(0);
+        if count == 0 {
+            return;
+        }
+        let mut marked = vec![false; count];
+        let coord = |p: Vec3| ((p - self.origin) * self.inv_size).max(Vec3::ZERO).min(self.max_coord());
+        for t in triangles {
+            let b = t.bounds();
+            let (lo, hi) = (coord(b.min), coord(b.max));
+            if !(lo.is_finite() && hi.is_finite()) {
+                continue;
+            }
+            let (lo, hi) = (lo.as_uvec3(), hi.as_uvec3());
+            for z in lo.z..=hi.z {
+                for y in lo.y..=hi.y {
+                    let row = (z as usize * self.dims[1] as usize + y as usize) * self.dims[0] as usize;
+                    marked[row + lo.x as usize..=row + hi.x as usize].fill(true);
+                }
+            }
+        }
+        let cells: Vec<usize> = (0..count).filter(|&i| marked[i]).collect();
+        for grid in self.lights.iter().filter(|g| !g.cells.is_empty()) {
+            cells.par_iter().for_each(|&i| {
+                if grid.cells[i].load(Ordering::Acquire) == UNFILLED {
+                    self.fill(bvh, grid, i);
+                }
+            });
+        }
+    }
+
+    /// The largest cell coordinates, as floats.
+    fn max_coord(&self) -> Vec3 {
+        Vec3::new(self.dims[0] as f32 - 1.0, self.dims[1] as f32 - 1.0, self.dims[2] as f32 - 1.0)
     }
 
     /// Number of cells filled so far, over all lights (for statistics).

@@ -132,3 +132,27 @@ fn points_outside_the_grid_or_beyond_the_lights_are_never_clear() {
     }
     assert!(!scene.shadow_clear(scene.lights.len(), scene.bounds.min));
 }
+
+#[test]
+fn cells_filled_at_load_answer_as_cells_filled_on_demand() {
+    let lazy = scene("paper.toml");
+    let eager = lazy.clone();
+    eager.fill_shadow_cells();
+    let filled = eager.shadow_cells_filled();
+    assert!(filled > 1000, "{filled} cells filled");
+    let mut rng = Rng(5);
+    let points = shading_points(&lazy, &mut rng);
+    let mut clear = 0;
+    for (sp, _) in &points {
+        let origin = sp.p + sp.ng * sp.eps;
+        for l in 0..lazy.lights.len() {
+            let (a, b) = (lazy.shadow_clear(l, origin), eager.shadow_clear(l, origin));
+            assert_eq!(a, b, "light {l} at {origin:?}");
+            clear += a as usize;
+        }
+    }
+    assert!(clear > 1000);
+    // Nearly every cell a shading point needs was filled at load.
+    let more = eager.shadow_cells_filled() - filled;
+    assert!(more * 20 < filled, "{more} cells filled after the {filled} filled at load");
+}
