@@ -75,6 +75,12 @@ fn display_answers(display: &str) -> bool {
 /// just answered — most likely a server probing the numbers disturbed
 /// another's socket. With an explicit number a server checks that display's
 /// lock and exits if it is taken, and the next number is tried.
+///
+/// `-noreset`: by default an X server resets itself when its last client
+/// disconnects, and a client connecting during the reset is refused. The
+/// readiness probe (`xdpyinfo`) is such a last client, so a viewer started
+/// right after it now and then failed with "Failed to open connection to X
+/// server" (seen in CI at load average 3).
 fn start_xvfb() -> Result<(Reaper, String), String> {
     use std::sync::atomic::{AtomicU32, Ordering};
     static NEXT: AtomicU32 = AtomicU32::new(0);
@@ -88,7 +94,7 @@ fn start_xvfb() -> Result<(Reaper, String), String> {
         let display = format!(":{n}");
         let mut child = Command::new("Xvfb")
             .arg(&display)
-            .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+            .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp", "-noreset"])
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
