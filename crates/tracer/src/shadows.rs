@@ -16,14 +16,17 @@
 //! change. Nor does an answer depend on which thread first filled the cell,
 //! so renders stay deterministic.
 //!
-//! **Lazy.** A cell is filled the first time a shading point in it asks
-//! ([`OnceLock`]), and then serves every frame of a session: the scene is
-//! static while the camera moves, so an interactive fly-through fills the
-//! cells it sees once. A cell is two bytes: unfilled, not clear, or clear
-//! with the index of its set of surface planes in a small per-light table
-//! (a room has few distinct ones: the floor, each wall, their corners), so
-//! a light's grid stays in the caches. A 320×240 frame of the paper scene
-//! fills about 10,000 cells over its two lights.
+//! **Filled once per session.** A cell is filled the first time a shading
+//! point in it asks, or all cells around surfaces at once
+//! ([`ShadowCells::fill_surface_cells`], which a cluster's slaves call when
+//! they load a scene, so that each slave does not refill cells for the tiles
+//! it happens to get), and then serves every frame: the scene is static while
+//! the camera moves. A cell is two bytes (an atomic): unfilled, not clear, or
+//! clear with the index of its set of surface planes in a small per-light
+//! table (a room has few distinct ones: the floor, each wall, their corners),
+//! so a light's grid stays in the caches. A 320×240 frame of the paper scene
+//! fills about 10,000 cells over its two lights; filling around every surface
+//! takes 16,000 (10 ms on one thread).
 
 use crate::bvh::{Bvh, Shaft, SurfacePlanes};
 use crate::geometry::Aabb;
