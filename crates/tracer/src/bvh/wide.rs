@@ -410,34 +410,32 @@ fn frontier(nodes: &[Slot], i: usize, node: &Node) -> ([Kid; W], usize) {
 /// serialised across threads.)
 fn collapse_node(nodes: &[Slot], i: usize, node: &Node, depth: usize, out: &mut Collapsed) -> u32 {
     let (kids, len) = frontier(nodes, i, node);
+    // The node's slot is taken before its children's (depth-first order).
     if depth > 0 && len <= W4 {
         let at = out.narrow.len();
         out.narrow.push(NarrowNode::EMPTY);
-        let mut narrow = NarrowNode::EMPTY;
-        for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
-            narrow.set(slot, n);
-            narrow.child[slot] = if n.is_leaf() {
-                leaf_word(n.offset, n.count)
-            } else {
-                collapse_node(nodes, *k, n, depth + 1, out)
-            };
-        }
-        out.narrow[at] = narrow;
+        out.narrow[at] = fill_slots(nodes, &kids[..len], depth, out);
         return NARROW | at as u32;
     }
     let at = out.wide.len();
     out.wide.push(WideNode::EMPTY);
-    let mut wide = WideNode::EMPTY;
-    for (slot, (k, n, _)) in kids[..len].iter().enumerate() {
-        wide.set(slot, n);
-        wide.child[slot] = if n.is_leaf() {
+    out.wide[at] = fill_slots(nodes, &kids[..len], depth, out);
+    at as u32
+}
+
+/// A node of `N` slots holding `kids` (a node at `depth`), interior ones
+/// collapsed below it.
+fn fill_slots<const N: usize>(nodes: &[Slot], kids: &[Kid], depth: usize, out: &mut Collapsed) -> Slots<N> {
+    let mut slots = Slots::<N>::EMPTY;
+    for (slot, (k, n, _)) in kids.iter().enumerate() {
+        slots.set(slot, n);
+        slots.child[slot] = if n.is_leaf() {
             leaf_word(n.offset, n.count)
         } else {
             collapse_node(nodes, *k, n, depth + 1, out)
         };
     }
-    out.wide[at] = wide;
-    at as u32
+    slots
 }
 
 /// A ray prepared for wide box tests: per axis, which row of [`WideNode::bounds`]
