@@ -44,6 +44,16 @@
 //! Recursion stops at `max_depth` secondary bounces (a mirror then returns
 //! black) or when a branch's throughput falls below [`MIN_THROUGHPUT`].
 //!
+//! **Packets.** Camera rays arrive in packets of eight
+//! ([`Integrator::trace_packet`]), and the reflections and refractions their
+//! hits spawn are traced as packets as well, branch by branch and depth by
+//! depth, while enough of them go on (`Integrator::radiance_packet`): the
+//! reflections off a 4×2 block of floor are nearly as coherent as the camera
+//! rays. A hit's shading is split for this into the rays it spawns
+//! (`Integrator::bounce`) and the light it returns once those rays' radiance
+//! is known (`Integrator::finish`); the sums are the recursive ones, in the
+//! same order, so the pixels are the same bytes as with single rays.
+//!
 //! **Texture footprints (ray cones).** A primary ray carries a cone whose
 //! spread is the angle of a pixel (`Camera::pixel_spread`); its width grows
 //! linearly with the distance travelled, through mirror bounces and refraction
@@ -57,6 +67,7 @@
 //! `width / |cos θ| × √(uv area / world area)`.) So a receding checker floor
 //! stays sharp across the view while blurring to its mean colour with depth.
 
+use crate::bvh::PACKET_LANES;
 use crate::geometry::Ray;
 use crate::lights::{AreaSampler, LightSample};
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
@@ -430,6 +441,25 @@ impl<'a> Integrator<'a> {
         }
     }
 
+    /// [`Integrator::trace_hit`] for up to [`PACKET_LANES`] camera rays at
+    /// once (those selected by `active`), whose nearest hits the caller
+    /// found (e.g. with [`crate::bvh::Bvh::intersect8`]); the same values bit
+    /// for bit, with secondary rays traced in packets where they can be
+    /// (see the module docs, "Packets").
+    pub fn trace_packet(
+        &self,
+        rays: &[Ray; PACKET_LANES],
+        hits: &[Option<Hit>; PACKET_LANES],
+        cone: RayCone,
+        samples: &[SampleId; PACKET_LANES],
+        active: u8,
+        counts: &mut RayCounts,
+    ) -> [Vec3; PACKET_LANES] {
+        counts.primary += u64::from(active.count_ones());
+        let (cones, weights) = ([cone; PACKET_LANES], [Vec3::ONE; PACKET_LANES]);
+        self.radiance_packet(rays, hits, &cones, 0, &weights, samples, active, counts)
+    }
+
     /// Radiance along `ray` at recursion depth `depth`; `weight` is the
     /// branch's throughput to the pixel.
     fn radiance(
@@ -459,10 +489,98 @@ impl<'a> Integrator<'a> {
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
+        let sp = SurfacePoint::new(self.scene, ray, hit);
+        let bounce = self.bounce(ray, hit, &sp, cone, depth, weight);
+        let mut found = [Vec3::ZERO; 2];
+        for (k, branch) in bounce.branches.iter().enumerate() {
+            if let Some(b) = branch {
+                counts.secondary += 1;
+                found[k] = self.radiance(&b.ray, b.cone, depth + 1, b.weight, sample, counts);
+            }
+        }
+        self.finish(ray, hit, &sp, cone, depth, weight, &bounce, found, sample, counts)
+    }
+
+    /// The secondary rays the material at `hit` spawns (see [`Bounce`]),
+    /// leaving out those past the depth limit or below [`MIN_THROUGHPUT`].
+    #[inline]
+    fn bounce(
+        &self,
+        ray: &Ray,
+        hit: &Hit,
+        sp: &SurfacePoint,
+        cone: RayCone,
+        depth: u32,
+        weight: Vec3,
+    ) -> Bounce {
+        let branch = |ray: Ray, cone: RayCone, factor: Vec3| {
+            let w = weight * factor;
+            if depth >= self.max_depth || w.max_element() < MIN_THROUGHPUT {
+                return None;
+            }
+            Some(Branch { ray, cone, factor, weight: w })
+        };
+        let material = self.scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
+        let mut bounce = Bounce::default();
+        match material {
+            Material::Phong { reflectivity, .. } => {
+                let r = reflectivity.clamp(0.0, 1.0);
+                if r > 0.0 {
+                    let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
+                    bounce.branches[0] =
+                        branch(Ray::new(sp.above(), sp.reflect(ray.dir)), mirrored, Vec3::splat(r));
+                }
+            }
+            Material::Mirror { tint } => {
+                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
+                bounce.branches[0] = branch(Ray::new(sp.above(), sp.reflect(ray.dir)), mirrored, *tint);
+            }
+            Material::Dielectric { ior, tint } => {
+                let ior = if *ior > 0.0 && ior.is_finite() { *ior } else { 1.0 };
+                let (n1, n2) = if sp.front { (1.0, ior) } else { (ior, 1.0) };
+                let next = cone.after(hit.t);
+                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
+                let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
+                match refract(ray.dir, sp.ns, n1 / n2) {
+                    None => bounce.branches[0] = branch(refl, mirrored, Vec3::ONE),
+                    Some(t) => {
+                        let cos = if n1 <= n2 { -ray.dir.dot(sp.ns) } else { -t.dot(sp.ns) };
+                        let f = schlick(cos, n1, n2);
+                        let tint = if sp.front { *tint } else { Vec3::ONE };
+                        bounce.branches[0] = branch(refl, mirrored, Vec3::splat(f));
+                        bounce.branches[1] = branch(Ray::new(sp.below(), t), next, tint * (1.0 - f));
+                        bounce.two = true;
+                    }
+                }
+            }
+            Material::Emissive { .. } => {}
+        }
+        bounce
+    }
+
+    /// Radiance leaving `hit` towards the ray's origin, given the radiance
+    /// `found` along each branch of its [`Bounce`] (unused where there is
+    /// no branch).
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn finish(
+        &self,
+        ray: &Ray,
+        hit: &Hit,
+        sp: &SurfacePoint,
+        cone: RayCone,
+        depth: u32,
+        weight: Vec3,
+        bounce: &Bounce,
+        found: [Vec3; 2],
+        sample: &SampleId,
+        counts: &mut RayCounts,
+    ) -> Vec3 {
         let scene = self.scene;
-        let hit = *hit;
-        let sp = SurfacePoint::new(scene, ray, &hit);
-        let cone_width = cone.width_at(hit.t);
+        let returned = |k: usize| match &bounce.branches[k] {
+            Some(b) => b.factor * found[k],
+            None => Vec3::ZERO,
+        };
         let material = scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
         match material {
             Material::Phong { albedo, specular, shininess, reflectivity } => {
@@ -475,7 +593,7 @@ impl<'a> Integrator<'a> {
                                 &scene.triangles[i].v,
                                 &scene.shading[i].uvs,
                                 ray.dir,
-                                cone_width,
+                                cone.width_at(hit.t),
                             );
                             tint * t.eval_rect(sp.uv, fp)
                         }
@@ -483,85 +601,111 @@ impl<'a> Integrator<'a> {
                     },
                 };
                 let mut c = scene.ambient * albedo;
-                c += self.direct(&sp, ray.dir, albedo, *specular, *shininess, depth, weight, sample, counts);
-                let r = reflectivity.clamp(0.0, 1.0);
-                if r > 0.0 {
-                    let dir = sp.reflect(ray.dir);
-                    c += self.secondary(
-                        Ray::new(sp.above(), dir),
-                        cone.reflected(hit.t, self.curvature(hit.prim)),
-                        depth,
-                        weight,
-                        Vec3::splat(r),
-                        sample,
-                        counts,
-                    );
+                c += self.direct(sp, ray.dir, albedo, *specular, *shininess, depth, weight, sample, counts);
+                if *reflectivity > 0.0 {
+                    c += returned(0);
                 }
                 c
             }
-            Material::Mirror { tint } => {
-                let dir = sp.reflect(ray.dir);
-                self.secondary(
-                    Ray::new(sp.above(), dir),
-                    cone.reflected(hit.t, self.curvature(hit.prim)),
-                    depth,
-                    weight,
-                    *tint,
-                    sample,
-                    counts,
-                )
-            }
-            Material::Dielectric { ior, tint } => {
-                let ior = if *ior > 0.0 && ior.is_finite() { *ior } else { 1.0 };
-                let (n1, n2) = if sp.front { (1.0, ior) } else { (ior, 1.0) };
-                let next = cone.after(hit.t);
-                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
-                let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
-                match refract(ray.dir, sp.ns, n1 / n2) {
-                    None => self.secondary(refl, mirrored, depth, weight, Vec3::ONE, sample, counts),
-                    Some(t) => {
-                        let cos = if n1 <= n2 { -ray.dir.dot(sp.ns) } else { -t.dot(sp.ns) };
-                        let f = schlick(cos, n1, n2);
-                        let tint = if sp.front { *tint } else { Vec3::ONE };
-                        let reflected =
-                            self.secondary(refl, mirrored, depth, weight, Vec3::splat(f), sample, counts);
-                        let transmitted = self.secondary(
-                            Ray::new(sp.below(), t),
-                            next,
-                            depth,
-                            weight,
-                            tint * (1.0 - f),
-                            sample,
-                            counts,
-                        );
-                        reflected + transmitted
-                    }
-                }
-            }
+            Material::Mirror { .. } => returned(0),
+            Material::Dielectric { .. } => match bounce.two {
+                false => returned(0),
+                true => returned(0) + returned(1),
+            },
             Material::Emissive { radiance } => *radiance,
         }
     }
 
-    /// Traces a secondary ray and returns its radiance scaled by `factor`
-    /// (the path weight is scaled alike, for the throughput cut-off).
+    /// Radiance along up to [`PACKET_LANES`] rays at once (those selected by
+    /// `active`) whose nearest hits are `hits`: exactly what
+    /// [`Integrator::radiance`] gives for each, bit for bit. The branches the
+    /// hits spawn are traced as packets too ([`crate::bvh::Bvh::intersect8`],
+    /// which finds the single-ray hits), branch by branch — a floor's
+    /// reflections, a glass ball's refractions — as long as at least
+    /// [`PACKET_MIN`] rays go on; sparser ones are traced one by one.
     #[allow(clippy::too_many_arguments)]
-    #[inline]
-    fn secondary(
+    fn radiance_packet(
         &self,
-        ray: Ray,
-        cone: RayCone,
+        rays: &[Ray; PACKET_LANES],
+        hits: &[Option<Hit>; PACKET_LANES],
+        cones: &[RayCone; PACKET_LANES],
         depth: u32,
-        weight: Vec3,
-        factor: Vec3,
-        sample: &SampleId,
+        weights: &[Vec3; PACKET_LANES],
+        samples: &[SampleId; PACKET_LANES],
+        active: u8,
         counts: &mut RayCounts,
-    ) -> Vec3 {
-        let w = weight * factor;
-        if depth >= self.max_depth || w.max_element() < MIN_THROUGHPUT {
-            return Vec3::ZERO;
+    ) -> [Vec3; PACKET_LANES] {
+        let lanes = |mask: u8| (0..PACKET_LANES).filter(move |&l| mask & (1 << l) != 0);
+        let mut out = [self.scene.background; PACKET_LANES];
+        let mut sps = [None; PACKET_LANES];
+        let mut bounces = [Bounce::default(); PACKET_LANES];
+        for l in lanes(active) {
+            if let Some(hit) = &hits[l] {
+                let sp = SurfacePoint::new(self.scene, &rays[l], hit);
+                bounces[l] = self.bounce(&rays[l], hit, &sp, cones[l], depth, weights[l]);
+                sps[l] = Some(sp);
+            }
         }
-        counts.secondary += 1;
-        factor * self.radiance(&ray, cone, depth + 1, w, sample, counts)
+        // Radiance along each lane's branch k, branch by branch.
+        let mut found = [[Vec3::ZERO; PACKET_LANES]; 2];
+        for (k, found) in found.iter_mut().enumerate() {
+            let mut next = [Ray::new(Vec3::ZERO, Vec3::Z); PACKET_LANES];
+            let mut next_cones = [RayCone::primary(0.0); PACKET_LANES];
+            let mut next_weights = [Vec3::ZERO; PACKET_LANES];
+            let mut going = 0u8;
+            for l in lanes(active) {
+                if let Some(b) = &bounces[l].branches[k] {
+                    (next[l], next_cones[l], next_weights[l]) = (b.ray, b.cone, b.weight);
+                    going |= 1 << l;
+                }
+            }
+            counts.secondary += u64::from(going.count_ones());
+            if going.count_ones() < PACKET_MIN {
+                for l in lanes(going) {
+                    found[l] = self.radiance(
+                        &next[l],
+                        next_cones[l],
+                        depth + 1,
+                        next_weights[l],
+                        &samples[l],
+                        counts,
+                    );
+                }
+                continue;
+            }
+            let next_hits =
+                self.scene.bvh.intersect8(&next, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], going);
+            let radiance = self.radiance_packet(
+                &next,
+                &next_hits,
+                &next_cones,
+                depth + 1,
+                &next_weights,
+                samples,
+                going,
+                counts,
+            );
+            for l in lanes(going) {
+                found[l] = radiance[l];
+            }
+        }
+        for l in lanes(active) {
+            if let (Some(hit), Some(sp)) = (&hits[l], &sps[l]) {
+                out[l] = self.finish(
+                    &rays[l],
+                    hit,
+                    sp,
+                    cones[l],
+                    depth,
+                    weights[l],
+                    &bounces[l],
+                    [found[0][l], found[1][l]],
+                    &samples[l],
+                    counts,
+                );
+            }
+        }
+        out
     }
 
     /// Direct light from every light source at a Phong surface.
@@ -875,6 +1019,31 @@ impl RatioSamples {
         self.valid & bit != 0
     }
 }
+
+/// The secondary rays a hit spawns: mirror reflection (branch 0) and, for
+/// a dielectric that does not reflect totally, refraction (branch 1); each
+/// brings back `factor ×` the radiance it finds.
+#[derive(Clone, Copy, Default)]
+struct Bounce {
+    branches: [Option<Branch>; 2],
+    /// A dielectric's reflection and refraction both (its radiance is their sum).
+    two: bool,
+}
+
+/// One secondary ray of a [`Bounce`].
+#[derive(Clone, Copy)]
+struct Branch {
+    ray: Ray,
+    cone: RayCone,
+    /// The share of the radiance along `ray` that comes back.
+    factor: Vec3,
+    /// The branch's throughput to the pixel.
+    weight: Vec3,
+}
+
+/// The integrator traces a branch as a packet when at
+/// least this many of its rays go on.
+pub const PACKET_MIN: u32 = 4;
 
 /// Area lights with more samples per shading point than this are traced
 /// adaptively (see the module docs): this many test samples first.

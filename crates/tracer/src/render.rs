@@ -340,10 +340,10 @@ pub fn render_tile_with(
                 }
                 let hits =
                     scene.bvh.intersect8(&rays, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], active);
+                let samples = pixels.map(|pixel| SampleId { pixel, index: s });
+                let radiance = integrator.trace_packet(&rays, &hits, cone, &samples, active, &mut counts);
                 for lane in lanes() {
-                    let l = lane as usize;
-                    let sample = SampleId { pixel: pixels[l], index: s };
-                    sums[l] += integrator.trace_hit(&rays[l], hits[l], cone, &sample, &mut counts);
+                    sums[lane as usize] += radiance[lane as usize];
                 }
             }
             for lane in lanes() {

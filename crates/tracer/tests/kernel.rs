@@ -233,7 +233,8 @@ impl isin_tracer::AssetSource for SceneDir {
 
 /// The shipped paper scene renders the same bytes with the AVX, the SSE and
 /// the scalar box tests (mirrors, glass, area-light shadows: every query kind),
-/// and with camera rays traced in packets or one by one.
+/// and with camera rays — and the reflections and refractions they spawn — traced
+/// in packets or one by one.
 #[test]
 fn paper_scene_renders_the_same_bytes_with_avx_sse_scalar_and_packets() {
     let scenes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
