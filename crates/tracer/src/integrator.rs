@@ -751,11 +751,16 @@ impl<'a> Integrator<'a> {
             }
             // Area lights: skip them when the point is behind the emitter, and
             // give each its own stratified, jittered set of samples.
+            let beyond_prepared;
             let prepared = match self.prepared.get(index) {
-                Some(p) => p.filter(|a| a.faces(sp.p)),
-                None => light.area_sampler(sp.p),
+                Some(Some(p)) if p.faces(sp.p) => p,
+                Some(_) => continue,
+                None => {
+                    beyond_prepared = light.area_sampler(sp.p);
+                    let Some(p) = &beyond_prepared else { continue };
+                    p
+                }
             };
-            let Some(prepared) = prepared else { continue };
             let light_sampler = depth_sampler.child(index as u32);
             let n = self.light_samples_for(weight);
             let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
@@ -896,7 +901,7 @@ impl Integrator<'_> {
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
-        let light = &area.light;
+        let light = area.light;
         let radiance = light.radiance();
         let unshadowed = lobe.diffuse * radiance * omega;
         let highlight = lobe.has_spec && !lobe.highlight_negligible(sp, light);
@@ -1143,8 +1148,8 @@ impl Lobe {
 }
 
 /// One area light's samples at one shading point.
-struct AreaSamples<'l> {
-    light: AreaSampler<'l>,
+struct AreaSamples<'a, 'l> {
+    light: &'a AreaSampler<'l>,
     sampler: Sampler,
     first: u32,
     n: u32,
@@ -1155,6 +1160,9 @@ struct AreaSamples<'l> {
 /// shading, `1/r` on a sphere of radius `r`).
 #[inline]
 pub fn triangle_curvature(v: &[Vec3; 3], normals: &[Vec3; 3]) -> f32 {
+    if normals[0] == normals[1] && normals[1] == normals[2] {
+        return 0.0; // flat shading (also what the loop below finds)
+    }
     let mut k = 0.0f32;
     for (a, b) in [(0, 1), (1, 2), (2, 0)] {
         let len = (v[a] - v[b]).length();

@@ -59,6 +59,24 @@ pub fn acos_poly(x: f32) -> f32 {
     if x < 0.0 { std::f32::consts::PI - r } else { r }
 }
 
+/// [`acos_poly`] of four numbers at once: the same operations lane by lane,
+/// so the same bits for finite inputs.
+#[inline]
+pub fn acos_poly4(x: glam::Vec4) -> glam::Vec4 {
+    use glam::Vec4;
+    let x = x.clamp(Vec4::splat(-1.0), Vec4::ONE);
+    let a = x.abs();
+    let c = |v: f32| Vec4::splat(v);
+    let p = c(std::f32::consts::FRAC_PI_2)
+        + a * (c(-0.214_598_8)
+            + a * (c(0.088_978_99)
+                + a * (c(-0.050_174_3)
+                    + a * (c(0.030_891_88)
+                        + a * (c(-0.017_088_126) + a * (c(0.006_670_09) + a * c(-0.001_262_491)))))));
+    let r = (Vec4::ONE - a).sqrt() * p;
+    Vec4::select(x.cmplt(Vec4::ZERO), c(std::f32::consts::PI) - r, r)
+}
+
 /// Arc-tangent of `y / x`, computed identically on every platform.
 #[inline]
 pub fn atan2(y: f32, x: f32) -> f32 {
@@ -76,5 +94,17 @@ mod tests {
         }
         assert!(worst < 1e-6, "{worst}");
         assert_eq!(super::acos_poly(2.0), super::acos_poly(1.0));
+    }
+
+    #[test]
+    fn acos_poly4_is_acos_poly_in_every_lane() {
+        for i in 0..=5_000 {
+            let x = -1.25 + i as f32 / 2_000.0;
+            let xs = [x, -x, x * 0.5, 1.0 - x.abs()];
+            let got = super::acos_poly4(glam::Vec4::from_array(xs)).to_array();
+            for (g, x) in got.iter().zip(xs) {
+                assert_eq!(g.to_bits(), super::acos_poly(x).to_bits(), "acos_poly4({x})");
+            }
+        }
     }
 }
