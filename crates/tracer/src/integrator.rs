@@ -179,8 +179,6 @@ pub struct SurfacePoint {
     pub material: u32,
     /// Distance to move secondary ray origins off the surface.
     pub eps: f32,
-    /// UV units per world unit on this triangle (`√(uv area / world area)`).
-    pub uv_per_world: f32,
     /// `|cos θ|` between the ray and the geometric normal.
     pub cos_view: f32,
 }
@@ -211,10 +209,6 @@ impl SurfacePoint {
             ns = ng;
         }
         let uv = sh.uvs[0] * w + sh.uvs[1] * u + sh.uvs[2] * v;
-        let e1 = sh.uvs[1] - sh.uvs[0];
-        let e2 = sh.uvs[2] - sh.uvs[0];
-        let uv2 = (e1.x * e2.y - e1.y * e2.x).abs();
-        let uv_per_world = if world2 > 0.0 { (uv2 / world2).sqrt() } else { 0.0 };
         let eps = 2e-5 * (1.0 + p.abs().max_element() + hit.t.abs());
         SurfacePoint {
             p,
@@ -224,15 +218,15 @@ impl SurfacePoint {
             front,
             material: sh.material,
             eps,
-            uv_per_world,
             cos_view: ng.dot(ray.dir).abs(),
         }
     }
 
-    /// The UV footprint of a ray cone of width `cone_width` at this point.
-    #[inline]
-    pub fn uv_width(&self, cone_width: f32) -> f32 {
-        cone_width / self.cos_view.max(1e-4) * self.uv_per_world
+    /// The larger side of the UV footprint of a ray cone of width
+    /// `cone_width` at this point of the triangle `v` with texture
+    /// coordinates `uvs`, for an isotropic UV mapping (see [`uv_per_world`]).
+    pub fn uv_width(&self, v: &[Vec3; 3], uvs: &[Vec2; 3], cone_width: f32) -> f32 {
+        cone_width / self.cos_view.max(1e-4) * uv_per_world(v, uvs)
     }
 
     /// The UV footprint of a ray cone of width `cone_width` arriving along
@@ -285,6 +279,15 @@ impl SurfacePoint {
         let r = reflect(dir, self.ns);
         if r.dot(self.ng) > 0.0 { r } else { reflect(dir, self.ng) }
     }
+}
+
+/// UV units per world unit on the triangle `v` with texture coordinates
+/// `uvs`: `√(uv area / world area)` (0 for a degenerate triangle).
+pub fn uv_per_world(v: &[Vec3; 3], uvs: &[Vec2; 3]) -> f32 {
+    let world2 = (v[1] - v[0]).cross(v[2] - v[0]).length();
+    let (e1, e2) = (uvs[1] - uvs[0], uvs[2] - uvs[0]);
+    let uv2 = (e1.x * e2.y - e1.y * e2.x).abs();
+    if world2 > 0.0 { (uv2 / world2).sqrt() } else { 0.0 }
 }
 
 /// Which camera sample of which pixel a ray serves: the key of its random
@@ -1237,7 +1240,6 @@ mod tests {
             front: true,
             material: 0,
             eps: 1e-5,
-            uv_per_world: 1.0,
             cos_view: 1.0,
         };
         let lobe = |view: Vec3, shininess: f32| Lobe {
@@ -1292,7 +1294,7 @@ mod tests {
         let sp = SurfacePoint::new(&scene, &ray, &hit);
         assert!((sp.uv - Vec2::new(2.0 * hit.u, 2.0 * hit.v)).length() < 1e-6);
         // uv area 2, world area 2.
-        assert!((sp.uv_per_world - 1.0).abs() < 1e-6);
+        assert!((uv_per_world(&scene.triangles[0].v, &scene.shading[0].uvs) - 1.0).abs() < 1e-6);
     }
 
     #[test]
@@ -1355,7 +1357,7 @@ mod tests {
         let fp = sp.uv_footprint(&v, &uvs, dir, 0.01);
         assert!((fp.x - 0.01).abs() < 1e-6, "{fp:?}");
         assert!((fp.y - 0.01 / cos).abs() < 1e-4, "{fp:?}");
-        assert!((fp.y - sp.uv_width(0.01)).abs() < 1e-4, "the major extent is the isotropic width");
+        assert!((fp.y - sp.uv_width(&v, &uvs, 0.01)).abs() < 1e-4, "the major extent is the isotropic width");
         // Looking straight down: a circle.
         let ray = Ray::new(Vec3::new(0.2, 0.2, 1.0), Vec3::NEG_Z);
         let hit = scene.intersect(&ray, 0.0, f32::INFINITY).unwrap();
