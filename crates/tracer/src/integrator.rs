@@ -210,16 +210,7 @@ impl SurfacePoint {
         }
         let uv = sh.uvs[0] * w + sh.uvs[1] * u + sh.uvs[2] * v;
         let eps = 2e-5 * (1.0 + p.abs().max_element() + hit.t.abs());
-        SurfacePoint {
-            p,
-            ng,
-            ns,
-            uv,
-            front,
-            material: sh.material,
-            eps,
-            cos_view: ng.dot(ray.dir).abs(),
-        }
+        SurfacePoint { p, ng, ns, uv, front, material: sh.material, eps, cos_view: ng.dot(ray.dir).abs() }
     }
 
     /// The larger side of the UV footprint of a ray cone of width

@@ -197,15 +197,49 @@ fn srgb8_thresholds() -> &'static [f32; 255] {
     })
 }
 
-/// [`encode_srgb8`] by binary search in a table of its 255 thresholds: the
-/// same bytes (the reference is monotonic), without a `powf` per channel.
+/// Floats sharing the sign, exponent and top seven mantissa bits (the bits
+/// above this shift) share a bucket of [`srgb8_buckets`].
+const BUCKET_SHIFT: u32 = 16;
+
+/// For each bucket from the one holding the first threshold to the one
+/// holding the last: how many thresholds lie at or below the bucket's
+/// smallest float (thresholds are positive, so their bit patterns are in
+/// value order).
+fn srgb8_buckets() -> &'static [u8] {
+    static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let t = srgb8_thresholds();
+        let (first, last) = (t[0].to_bits() >> BUCKET_SHIFT, t[254].to_bits() >> BUCKET_SHIFT);
+        (first..=last)
+            .map(|b| {
+                let start = f32::from_bits(b << BUCKET_SHIFT);
+                t.partition_point(|&x| x <= start) as u8
+            })
+            .collect()
+    })
+}
+
+/// [`encode_srgb8`] from a table of its 255 thresholds: the same bytes (the
+/// reference is monotonic), without a `powf` per channel. The count of
+/// thresholds at or below `c` starts from its bucket's ([`srgb8_buckets`])
+/// and steps over the few thresholds inside the bucket.
 #[inline]
 pub fn encode_srgb8_fast(c: f32) -> u8 {
-    if c.is_nan() {
+    let t = srgb8_thresholds();
+    // Also 0 for NaN, negative numbers and −∞; 255 for +∞.
+    if !(c >= t[0]) {
         return 0;
     }
-    // Number of thresholds <= c.
-    srgb8_thresholds().partition_point(|&t| t <= c) as u8
+    if c >= t[254] {
+        return 255;
+    }
+    let buckets = srgb8_buckets();
+    let first = t[0].to_bits() >> BUCKET_SHIFT;
+    let mut k = buckets[((c.to_bits() >> BUCKET_SHIFT) - first) as usize] as usize;
+    while t[k] <= c {
+        k += 1;
+    }
+    k as u8
 }
 
 /// The sub-pixel offset of camera sample `sample` of `spp` for pixel `(x, y)`:
