@@ -227,7 +227,7 @@ fn srgb8_buckets() -> &'static [u8] {
 pub fn encode_srgb8_fast(c: f32) -> u8 {
     let t = srgb8_thresholds();
     // Also 0 for NaN, negative numbers and −∞; 255 for +∞.
-    if !(c >= t[0]) {
+    if c.is_nan() || c < t[0] {
         return 0;
     }
     if c >= t[254] {
