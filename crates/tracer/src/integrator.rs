@@ -307,6 +307,8 @@ pub struct Integrator<'a> {
     /// That grid (`⌈√(spp · light_samples)⌉` strata a side), to be keyed per
     /// pixel ([`Integrator::light_set`]).
     light_grid_strata: Strata,
+    /// Strata per side of that grid.
+    light_grid: u32,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
     /// Ask the scene's shadow cells before tracing shadow rays ([`Integrator::with_shadow_cells`]).
@@ -338,6 +340,7 @@ impl<'a> Integrator<'a> {
             light_samples,
             light_strata: Divisor::new(light_grid * light_grid),
             light_grid_strata: Strata::new(light_grid, 0),
+            light_grid,
             adaptive_shadows: true,
             shadow_cells: true,
             prepared,
@@ -798,6 +801,48 @@ impl<'a> Integrator<'a> {
         total
     }
 
+    /// The points of `light` at the centres of the four corner strata of a
+    /// pixel's light-sample grid (its unit-square corners first along `u`,
+    /// then along `v`), where [`Integrator::area_ratio`] tests whether a
+    /// point sees all of the light, none or part of it.
+    fn corner_points(&self, light: &AreaSampler) -> Option<[Vec3; 4]> {
+        let h = 0.5 / self.light_grid as f32;
+        let mut points = [Vec3::ZERO; 4];
+        for (k, q) in points.iter_mut().enumerate() {
+            let u = Vec2::new(if k & 1 == 0 { h } else { 1.0 - h }, if k & 2 == 0 { h } else { 1.0 - h });
+            *q = light.point(u)?.0;
+        }
+        Some(points)
+    }
+
+    /// Which corner-stratum centres of `light` (bit `k`:
+    /// [`Integrator::corner_points`]`[k]`) are hidden from `origin`, one
+    /// shadow ray each (all four hidden if the light has no such points).
+    fn corners_blocked(&self, origin: Vec3, light: &AreaSampler, counts: &mut RayCounts) -> u8 {
+        let Some(points) = self.corner_points(light) else { return 15 };
+        let mut hidden = 0u8;
+        for (k, &q) in points.iter().enumerate() {
+            counts.shadow += 1;
+            if ShadowRay::towards(origin, q).blocked(self.scene) {
+                hidden |= 1 << k;
+            }
+        }
+        hidden
+    }
+
+    /// The corner index (as in [`Integrator::corner_points`]) of stratum
+    /// `(column, row)` of the light-sample grid, if it is a corner one.
+    #[inline]
+    fn corner_stratum(&self, (sx, sy): (u32, u32)) -> Option<usize> {
+        let last = self.light_grid - 1;
+        let side = |c: u32| match c {
+            0 => Some(0),
+            c if c == last => Some(1),
+            _ => None,
+        };
+        Some(side(sx)? | side(sy)? << 1)
+    }
+
     /// The sum of an area light's sample contributions, traced adaptively:
     /// first the [`ADAPTIVE_TESTS`] samples nearest the corners of the light's
     /// sample square ([`spread_tests`]); when all of them reach the light, or
@@ -894,7 +939,6 @@ impl Integrator<'_> {
         clear: bool,
         counts: &mut RayCounts,
     ) -> Vec3 {
-        let scene = self.scene;
         let light = area.light;
         let radiance = light.radiance();
         let unshadowed = lobe.diffuse * radiance * omega;
@@ -902,55 +946,43 @@ impl Integrator<'_> {
         if clear && !highlight {
             return unshadowed;
         }
+        // Which samples reach the light: all of them in a clear cell, all or
+        // none where the corner tests agree, else each traced — but those in
+        // a corner stratum take the answer of its centre.
         let n = area.n as usize;
+        let all = (1u64 << n) - 1;
+        let mut visible = all;
+        let mut hidden = 0u8;
+        if !clear && self.adaptive_shadows {
+            hidden = self.corners_blocked(lobe.origin, light, counts);
+            if hidden == 0 {
+                if !highlight {
+                    return unshadowed;
+                }
+            } else if hidden == 15 {
+                return Vec3::ZERO;
+            }
+        }
         let set = self.light_set(&area.sampler);
         let mut us = [Vec2::ZERO; RATIO_MAX];
         for (j, u) in us[..n].iter_mut().enumerate() {
             *u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
         }
         let mut samples = RatioSamples::default();
-        let blocked_at = |samples: &RatioSamples, j: usize, counts: &mut RayCounts| {
-            counts.shadow += 1;
-            let ray = Ray::new(lobe.origin, samples.dirs[j]);
-            scene.occluded(&ray, 0.0, samples.dists[j] * SHADOW_SHORTEN)
-        };
-        // Which samples reach the light: all of them in a clear cell, all or
-        // none where the corner tests agree, else each traced.
-        let all = (1u64 << n) - 1;
-        let mut visible = all;
-        if !clear {
-            let mut tested = 0u64;
-            if self.adaptive_shadows {
-                let tests = spread_tests(&us[..n]);
-                let (mut seen, mut hidden, mut untraced) = (0u32, 0u32, false);
-                for &j in &tests {
-                    if tested & (1 << j) != 0 {
-                        continue;
-                    }
-                    tested |= 1 << j;
-                    if !samples.eval(j, us[j], light, sp, lobe) {
-                        untraced = true;
-                    } else if blocked_at(&samples, j, counts) {
-                        visible &= !(1 << j);
-                        hidden += 1;
-                    } else {
-                        seen += 1;
-                    }
-                }
-                if !untraced && seen + hidden >= 2 && hidden == 0 {
-                    if !highlight {
-                        return unshadowed;
-                    }
-                    tested = all;
-                } else if !untraced && seen + hidden >= 2 && seen == 0 {
-                    return Vec3::ZERO;
-                }
-            }
+        if !clear && (hidden != 0 || !self.adaptive_shadows) {
             for (j, &u) in us[..n].iter().enumerate() {
-                if tested & (1 << j) == 0
-                    && samples.eval(j, u, light, sp, lobe)
-                    && blocked_at(&samples, j, counts)
-                {
+                if !samples.eval(j, u, light, sp, lobe) {
+                    continue;
+                }
+                let i = self.light_strata.rem(area.first.wrapping_add(j as u32));
+                let blocked = match self.adaptive_shadows.then(|| self.corner_stratum(set.stratum(i))).flatten() {
+                    Some(k) => hidden & (1 << k) != 0,
+                    None => {
+                        counts.shadow += 1;
+                        ShadowRay::new(lobe.origin, samples.dirs[j], samples.dists[j]).blocked(self.scene)
+                    }
+                };
+                if blocked {
                     visible &= !(1 << j);
                 }
             }
@@ -1147,6 +1179,34 @@ struct AreaSamples<'a, 'l> {
     sampler: Sampler,
     first: u32,
     n: u32,
+}
+
+/// A shadow ray from `origin` along unit `dir` that stops
+/// [`SHADOW_SHORTEN`] of the way to a light point at distance `dist`.
+#[derive(Clone, Copy)]
+struct ShadowRay {
+    ray: Ray,
+    t_max: f32,
+}
+
+impl ShadowRay {
+    #[inline(always)]
+    fn new(origin: Vec3, dir: Vec3, dist: f32) -> Self {
+        Self { ray: Ray::new(origin, dir), t_max: dist * SHADOW_SHORTEN }
+    }
+
+    /// The shadow ray from `origin` to the light point `to`.
+    #[inline]
+    fn towards(origin: Vec3, to: Vec3) -> Self {
+        let d = to - origin;
+        let dist = d.length();
+        Self::new(origin, d / dist, dist)
+    }
+
+    #[inline(always)]
+    fn blocked(&self, scene: &Scene) -> bool {
+        scene.occluded(&self.ray, 0.0, self.t_max)
+    }
 }
 
 /// Curvature of a smooth-shaded triangle estimated from its vertex normals:

@@ -304,18 +304,25 @@ impl AreaSampler<'_> {
         e.is_finite().then_some(e)
     }
 
-    /// [`Light::sample_area`] from `p` for the unit-square sample `u` (the
-    /// same point of the light up to rounding).
+    /// The point of the light for the unit-square sample `u`, and the area
+    /// density there ([`Light::point_on`], the same point up to rounding).
     #[inline]
-    pub fn sample(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
-        let (q, density) = match self.shape {
+    pub fn point(&self, u: Vec2) -> Option<(Vec3, f32)> {
+        Some(match self.shape {
             Shape::Triangle { v0, e1, e2, density } => {
                 let (b1, b2) = square_to_triangle(u);
                 (v0 + e1 * b1 + e2 * b2, density)
             }
             Shape::Parallelogram { v0, es, et, density } => (v0 + es * u.x + et * u.y, density),
             Shape::General => self.light.point_on(u)?,
-        };
+        })
+    }
+
+    /// [`Light::sample_area`] from `p` for the unit-square sample `u` (the
+    /// same point of the light up to rounding).
+    #[inline]
+    pub fn sample(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
+        let (q, density) = self.point(u)?;
         let d = q - p;
         let d2 = d.length_squared();
         if d2.is_nan() || d2 <= 0.0 {

@@ -260,12 +260,18 @@ impl Strata {
         Strata { perm: Permutation::new(self.perm.len, key), ..*self }
     }
 
+    /// The stratum `(column, row)` of sample `i` of the set.
+    #[inline]
+    pub fn stratum(&self, i: u32) -> (u32, u32) {
+        let s = self.perm.apply(i);
+        let sy = self.side.div(s);
+        (s - sy * self.side.d, sy)
+    }
+
     /// Sample `i` of the set, jittered by `sampler` (dimension `1 + i`, [`Sampler::pair`]).
     #[inline]
     pub fn point(&self, i: u32, sampler: &Sampler) -> Vec2 {
-        let s = self.perm.apply(i);
-        let sy = self.side.div(s);
-        let sx = s - sy * self.side.d;
+        let (sx, sy) = self.stratum(i);
         let (jx, jy) = sampler.pair(1 + i);
         // Clamp below 1: (m-1 + 0.99999994)/m can round up to exactly 1.
         Vec2::new(
