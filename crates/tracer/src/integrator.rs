@@ -33,7 +33,9 @@
 //!   above the horizon, the diffuse part is not averaged but computed exactly
 //!   (the polygon's projected solid angle) and scaled by the fraction the
 //!   samples find unblocked — the ratio estimator (`Integrator::area_ratio`):
-//!   lit surfaces carry no sampling noise. Where the scene's shadow cells
+//!   lit surfaces carry no sampling noise. Its adaptive tests go to the
+//!   centres of the corner strata of the light-sample grid rather than to
+//!   samples. Where the scene's shadow cells
 //!   ([`crate::shadows`]) know a light to be unblocked, its shadow rays are
 //!   not traced.
 //! * Mirror: `tint ×` the radiance along `R = I − 2 (I·N) N`.
@@ -923,12 +925,21 @@ impl Integrator<'_> {
     /// radiance and the diffuse lobe) times the fraction of it that reaches
     /// the point among the samples, `Σ visible wⱼ / Σ wⱼ` with `wⱼ` each
     /// sample's unshadowed diffuse contribution; the Phong highlight is the
-    /// samples' plain average. Where the light is known to be fully visible
-    /// (a clear shadow cell, or corner tests that all reach it, see
-    /// [`Integrator::area_adaptive`]) the diffuse part needs no sample at
-    /// all, and the highlight none either where it cannot reach 10⁻³ of the
-    /// diffuse part ([`Lobe::highlight_negligible`]). Unshadowed surfaces are
-    /// thus free of sampling noise, and penumbrae keep the shading's shape.
+    /// samples' plain average. Unshadowed surfaces are thus free of sampling
+    /// noise, and penumbrae keep the shading's shape.
+    ///
+    /// Where the light is known to be fully visible the diffuse part needs no
+    /// sample at all, and the highlight none either where it cannot reach
+    /// 10⁻³ of the diffuse part ([`Lobe::highlight_negligible`]): in a clear
+    /// shadow cell, and where the shadow rays to the centres of the four
+    /// corner strata of the pixel's light-sample grid
+    /// ([`Integrator::corner_points`]) all reach them. Where all four are
+    /// blocked the point is taken to be in the umbra. Only where they
+    /// disagree (a penumbra) are the samples traced, and those that fall in
+    /// a corner stratum take its centre's answer instead (the midpoint rule
+    /// on that stratum). As in [`Integrator::area_adaptive`], an occluder
+    /// that hides part of the light but none of the four centres goes unseen.
+    ///
     /// The caller guarantees the whole light above both horizons at `sp`.
     fn area_ratio(
         &self,
