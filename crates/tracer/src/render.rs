@@ -221,7 +221,7 @@ fn srgb8_buckets() -> &'static [u8] {
 
 /// [`encode_srgb8`] from a table of its 255 thresholds: the same bytes (the
 /// reference is monotonic), without a `powf` per channel. The count of
-/// thresholds at or below `c` starts from its bucket's ([`srgb8_buckets`])
+/// thresholds at or below `c` starts from its bucket's (`srgb8_buckets`)
 /// and steps over the few thresholds inside the bucket.
 #[inline]
 pub fn encode_srgb8_fast(c: f32) -> u8 {
