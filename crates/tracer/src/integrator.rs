@@ -648,14 +648,17 @@ impl<'a> Integrator<'a> {
         // Radiance along each lane's branch k, branch by branch.
         let mut found = [[Vec3::ZERO; PACKET_LANES]; 2];
         for (k, found) in found.iter_mut().enumerate() {
+            let going =
+                lanes(active).filter(|&l| bounces[l].branches[k].is_some()).fold(0u8, |m, l| m | 1 << l);
+            if going == 0 {
+                continue;
+            }
             let mut next = [Ray::new(Vec3::ZERO, Vec3::Z); PACKET_LANES];
             let mut next_cones = [RayCone::primary(0.0); PACKET_LANES];
             let mut next_weights = [Vec3::ZERO; PACKET_LANES];
-            let mut going = 0u8;
-            for l in lanes(active) {
+            for l in lanes(going) {
                 if let Some(b) = &bounces[l].branches[k] {
                     (next[l], next_cones[l], next_weights[l]) = (b.ray, b.cone, b.weight);
-                    going |= 1 << l;
                 }
             }
             counts.secondary += u64::from(going.count_ones());
@@ -986,13 +989,14 @@ impl Integrator<'_> {
                     continue;
                 }
                 let i = self.light_strata.rem(area.first.wrapping_add(j as u32));
-                let blocked = match self.adaptive_shadows.then(|| self.corner_stratum(set.stratum(i))).flatten() {
-                    Some(k) => hidden & (1 << k) != 0,
-                    None => {
-                        counts.shadow += 1;
-                        ShadowRay::new(lobe.origin, samples.dirs[j], samples.dists[j]).blocked(self.scene)
-                    }
-                };
+                let blocked =
+                    match self.adaptive_shadows.then(|| self.corner_stratum(set.stratum(i))).flatten() {
+                        Some(k) => hidden & (1 << k) != 0,
+                        None => {
+                            counts.shadow += 1;
+                            ShadowRay::new(lobe.origin, samples.dirs[j], samples.dists[j]).blocked(self.scene)
+                        }
+                    };
                 if blocked {
                     visible &= !(1 << j);
                 }
