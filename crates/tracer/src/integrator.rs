@@ -81,8 +81,14 @@ use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
-/// Branches whose contribution to the pixel falls below this are not traced.
-pub const MIN_THROUGHPUT: f32 = 1e-3;
+/// Branches whose contribution to the pixel falls below this are not traced
+/// (adaptive tree-depth control, Hall & Greenberg 1983). At 0.4 % what is
+/// cut is mostly a glass ball's third internal reflection and the floor's
+/// reflection of the ball's outer one: on the paper frame 1,732 of 76,800
+/// pixels change, by one level in most and at most 13 (a glint of the lamp
+/// in the ball), and the frame's distance to a converged one grows by
+/// 0.04 dB PSNR, for about 8 % of its time (BENCHMARKS.md).
+pub const MIN_THROUGHPUT: f32 = 4e-3;
 
 /// Recursion depth is capped here whatever the settings say, so a scene file
 /// cannot overflow the stack.
