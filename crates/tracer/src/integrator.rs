@@ -317,6 +317,8 @@ pub struct Integrator<'a> {
     light_grid_strata: Strata,
     /// Strata per side of that grid.
     light_grid: u32,
+    /// One camera sample per pixel.
+    one_camera_sample: bool,
     /// Trace area-light shadow rays adaptively ([`Integrator::area_adaptive`]).
     adaptive_shadows: bool,
     /// Ask the scene's shadow cells before tracing shadow rays ([`Integrator::with_shadow_cells`]).
@@ -349,6 +351,7 @@ impl<'a> Integrator<'a> {
             light_strata: Divisor::new(light_grid * light_grid),
             light_grid_strata: Strata::new(light_grid, 0),
             light_grid,
+            one_camera_sample: settings.spp <= 1,
             adaptive_shadows: true,
             shadow_cells: true,
             prepared,
@@ -790,9 +793,16 @@ impl<'a> Integrator<'a> {
                     // Every sample traced (or, with nothing in the way, none
                     // needs to be): the same sum.
                     let mut sum = Vec3::ZERO;
-                    let set = self.light_set(&light_sampler);
+                    // A pixel's only sample of this light (one camera sample,
+                    // one light sample, as behind a faint reflection) has no
+                    // other to be stratified against: it is drawn uniformly,
+                    // without building the pixel's permutation of strata.
+                    let set = (n > 1 || !self.one_camera_sample).then(|| self.light_set(&light_sampler));
                     for j in 0..n {
-                        let u = self.light_sample_in(&set, first.wrapping_add(j), &light_sampler);
+                        let u = match &set {
+                            Some(set) => self.light_sample_in(set, first.wrapping_add(j), &light_sampler),
+                            None => Vec2::from(light_sampler.pair(1)),
+                        };
                         let Some((c, ls)) = prepared.sample(sp.p, u).and_then(|ls| lobe.eval(sp, &ls)) else {
                             continue;
                         };

@@ -236,6 +236,9 @@ pub fn encode_srgb8_fast(c: f32) -> u8 {
     let buckets = srgb8_buckets();
     let first = t[0].to_bits() >> BUCKET_SHIFT;
     let mut k = buckets[((c.to_bits() >> BUCKET_SHIFT) - first) as usize] as usize;
+    // A bucket holds at most one threshold past its start (a test checks),
+    // so one step without a branch; the loop is a safety net that never runs.
+    k += usize::from(t[k] <= c);
     while t[k] <= c {
         k += 1;
     }
@@ -624,6 +627,17 @@ mod tests {
         // Round trip with the decoder of the texture module.
         for b in 0..=255u8 {
             assert_eq!(encode_srgb8(crate::textures::srgb_to_linear(b as f32 / 255.0)), b);
+        }
+    }
+
+    #[test]
+    fn srgb_buckets_hold_at_most_one_threshold_past_their_start() {
+        let t = srgb8_thresholds();
+        let first = t[0].to_bits() >> BUCKET_SHIFT;
+        for (i, &count) in srgb8_buckets().iter().enumerate() {
+            let next = f32::from_bits((first + i as u32 + 1) << BUCKET_SHIFT);
+            let inside = t.iter().filter(|&&x| x < next).count() - count as usize;
+            assert!(inside <= 1, "bucket {i}: {inside} thresholds");
         }
     }
 
