@@ -528,27 +528,28 @@ impl<'a> Integrator<'a> {
             }
             Some(Branch { ray, cone, factor, weight: w })
         };
+        // The mirror direction and its ray cone, which every branching material has.
+        let mirror =
+            || (Ray::new(sp.above(), sp.reflect(ray.dir)), cone.reflected(hit.t, self.curvature(hit.prim)));
         let material = self.scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
         let mut bounce = Bounce::default();
         match material {
             Material::Phong { reflectivity, .. } => {
                 let r = reflectivity.clamp(0.0, 1.0);
                 if r > 0.0 {
-                    let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
-                    bounce.branches[0] =
-                        branch(Ray::new(sp.above(), sp.reflect(ray.dir)), mirrored, Vec3::splat(r));
+                    let (refl, mirrored) = mirror();
+                    bounce.branches[0] = branch(refl, mirrored, Vec3::splat(r));
                 }
             }
             Material::Mirror { tint } => {
-                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
-                bounce.branches[0] = branch(Ray::new(sp.above(), sp.reflect(ray.dir)), mirrored, *tint);
+                let (refl, mirrored) = mirror();
+                bounce.branches[0] = branch(refl, mirrored, *tint);
             }
             Material::Dielectric { ior, tint } => {
                 let ior = if *ior > 0.0 && ior.is_finite() { *ior } else { 1.0 };
                 let (n1, n2) = if sp.front { (1.0, ior) } else { (ior, 1.0) };
                 let next = cone.after(hit.t);
-                let mirrored = cone.reflected(hit.t, self.curvature(hit.prim));
-                let refl = Ray::new(sp.above(), sp.reflect(ray.dir));
+                let (refl, mirrored) = mirror();
                 match refract(ray.dir, sp.ns, n1 / n2) {
                     None => bounce.branches[0] = branch(refl, mirrored, Vec3::ONE),
                     Some(t) => {
