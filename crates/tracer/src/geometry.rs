@@ -76,6 +76,13 @@ impl Aabb {
         if self.is_empty() { Vec3::ZERO } else { self.max - self.min }
     }
 
+    /// Half the surface area (zero for the empty box).
+    #[inline]
+    pub fn half_area(&self) -> f32 {
+        let e = self.extent();
+        e.x * e.y + e.y * e.z + e.z * e.x
+    }
+
     /// Centre point.
     #[inline]
     pub fn center(&self) -> Vec3 {

@@ -77,6 +77,7 @@ use crate::math;
 use crate::render::RenderSettings;
 use crate::sampling::{Divisor, Sampler, Strata, ceil_sqrt};
 use crate::scene::Scene;
+use crate::shadows::CellAnswer;
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
@@ -373,11 +374,11 @@ impl<'a> Integrator<'a> {
         self
     }
 
-    /// True when the shadow cells know that nothing blocks shadow rays from
-    /// `origin` to light `index`.
+    /// What the shadow cells know about shadow rays from `origin` to light
+    /// `index` ([`CellAnswer::Unknown`] with the cells off).
     #[inline]
-    fn shadow_clear(&self, index: usize, origin: Vec3) -> bool {
-        self.shadow_cells && self.scene.shadow_clear(index, origin)
+    fn shadow_cell(&self, index: usize, origin: Vec3) -> CellAnswer<'a> {
+        if self.shadow_cells { self.scene.shadow_cell(index, origin) } else { CellAnswer::Unknown }
     }
 
     /// Area-light samples at a hit whose contribution reaches the pixel
@@ -750,12 +751,13 @@ impl<'a> Integrator<'a> {
         for (index, light) in scene.lights.iter().enumerate() {
             if !light.is_area() {
                 if let Some(c) = light.sample(sp.p, Vec2::splat(0.5)).and_then(|ls| lobe.eval(sp, &ls)) {
-                    if self.shadow_clear(index, lobe.origin) {
+                    let cell = self.shadow_cell(index, lobe.origin);
+                    if cell.is_clear() {
                         total += c.0;
                         continue;
                     }
                     counts.shadow += 1;
-                    if !scene.occluded(&Ray::new(lobe.origin, c.1.dir), 0.0, c.1.dist * SHADOW_SHORTEN) {
+                    if !ShadowRay::new(lobe.origin, c.1.dir, c.1.dist).blocked(scene, &cell) {
                         total += c.0;
                     }
                 }
@@ -776,20 +778,21 @@ impl<'a> Integrator<'a> {
             let light_sampler = depth_sampler.child(index as u32);
             let n = self.light_samples_for(weight);
             let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
-            let clear = self.shadow_clear(index, lobe.origin);
+            let cell = self.shadow_cell(index, lobe.origin);
+            let clear = cell.is_clear();
             // With more than a handful of samples: the diffuse part exactly,
             // scaled by the fraction of it the samples find unblocked.
             if n > ADAPTIVE_TESTS as u32
                 && n <= RATIO_MAX as u32
                 && let Some(omega) = prepared.projected_solid_angle(sp.p, sp.ns, sp.ng)
             {
-                total += self.area_ratio(sp, &lobe, &area, omega, clear, counts);
+                total += self.area_ratio(sp, &lobe, &area, omega, &cell, counts);
                 continue;
             }
             let sum =
                 if !clear && self.adaptive_shadows && (ADAPTIVE_TESTS as u32) < n && n <= ADAPTIVE_MAX as u32
                 {
-                    self.area_adaptive(sp, &lobe, &area, counts)
+                    self.area_adaptive(sp, &lobe, &area, &cell, counts)
                 } else {
                     // Every sample traced (or, with nothing in the way, none
                     // needs to be): the same sum.
@@ -812,7 +815,7 @@ impl<'a> Integrator<'a> {
                             continue;
                         }
                         counts.shadow += 1;
-                        if !scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+                        if !ShadowRay::new(lobe.origin, ls.dir, ls.dist).blocked(scene, &cell) {
                             sum += c;
                         }
                     }
@@ -840,12 +843,18 @@ impl<'a> Integrator<'a> {
     /// Which corner-stratum centres of `light` (bit `k`:
     /// [`Integrator::corner_points`]`[k]`) are hidden from `origin`, one
     /// shadow ray each (all four hidden if the light has no such points).
-    fn corners_blocked(&self, origin: Vec3, light: &AreaSampler, counts: &mut RayCounts) -> u8 {
+    fn corners_blocked(
+        &self,
+        origin: Vec3,
+        light: &AreaSampler,
+        cell: &CellAnswer,
+        counts: &mut RayCounts,
+    ) -> u8 {
         let Some(points) = self.corner_points(light) else { return 15 };
         let mut hidden = 0u8;
         for (k, &q) in points.iter().enumerate() {
             counts.shadow += 1;
-            if ShadowRay::towards(origin, q).blocked(self.scene) {
+            if ShadowRay::towards(origin, q).blocked(self.scene, cell) {
                 hidden |= 1 << k;
             }
         }
@@ -881,6 +890,7 @@ impl<'a> Integrator<'a> {
         sp: &SurfacePoint,
         lobe: &Lobe,
         area: &AreaSamples,
+        cell: &CellAnswer,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let scene = self.scene;
@@ -902,7 +912,7 @@ impl<'a> Integrator<'a> {
                 continue;
             };
             counts.shadow += 1;
-            if scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+            if ShadowRay::new(lobe.origin, ls.dir, ls.dist).blocked(scene, cell) {
                 blocked += 1;
             } else {
                 visible += 1;
@@ -928,7 +938,7 @@ impl<'a> Integrator<'a> {
                 sum += c;
             } else {
                 counts.shadow += 1;
-                if !scene.occluded(&Ray::new(lobe.origin, ls.dir), 0.0, ls.dist * SHADOW_SHORTEN) {
+                if !ShadowRay::new(lobe.origin, ls.dir, ls.dist).blocked(scene, cell) {
                     sum += c;
                 }
             }
@@ -967,13 +977,14 @@ impl Integrator<'_> {
         lobe: &Lobe,
         area: &AreaSamples,
         omega: f32,
-        clear: bool,
+        cell: &CellAnswer,
         counts: &mut RayCounts,
     ) -> Vec3 {
         let light = area.light;
         let radiance = light.radiance();
         let unshadowed = lobe.diffuse * radiance * omega;
         let highlight = lobe.has_spec && !lobe.highlight_negligible(sp, light);
+        let clear = cell.is_clear();
         if clear && !highlight {
             return unshadowed;
         }
@@ -985,7 +996,7 @@ impl Integrator<'_> {
         let mut visible = all;
         let mut hidden = 0u8;
         if !clear && self.adaptive_shadows {
-            hidden = self.corners_blocked(lobe.origin, light, counts);
+            hidden = self.corners_blocked(lobe.origin, light, cell, counts);
             if hidden == 0 {
                 if !highlight {
                     return unshadowed;
@@ -1011,7 +1022,8 @@ impl Integrator<'_> {
                         Some(k) => hidden & (1 << k) != 0,
                         None => {
                             counts.shadow += 1;
-                            ShadowRay::new(lobe.origin, samples.dirs[j], samples.dists[j]).blocked(self.scene)
+                            ShadowRay::new(lobe.origin, samples.dirs[j], samples.dists[j])
+                                .blocked(self.scene, cell)
                         }
                     };
                 if blocked {
@@ -1235,9 +1247,11 @@ impl ShadowRay {
         Self::new(origin, d / dist, dist)
     }
 
+    /// Whether anything blocks the ray; `cell` is what the shadow cells
+    /// know about rays from its origin to its light.
     #[inline(always)]
-    fn blocked(&self, scene: &Scene) -> bool {
-        scene.occluded(&self.ray, 0.0, self.t_max)
+    fn blocked(&self, scene: &Scene, cell: &CellAnswer) -> bool {
+        cell.occluded(&scene.bvh, &self.ray, 0.0, self.t_max)
     }
 }
 

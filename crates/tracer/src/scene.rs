@@ -10,7 +10,7 @@ use crate::geometry::{Aabb, Ray};
 use crate::lights::Light;
 use crate::materials::Material;
 use crate::render::RenderSettings;
-use crate::shadows::ShadowCells;
+use crate::shadows::{CellAnswer, ShadowCells};
 use crate::shapes::{Hit, Triangle};
 use crate::textures::Texture;
 use glam::{Vec2, Vec3};
@@ -123,6 +123,16 @@ impl Scene {
     #[inline(always)]
     pub fn shadow_clear(&self, light: usize, origin: Vec3) -> bool {
         self.shadow_cells.clear(&self.bvh, light, origin)
+    }
+
+    /// What the shadow cells know about shadow rays from `origin` to light
+    /// `light` that stop short of it: nothing can block them, only the
+    /// triangles below a few subtrees can, or not known.
+    /// [`CellAnswer::occluded`] answers each such ray (pass it
+    /// [`Scene::bvh`]). See [`crate::shadows`].
+    #[inline(always)]
+    pub fn shadow_cell(&self, light: usize, origin: Vec3) -> CellAnswer<'_> {
+        self.shadow_cells.lookup(&self.bvh, light, origin)
     }
 
     /// Fills the shadow cells around every surface now, in parallel, rather

@@ -7,7 +7,10 @@
 //! can block *any* segment from inside the cell to the light (shaft culling,
 //! see [`crate::bvh::Shaft`]). Where nothing can — the common case — every
 //! shadow ray from that cell to that light is known to reach it without
-//! tracing it; elsewhere rays traverse the BVH as before.
+//! tracing it. Elsewhere a cell keeps an *entry node* ([`crate::bvh::ShaftEntry`]):
+//! up to eight subtrees of the BVH that hold every triangle overlapping its
+//! shaft, so that its shadow rays skip the upper levels of the tree and the
+//! subtrees off to the side, and start their walk there.
 //!
 //! **Exact.** A cell is clear only when no triangle lies in the shaft of
 //! segments from the cell to the light (widened by a margin for rounding),
@@ -21,20 +24,22 @@
 //! ([`ShadowCells::fill_surface_cells`], which a cluster's slaves call when
 //! they load a scene, so that each slave does not refill cells for the tiles
 //! it happens to get), and then serves every frame: the scene is static while
-//! the camera moves. A cell is two bytes (an atomic): unfilled, not clear, or
-//! clear with the index of its set of surface planes in a small per-light
-//! table (a room has few distinct ones: the floor, each wall, their corners),
-//! so a light's grid stays in the caches. A 320×240 frame of the paper scene
+//! the camera moves. A cell is two bytes (an atomic): unfilled, clear with
+//! the index of its set of surface planes in a small per-light table (a room
+//! has few distinct ones: the floor, each wall, their corners), or not clear
+//! with the index of its entry node (224 bytes, allocated as cells fill), so
+//! a light's grid stays in the caches. A 320×240 frame of the paper scene
 //! fills about 10,000 cells over its two lights; filling around every surface
 //! takes 16,000 (10 ms on one thread).
 
-use crate::bvh::{Bvh, Shaft, SurfacePlanes};
+use crate::bvh::{Bvh, Shaft, ShaftEntry, SurfacePlanes};
 use crate::geometry::Aabb;
+use crate::geometry::Ray;
 use crate::lights::Light;
 use crate::shapes::Triangle;
 use glam::Vec3;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU16, Ordering};
+use std::sync::atomic::{AtomicU16, AtomicUsize, Ordering};
 use std::sync::{Mutex, OnceLock};
 
 /// Cells a light's grid aims at (the cell size is chosen so that the scene's
@@ -53,10 +58,49 @@ pub const MAX_PLANE_SETS: usize = 1024;
 
 /// A cell not filled yet.
 const UNFILLED: u16 = 0;
-/// A cell that is not clear.
+/// A cell that is not clear, without an entry node.
 const NOT_CLEAR: u16 = 1;
 /// A clear cell holds this plus the index of its plane set.
 const FIRST_SET: u16 = 2;
+/// A cell that is not clear holds this plus the index of its entry node.
+const FIRST_ENTRY: u16 = FIRST_SET + MAX_PLANE_SETS as u16;
+/// Entry nodes per light.
+const MAX_ENTRIES: usize = (u16::MAX - FIRST_ENTRY) as usize + 1;
+/// Entry nodes are stored in chunks of this many, allocated as cells fill.
+const ENTRY_CHUNK: usize = 256;
+
+/// What a light's shadow cell knows about the shadow rays from a point to
+/// the light ([`ShadowCells::lookup`]).
+#[derive(Clone, Copy, Debug)]
+pub enum CellAnswer<'a> {
+    /// Nothing can block them.
+    Clear,
+    /// Only triangles below this entry node can.
+    Entry(&'a ShaftEntry),
+    /// Not known: search the whole tree.
+    Unknown,
+}
+
+impl CellAnswer<'_> {
+    /// True for [`CellAnswer::Clear`].
+    #[inline(always)]
+    pub fn is_clear(&self) -> bool {
+        matches!(self, CellAnswer::Clear)
+    }
+
+    /// Whether anything blocks `ray` between `t_min` and `t_max`: a shadow
+    /// ray from the point this answer was looked up for, stopping short of
+    /// the light. [`Bvh::occluded`]'s answer, by the shortest walk the cell
+    /// allows.
+    #[inline(always)]
+    pub fn occluded(&self, bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        match self {
+            CellAnswer::Clear => false,
+            CellAnswer::Entry(entry) => bvh.occluded_from(entry, ray, t_min, t_max),
+            CellAnswer::Unknown => bvh.occluded(ray, t_min, t_max),
+        }
+    }
+}
 
 /// Per-light grids of shadow cells over a scene (see the module docs).
 #[derive(Debug, Default)]
@@ -90,6 +134,11 @@ struct LightCells {
     sets: Vec<OnceLock<SurfacePlanes>>,
     /// Number of `sets` filled; held while adding one.
     adding: Mutex<usize>,
+    /// The entry nodes of cells that are not clear, in chunks of
+    /// [`ENTRY_CHUNK`], in the order the cells filled.
+    entries: Vec<OnceLock<Box<[OnceLock<ShaftEntry>]>>>,
+    /// Number of `entries` slots taken.
+    entered: AtomicUsize,
 }
 
 impl LightCells {
@@ -100,7 +149,32 @@ impl LightCells {
             cells: (0..cells).map(|_| AtomicU16::new(UNFILLED)).collect(),
             sets: (0..if cells > 0 { MAX_PLANE_SETS } else { 0 }).map(|_| OnceLock::new()).collect(),
             adding: Mutex::new(0),
+            entries: (0..if cells > 0 { MAX_ENTRIES.div_ceil(ENTRY_CHUNK) } else { 0 })
+                .map(|_| OnceLock::new())
+                .collect(),
+            entered: AtomicUsize::new(0),
         }
+    }
+
+    /// The cell value for a cell that is not clear, with entry node `entry`
+    /// ([`NOT_CLEAR`] when the table is full). Two threads filling the same
+    /// cell each store one; either gives the same answers.
+    fn value_of_entry(&self, entry: ShaftEntry) -> u16 {
+        let slot = self.entered.fetch_add(1, Ordering::Relaxed);
+        if slot >= MAX_ENTRIES {
+            return NOT_CLEAR;
+        }
+        let Some(chunk) = self.entries.get(slot / ENTRY_CHUNK) else { return NOT_CLEAR };
+        let chunk = chunk.get_or_init(|| (0..ENTRY_CHUNK).map(|_| OnceLock::new()).collect());
+        let _ = chunk[slot % ENTRY_CHUNK].set(entry);
+        FIRST_ENTRY + slot as u16
+    }
+
+    /// The entry node of cell value `value` (at least [`FIRST_ENTRY`]).
+    #[inline(always)]
+    fn entry(&self, value: u16) -> Option<&ShaftEntry> {
+        let slot = (value - FIRST_ENTRY) as usize;
+        self.entries.get(slot / ENTRY_CHUNK)?.get()?.get(slot % ENTRY_CHUNK)?.get()
     }
 
     /// The cell value for a clear cell with surface planes `planes`
@@ -181,20 +255,33 @@ impl ShadowCells {
         }
     }
 
-    /// True when no shadow ray from `origin` to light `light` (the index
-    /// into the scene's lights) can be blocked, provided it stops short of
-    /// the light (see [`Bvh::shaft_clear`]); false when that is not known.
-    /// Fills the cell on first use.
+    /// What the cell around `origin` knows about shadow rays from `origin`
+    /// to light `light` (the index into the scene's lights) that stop short
+    /// of the light (see [`Bvh::shaft_clear`]). Fills the cell on first use.
     #[inline(always)]
-    pub fn clear(&self, bvh: &Bvh, light: usize, origin: Vec3) -> bool {
-        let Some(grid) = self.lights.get(light) else { return false };
-        let Some(index) = self.cell_of(origin) else { return false };
-        let Some(cell) = grid.cells.get(index) else { return false };
+    pub fn lookup(&self, bvh: &Bvh, light: usize, origin: Vec3) -> CellAnswer<'_> {
+        let Some(grid) = self.lights.get(light) else { return CellAnswer::Unknown };
+        let Some(index) = self.cell_of(origin) else { return CellAnswer::Unknown };
+        let Some(cell) = grid.cells.get(index) else { return CellAnswer::Unknown };
         let mut value = cell.load(Ordering::Acquire);
         if value == UNFILLED {
             value = self.fill(bvh, grid, index);
         }
-        value >= FIRST_SET && grid.sets[(value - FIRST_SET) as usize].get().is_some_and(|p| p.admit(origin))
+        if value >= FIRST_ENTRY {
+            grid.entry(value).map_or(CellAnswer::Unknown, CellAnswer::Entry)
+        } else if value >= FIRST_SET
+            && grid.sets[(value - FIRST_SET) as usize].get().is_some_and(|p| p.admit(origin))
+        {
+            CellAnswer::Clear
+        } else {
+            CellAnswer::Unknown
+        }
+    }
+
+    /// True when no shadow ray from `origin` to light `light` can be
+    /// blocked ([`ShadowCells::lookup`] finds the cell clear).
+    pub fn clear(&self, bvh: &Bvh, light: usize, origin: Vec3) -> bool {
+        self.lookup(bvh, light, origin).is_clear()
     }
 
     /// Index of the cell containing `p`, if `p` lies in the grid.
@@ -222,24 +309,27 @@ impl ShadowCells {
     #[cold]
     #[inline(never)]
     fn fill(&self, bvh: &Bvh, grid: &LightCells, index: usize) -> u16 {
-        let value = match self.clear_cell(bvh, grid, index) {
-            Some(planes) => grid.value_of(planes),
+        let value = match self.shaft(grid, index) {
+            Some(shaft) => match bvh.shaft_clear(&shaft, &grid.points, self.plane_margin) {
+                Some(planes) => grid.value_of(planes),
+                None => bvh.shaft_entry(&shaft).map_or(NOT_CLEAR, |e| grid.value_of_entry(e)),
+            },
             None => NOT_CLEAR,
         };
-        // Release: the plane set is in the table before the cell points at it.
+        // Release: the plane set or entry node is in its table before the
+        // cell points at it.
         grid.cells[index].store(value, Ordering::Release);
         value
     }
 
-    /// Whether cell `index` is clear for `grid`'s light (see [`ShadowCells::clear`]).
-    fn clear_cell(&self, bvh: &Bvh, grid: &LightCells, index: usize) -> Option<SurfacePlanes> {
+    /// The shaft of segments from cell `index` to `grid`'s light.
+    fn shaft(&self, grid: &LightCells, index: usize) -> Option<Shaft> {
         let (nx, ny) = (self.dims[0] as usize, self.dims[1] as usize);
         let c = Vec3::new((index % nx) as f32, ((index / nx) % ny) as f32, (index / (nx * ny)) as f32);
         // The cell, widened so that points `cell_of` rounds into it lie inside.
         let lo = self.origin + c * self.size - Vec3::splat(self.shaft_margin);
         let hi = self.origin + (c + Vec3::ONE) * self.size + Vec3::splat(self.shaft_margin);
-        let shaft = Shaft::between(&Aabb { min: lo, max: hi }, &grid.bounds, self.shaft_margin)?;
-        bvh.shaft_clear(&shaft, &grid.points, self.plane_margin)
+        Shaft::between(&Aabb { min: lo, max: hi }, &grid.bounds, self.shaft_margin)
     }
 
     /// Fills, in parallel, every light's cells that a triangle's box

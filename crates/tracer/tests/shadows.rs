@@ -1,12 +1,15 @@
 //! Shadow cells (`isin_tracer::shadows`) on the shipped scenes: wherever a
 //! cell says nothing can block the shadow rays from a shading point to a
-//! light, tracing those rays through the BVH must find nothing either.
+//! light, tracing those rays through the BVH must find nothing either; and
+//! where it offers an entry node, a walk from there must answer every
+//! shadow ray as a walk from the root does.
 
 mod common;
 
 use common::Rng;
 use isin_tracer::geometry::Ray;
 use isin_tracer::integrator::SurfacePoint;
+use isin_tracer::shadows::CellAnswer;
 use isin_tracer::{AssetSource, Scene, Vec2, Vec3, load_scene};
 use std::path::{Path, PathBuf};
 
@@ -91,6 +94,42 @@ fn clear_cells_never_hide_a_blocked_shadow_ray_in_the_shipped_scenes() {
         assert!(clear * 3 > lookups, "{name}: only {clear} of {lookups} camera lookups are clear");
         assert!(checked > 10_000 && blocked > 1_000, "{name}: {checked} checked, {blocked} blocked");
         assert!(scene.shadow_cells_filled() > 100);
+    }
+}
+
+#[test]
+fn entry_nodes_answer_shadow_rays_as_the_whole_tree_does() {
+    for name in ["paper.toml", "cornell.toml"] {
+        let scene = scene(name);
+        let mut rng = Rng(23);
+        let (mut entries, mut blocked, mut rays) = (0, 0, 0);
+        for (sp, _) in shading_points(&scene, &mut rng) {
+            let origin = sp.p + sp.ng * sp.eps;
+            for (index, light) in scene.lights.iter().enumerate() {
+                let cell = scene.shadow_cell(index, origin);
+                if !matches!(cell, CellAnswer::Entry(_)) {
+                    continue;
+                }
+                entries += 1;
+                for _ in 0..8 {
+                    let u = Vec2::new(rng.next_f32(), rng.next_f32());
+                    let Some(ls) = light.sample(sp.p, u) else { continue };
+                    let ray = Ray::new(origin, ls.dir);
+                    let t_max = ls.dist * SHADOW_SHORTEN;
+                    let expected = scene.occluded(&ray, 0.0, t_max);
+                    assert_eq!(
+                        cell.occluded(&scene.bvh, &ray, 0.0, t_max),
+                        expected,
+                        "{name}, light {index}, {ray:?}"
+                    );
+                    rays += 1;
+                    blocked += expected as usize;
+                }
+            }
+        }
+        println!("{name}: {entries} lookups found an entry node, {rays} rays, {blocked} blocked");
+        assert!(entries > 500 && rays > 4_000, "{name}: {entries} entry nodes, {rays} rays");
+        assert!(blocked * 10 > rays && blocked < rays, "{name}: {blocked} of {rays} blocked");
     }
 }
 

@@ -45,7 +45,7 @@ mod sweep;
 mod wide;
 
 pub use packet8::LANES as PACKET_LANES;
-pub use shaft::{SHAFT_PLANES, SURFACE_PLANES, Shaft, SurfacePlanes};
+pub use shaft::{SHAFT_PLANES, SURFACE_PLANES, Shaft, ShaftEntry, SurfacePlanes};
 
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::{Hit, Triangle};
@@ -282,6 +282,21 @@ impl Bvh {
     /// rounding, in world units.
     pub fn shaft_clear(&self, shaft: &Shaft, light: &[Vec3], margin: f32) -> Option<SurfacePlanes> {
         shaft::shaft_clear(self, shaft, light, margin)
+    }
+
+    /// An entry node for shadow rays inside `shaft`: up to eight subtrees
+    /// that hold every triangle overlapping it (`None` for an empty tree).
+    pub fn shaft_entry(&self, shaft: &Shaft) -> Option<ShaftEntry> {
+        shaft::shaft_entry(self, shaft)
+    }
+
+    /// [`Bvh::occluded`] for a ray that lies inside the shaft `entry` was
+    /// made for (up to `t_max`): the same answer, from a walk that starts at
+    /// `entry`'s subtrees instead of the root. The triangles left out of
+    /// them lie outside the shaft, so the ray cannot hit them.
+    #[inline]
+    pub fn occluded_from(&self, entry: &ShaftEntry, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        wide::occluded_from(self, &entry.0, ray, t_min, t_max)
     }
 
     /// Chooses the SIMD box test (the default, where the machine has one) or

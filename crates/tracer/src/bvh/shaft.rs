@@ -7,7 +7,9 @@
 //! projections, the edges of the 2-D hull of the two rectangles that connect
 //! one to the other), and [`Bvh::shaft_clear`] walks the tree with it, looking
 //! for a triangle it cannot rule out. When there is none, no shadow ray from
-//! inside `A` to the light can hit anything.
+//! inside `A` to the light can hit anything. When there is, [`Bvh::shaft_entry`]
+//! gathers the few subtrees that hold every triangle overlapping the shaft,
+//! where such rays can start their walk instead of at the root.
 //!
 //! **Surfaces the rays start from.** A box around a floor point contains the
 //! floor, which would put the floor on every list. A triangle whose plane has
@@ -29,7 +31,7 @@
 
 use super::Bvh;
 use super::blocks::TriBlock;
-use super::wide::{LEAF, NodeRef, Stack, leaf_range};
+use super::wide::{LEAF, NodeRef, Stack, W, WideNode, leaf_range};
 use crate::geometry::Aabb;
 use glam::{Vec2, Vec3};
 
@@ -214,6 +216,71 @@ impl SurfacePlanes {
     }
 }
 
+/// A shadow cell's entry node into the tree ([`Bvh::shaft_entry`]): up to
+/// eight subtrees (or leaves) of the BVH, with their boxes, that together
+/// hold every triangle that overlaps a shaft. A shadow ray inside the shaft
+/// starts its walk here instead of at the root ([`Bvh::occluded_from`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShaftEntry(pub(super) WideNode);
+
+/// See [`Bvh::shaft_entry`].
+pub(super) fn shaft_entry(bvh: &Bvh, shaft: &Shaft) -> Option<ShaftEntry> {
+    bvh.wide.first()?;
+    // The frontier: (child word, box) of subtrees that overlap the shaft.
+    let mut frontier: Vec<(u32, Aabb)> = Vec::with_capacity(W);
+    let children = |word: u32, out: &mut Vec<(u32, Aabb)>| {
+        let node = NodeRef::of(bvh, word);
+        for (k, &child) in node.children().iter().enumerate() {
+            if !shaft.overlaps(node, k) {
+                continue;
+            }
+            if child & LEAF != 0 {
+                // A leaf whose triangles all lie outside the shaft is left out.
+                let (first, count) = leaf_range(child);
+                let block = &bvh.blocks[(first / 4) as usize];
+                if (first % 4..first % 4 + count).all(|l| shaft.excludes(&block.get(l as usize).vertices())) {
+                    continue;
+                }
+            }
+            let b = |a: usize| node.bound(a, k);
+            out.push((child, Aabb { min: Vec3::new(b(0), b(1), b(2)), max: Vec3::new(b(3), b(4), b(5)) }));
+        }
+    };
+    children(0, &mut frontier);
+    // Open the subtree with the largest box while its overlapping children
+    // fit in the remaining slots (ties: the first), as the collapse does.
+    let mut expanded = Vec::with_capacity(W);
+    let mut closed = 0u32;
+    loop {
+        let best = frontier
+            .iter()
+            .enumerate()
+            .filter(|&(i, &(word, _))| word & LEAF == 0 && closed & (1 << i) == 0)
+            .max_by(|a, b| a.1.1.half_area().total_cmp(&b.1.1.half_area()).then(b.0.cmp(&a.0)))
+            .map(|(i, _)| i);
+        let Some(i) = best else { break };
+        expanded.clear();
+        children(frontier[i].0, &mut expanded);
+        if frontier.len() - 1 + expanded.len() > W {
+            closed |= 1 << i;
+            continue;
+        }
+        frontier.remove(i);
+        frontier.extend_from_slice(&expanded);
+        // Indices moved: reconsider every subtree.
+        closed = 0;
+        if frontier.is_empty() {
+            break;
+        }
+    }
+    let mut node = WideNode::EMPTY;
+    for (k, &(word, b)) in frontier.iter().enumerate() {
+        node.set_box(k, &b);
+        node.child[k] = word;
+    }
+    Some(ShaftEntry(node))
+}
+
 /// See [`Bvh::shaft_clear`].
 pub(super) fn shaft_clear(bvh: &Bvh, shaft: &Shaft, light: &[Vec3], margin: f32) -> Option<SurfacePlanes> {
     let mut planes = SurfacePlanes::default();
@@ -391,6 +458,36 @@ mod tests {
         let high = Aabb { min: Vec3::new(0.6, 3.0, 0.6), max: Vec3::new(0.9, 3.3, 0.9) };
         let planes = bvh.shaft_clear(&Shaft::between(&high, &lb, 1e-5).unwrap(), &lamp, 1e-5).expect("clear");
         assert!(planes.is_empty());
+    }
+
+    #[test]
+    fn a_walk_from_the_entry_node_answers_as_one_from_the_root() {
+        let (bvh, lamp) = room();
+        let lb = lamp_box(&lamp);
+        let mut r = 0x2545_f491_4f6c_dd1du64;
+        let mut f = || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            (r >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut blocked = 0;
+        // A cell under the wall (partly shadowed) and one far from it.
+        for (x, z) in [(-0.3, -0.2), (6.0, 6.0)] {
+            let cell = Aabb { min: Vec3::new(x, 0.0, z), max: Vec3::new(x + 0.5, 0.5, z + 0.5) };
+            let entry = bvh.shaft_entry(&Shaft::between(&cell, &lb, 1e-5).unwrap()).expect("entry");
+            for _ in 0..2000 {
+                let o = cell.min + (cell.max - cell.min) * Vec3::new(f(), f(), f());
+                let q = lb.min + (lb.max - lb.min) * Vec3::new(f(), 0.0, f());
+                let d = q - o;
+                let ray = crate::geometry::Ray::new(o, d.normalize());
+                let t_max = d.length() * (1.0 - 1e-3);
+                let expected = bvh.occluded(&ray, 0.0, t_max);
+                assert_eq!(bvh.occluded_from(&entry, &ray, 0.0, t_max), expected, "{ray:?}");
+                blocked += expected as usize;
+            }
+        }
+        assert!(blocked > 100, "{blocked} blocked");
     }
 
     #[test]

@@ -115,7 +115,7 @@ const _: () = assert!(std::mem::size_of::<WideNode>() == 224);
 const _: () = assert!(std::mem::size_of::<NarrowNode>() == 128);
 
 impl<const N: usize> Slots<N> {
-    const EMPTY: Self = Slots {
+    pub(super) const EMPTY: Self = Slots {
         bounds: [
             [f32::INFINITY; N],
             [f32::INFINITY; N],
@@ -126,6 +126,14 @@ impl<const N: usize> Slots<N> {
         ],
         child: [UNUSED; N],
     };
+
+    /// Sets slot `k`'s box.
+    pub(super) fn set_box(&mut self, k: usize, b: &Aabb) {
+        for a in 0..3 {
+            self.bounds[a][k] = b.min[a];
+            self.bounds[a + 3][k] = b.max[a];
+        }
+    }
 
     fn set(&mut self, k: usize, n: &Node) {
         for a in 0..3 {
@@ -983,30 +991,37 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
 
 /// Any hit (see [`Bvh::occluded`]).
 pub(super) fn occluded(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    match bvh.wide.first() {
+        Some(root) => occluded_from(bvh, root, ray, t_min, t_max),
+        None => false,
+    }
+}
+
+/// Any hit in the subtrees that the slots of `start` point to (the root, or
+/// a shadow cell's entry node, see [`super::ShaftEntry`]).
+#[inline(always)]
+pub(super) fn occluded_from(bvh: &Bvh, start: &WideNode, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     #[cfg(target_arch = "x86_64")]
     if bvh.avx_active() {
         // SAFETY: `avx_active` checked that this CPU has AVX.
-        return unsafe { occluded_avx(bvh, ray, t_min, t_max) };
+        return unsafe { occluded_avx(bvh, start, ray, t_min, t_max) };
     }
-    occluded_with::<false>(bvh, ray, t_min, t_max)
+    occluded_with::<false>(bvh, start, ray, t_min, t_max)
 }
 
-/// [`occluded`] compiled for AVX.
+/// [`occluded_from`] compiled for AVX.
 ///
 /// # Safety
 /// The CPU must support AVX.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
-unsafe fn occluded_avx(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
-    occluded_with::<true>(bvh, ray, t_min, t_max)
+unsafe fn occluded_avx(bvh: &Bvh, start: &WideNode, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+    occluded_with::<true>(bvh, start, ray, t_min, t_max)
 }
 
-/// [`occluded`] with the AVX box test when `AVX` is set (see [`entries`]).
+/// [`occluded_from`] with the AVX box test when `AVX` is set (see [`entries`]).
 #[inline(always)]
-fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
-    if bvh.wide.is_empty() {
-        return false;
-    }
+fn occluded_with<const AVX: bool>(bvh: &Bvh, start: &WideNode, ray: &Ray, t_min: f32, t_max: f32) -> bool {
     let simd = !bvh.scalar_only;
     let r = WideRay::new(ray);
     let lr = LeafRay::new(ray, simd);
@@ -1018,30 +1033,8 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
     // light above the bunny and the dragon, but cost 2–10 % of the wall time
     // of whole frames (paper, bunny and 1.6M dragon scenes, paired runs).
     let mut stack = Stack::<u32>::new();
-    let mut current = 0u32;
+    let mut node = start;
     loop {
-        if current & NARROW != 0 {
-            // Only leaves below (see `NarrowNode`).
-            let node = &bvh.narrow[(current & !NARROW) as usize];
-            let (_, mut mask) = entries4(node, &r, t_min, t_max, AVX || simd);
-            while mask != 0 {
-                let k = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let (first, count) = leaf_range(node.child[k]);
-                if lr.hits(blocks, first, count, t_min, t_max).mask != 0 {
-                    return true;
-                }
-            }
-            current = match stack.pop() {
-                Some(c) => c,
-                None => return false,
-            };
-            if let Some(next) = stack.peek().filter(|_| bvh.prefetch) {
-                prefetch_node(bvh, next);
-            }
-            continue;
-        }
-        let node = &bvh.wide[current as usize];
         let (_, mask) = entries::<AVX>(node, &r, t_min, t_max, simd);
         let leaf = leaf_bits::<AVX>(node);
         let (mut leaves, mut inner) = (mask & leaf, mask & !leaf);
@@ -1063,13 +1056,34 @@ fn occluded_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32) 
                 stack.push(node.child[k]);
             }
         }
-        current = match next.or_else(|| stack.pop()) {
+        let mut current = match next.or_else(|| stack.pop()) {
             Some(c) => c,
             None => return false,
         };
         if let Some(next) = stack.peek().filter(|_| bvh.prefetch) {
             prefetch_node(bvh, next);
         }
+        while current & NARROW != 0 {
+            // Only leaves below (see `NarrowNode`).
+            let node = &bvh.narrow[(current & !NARROW) as usize];
+            let (_, mut mask) = entries4(node, &r, t_min, t_max, AVX || simd);
+            while mask != 0 {
+                let k = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let (first, count) = leaf_range(node.child[k]);
+                if lr.hits(blocks, first, count, t_min, t_max).mask != 0 {
+                    return true;
+                }
+            }
+            current = match stack.pop() {
+                Some(c) => c,
+                None => return false,
+            };
+            if let Some(next) = stack.peek().filter(|_| bvh.prefetch) {
+                prefetch_node(bvh, next);
+            }
+        }
+        node = &bvh.wide[current as usize];
     }
 }
 
