@@ -77,7 +77,7 @@ use crate::math;
 use crate::render::RenderSettings;
 use crate::sampling::{Divisor, Sampler, Strata, ceil_sqrt};
 use crate::scene::Scene;
-use crate::shadows::CellAnswer;
+use crate::shadows::{CellAnswer, CellIndex};
 use crate::shapes::Hit;
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
@@ -374,11 +374,11 @@ impl<'a> Integrator<'a> {
         self
     }
 
-    /// What the shadow cells know about shadow rays from `origin` to light
-    /// `index` ([`CellAnswer::Unknown`] with the cells off).
+    /// What the shadow cells know about shadow rays from `origin` (in cell
+    /// `cell`) to light `index` ([`CellAnswer::Unknown`] with the cells off).
     #[inline]
-    fn shadow_cell(&self, index: usize, origin: Vec3) -> CellAnswer<'a> {
-        if self.shadow_cells { self.scene.shadow_cell(index, origin) } else { CellAnswer::Unknown }
+    fn shadow_cell(&self, index: usize, cell: CellIndex, origin: Vec3) -> CellAnswer<'a> {
+        if self.shadow_cells { self.scene.shadow_cell_in(index, cell, origin) } else { CellAnswer::Unknown }
     }
 
     /// Area-light samples at a hit whose contribution reaches the pixel
@@ -748,10 +748,12 @@ impl<'a> Integrator<'a> {
         let depth_sampler = sample.pixel.child(depth);
         let first = sample.index.wrapping_mul(self.light_samples);
         let mut total = Vec3::ZERO;
+        // The shadow cell around the point, shared by the lights' grids.
+        let at = if self.shadow_cells { scene.shadow_cell_index(lobe.origin) } else { CellIndex::default() };
         for (index, light) in scene.lights.iter().enumerate() {
             if !light.is_area() {
                 if let Some(c) = light.sample(sp.p, Vec2::splat(0.5)).and_then(|ls| lobe.eval(sp, &ls)) {
-                    let cell = self.shadow_cell(index, lobe.origin);
+                    let cell = self.shadow_cell(index, at, lobe.origin);
                     if cell.is_clear() {
                         total += c.0;
                         continue;
@@ -778,7 +780,7 @@ impl<'a> Integrator<'a> {
             let light_sampler = depth_sampler.child(index as u32);
             let n = self.light_samples_for(weight);
             let area = AreaSamples { light: prepared, sampler: light_sampler, first, n };
-            let cell = self.shadow_cell(index, lobe.origin);
+            let cell = self.shadow_cell(index, at, lobe.origin);
             let clear = cell.is_clear();
             // With more than a handful of samples: the diffuse part exactly,
             // scaled by the fraction of it the samples find unblocked.

@@ -10,7 +10,7 @@ use crate::geometry::{Aabb, Ray};
 use crate::lights::Light;
 use crate::materials::Material;
 use crate::render::RenderSettings;
-use crate::shadows::{CellAnswer, ShadowCells};
+use crate::shadows::{CellAnswer, CellIndex, ShadowCells};
 use crate::shapes::{Hit, Triangle};
 use crate::textures::Texture;
 use glam::{Vec2, Vec3};
@@ -133,6 +133,19 @@ impl Scene {
     #[inline(always)]
     pub fn shadow_cell(&self, light: usize, origin: Vec3) -> CellAnswer<'_> {
         self.shadow_cells.lookup(&self.bvh, light, origin)
+    }
+
+    /// The shadow cell around `origin`, the same for every light: for
+    /// [`Scene::shadow_cell_in`] when one point asks about several lights.
+    #[inline(always)]
+    pub fn shadow_cell_index(&self, origin: Vec3) -> CellIndex {
+        self.shadow_cells.cell(origin)
+    }
+
+    /// [`Scene::shadow_cell`] where `cell` is [`Scene::shadow_cell_index`]`(origin)`.
+    #[inline(always)]
+    pub fn shadow_cell_in(&self, light: usize, cell: CellIndex, origin: Vec3) -> CellAnswer<'_> {
+        self.shadow_cells.lookup_in(&self.bvh, light, cell, origin)
     }
 
     /// Fills the shadow cells around every surface now, in parallel, rather

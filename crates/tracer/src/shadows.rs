@@ -69,6 +69,10 @@ const MAX_ENTRIES: usize = (u16::MAX - FIRST_ENTRY) as usize + 1;
 /// Entry nodes are stored in chunks of this many, allocated as cells fill.
 const ENTRY_CHUNK: usize = 256;
 
+/// The cell around a point, in every light's grid ([`ShadowCells::cell`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CellIndex(Option<usize>);
+
 /// What a light's shadow cell knows about the shadow rays from a point to
 /// the light ([`ShadowCells::lookup`]).
 #[derive(Clone, Copy, Debug)]
@@ -260,8 +264,21 @@ impl ShadowCells {
     /// of the light (see [`Bvh::shaft_clear`]). Fills the cell on first use.
     #[inline(always)]
     pub fn lookup(&self, bvh: &Bvh, light: usize, origin: Vec3) -> CellAnswer<'_> {
+        self.lookup_in(bvh, light, self.cell(origin), origin)
+    }
+
+    /// The cell containing `origin`, the same for every light's grid (for
+    /// [`ShadowCells::lookup_in`]).
+    #[inline(always)]
+    pub fn cell(&self, origin: Vec3) -> CellIndex {
+        CellIndex(self.cell_of(origin))
+    }
+
+    /// [`ShadowCells::lookup`] where `cell` is [`ShadowCells::cell`]`(origin)`.
+    #[inline(always)]
+    pub fn lookup_in(&self, bvh: &Bvh, light: usize, cell: CellIndex, origin: Vec3) -> CellAnswer<'_> {
+        let Some(index) = cell.0 else { return CellAnswer::Unknown };
         let Some(grid) = self.lights.get(light) else { return CellAnswer::Unknown };
-        let Some(index) = self.cell_of(origin) else { return CellAnswer::Unknown };
         let Some(cell) = grid.cells.get(index) else { return CellAnswer::Unknown };
         let mut value = cell.load(Ordering::Acquire);
         if value == UNFILLED {

@@ -164,22 +164,35 @@ impl Shaft {
 
 /// The surfaces a clear shaft ([`Bvh::shaft_clear`]) left out: planes
 /// `n·x = d` with the light on their positive side.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfacePlanes {
-    /// `[n.x, n.y, n.z, d + margin]`: rays must start where `n·o` exceeds the last.
+    /// `[n.x, n.y, n.z, d + margin]`: rays must start where `n·o` exceeds the
+    /// last. Unused rows are [`SurfacePlanes::NONE`], which every finite
+    /// point clears, so [`SurfacePlanes::admit`] tests all rows.
     planes: [[f32; 4]; SURFACE_PLANES],
     /// Number of planes in use.
     count: u32,
 }
 
+impl Default for SurfacePlanes {
+    fn default() -> Self {
+        SurfacePlanes { planes: [Self::NONE; SURFACE_PLANES], count: 0 }
+    }
+}
+
 impl SurfacePlanes {
+    /// An unused row: `0·o > −∞` holds for every finite `o`.
+    const NONE: [f32; 4] = [0.0, 0.0, 0.0, f32::NEG_INFINITY];
+
     /// True when a shadow ray from `origin` is covered: the origin lies on
     /// the light's side of every surface left out, clear of the margin.
     #[inline(always)]
     pub fn admit(&self, origin: Vec3) -> bool {
-        self.planes[..self.count as usize]
+        // All rows, without branches (unused ones admit every finite point;
+        // a point that is not finite is never admitted).
+        self.planes
             .iter()
-            .all(|p| p[0] * origin.x + p[1] * origin.y + p[2] * origin.z > p[3])
+            .fold(true, |ok, p| ok & (p[0] * origin.x + p[1] * origin.y + p[2] * origin.z > p[3]))
     }
 
     /// Number of planes recorded.
