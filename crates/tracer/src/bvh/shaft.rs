@@ -388,6 +388,16 @@ mod tests {
     use super::*;
     use crate::shapes::Triangle;
 
+    /// Uniform numbers in [0, 1) from a xorshift generator seeded with `seed`.
+    fn uniform(mut r: u64) -> impl FnMut() -> f32 {
+        move || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            (r >> 40) as f32 / (1u64 << 24) as f32
+        }
+    }
+
     fn quad(c: [Vec3; 4]) -> [Triangle; 2] {
         [Triangle { v: [c[0], c[1], c[2]] }, Triangle { v: [c[0], c[2], c[3]] }]
     }
@@ -431,13 +441,7 @@ mod tests {
         let b = Aabb { min: Vec3::new(-1.0, 5.0, -1.0), max: Vec3::new(1.0, 5.0, 1.0) };
         let shaft = Shaft::between(&a, &b, 1e-5).unwrap();
         assert!(shaft.count >= 4, "connecting planes: {}", shaft.count);
-        let mut r = 0x1234_5678_9abc_def0u64;
-        let mut f = || {
-            r ^= r << 13;
-            r ^= r >> 7;
-            r ^= r << 17;
-            (r >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut f = uniform(0x1234_5678_9abc_def0u64);
         for _ in 0..10_000 {
             let p = a.min + (a.max - a.min) * Vec3::new(f(), f(), f());
             let q = b.min + (b.max - b.min) * Vec3::new(f(), f(), f());
@@ -477,13 +481,7 @@ mod tests {
     fn a_walk_from_the_entry_node_answers_as_one_from_the_root() {
         let (bvh, lamp) = room();
         let lb = lamp_box(&lamp);
-        let mut r = 0x2545_f491_4f6c_dd1du64;
-        let mut f = || {
-            r ^= r << 13;
-            r ^= r >> 7;
-            r ^= r << 17;
-            (r >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut f = uniform(0x2545_f491_4f6c_dd1du64);
         let mut blocked = 0;
         // A cell under the wall (partly shadowed) and one far from it.
         for (x, z) in [(-0.3, -0.2), (6.0, 6.0)] {
