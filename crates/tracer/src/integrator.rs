@@ -71,7 +71,7 @@
 
 use crate::bvh::PACKET_LANES;
 use crate::geometry::Ray;
-use crate::lights::{AreaSampler, LightSample};
+use crate::lights::{AreaSampler, LightSample, LightSamples4};
 use crate::materials::{Albedo, Material, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
@@ -79,7 +79,7 @@ use crate::sampling::{Divisor, Sampler, Strata, ceil_sqrt};
 use crate::scene::Scene;
 use crate::shadows::{CellAnswer, CellIndex};
 use crate::shapes::Hit;
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 use std::f32::consts::PI;
 
 /// Branches whose contribution to the pixel falls below this are not traced
@@ -1012,10 +1012,10 @@ impl Integrator<'_> {
         for (j, u) in us[..n].iter_mut().enumerate() {
             *u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
         }
-        let mut samples = RatioSamples::default();
+        let samples = RatioSamples::new(&us[..n], light, sp, lobe);
         if !clear && (hidden != 0 || !self.adaptive_shadows) {
-            for (j, &u) in us[..n].iter().enumerate() {
-                if !samples.eval(j, u, light, sp, lobe) {
+            for j in 0..n {
+                if samples.valid & (1 << j) == 0 {
                     continue;
                 }
                 let i = self.light_strata.rem(area.first.wrapping_add(j as u32));
@@ -1032,9 +1032,6 @@ impl Integrator<'_> {
                     visible &= !(1 << j);
                 }
             }
-        }
-        for (j, &u) in us[..n].iter().enumerate() {
-            samples.eval(j, u, light, sp, lobe);
         }
         let (valid, w, phong) = (samples.valid, &samples.w, &samples.phong);
         visible &= valid;
@@ -1059,7 +1056,7 @@ impl Integrator<'_> {
     }
 }
 
-/// The samples of [`Integrator::area_ratio`], each evaluated on first use.
+/// The samples of [`Integrator::area_ratio`], evaluated four at a time.
 #[derive(Default)]
 struct RatioSamples {
     /// Unshadowed irradiance times the receiver's cosine.
@@ -1069,31 +1066,83 @@ struct RatioSamples {
     /// Shadow ray direction and length.
     dirs: [Vec3; RATIO_MAX],
     dists: [f32; RATIO_MAX],
-    /// Samples evaluated, and those above both horizons.
-    done: u64,
+    /// Samples above both horizons.
     valid: u64,
 }
 
 impl RatioSamples {
-    /// Evaluates sample `j` at the point `u` of the unit square, once;
-    /// true when it lies above both horizons.
-    #[inline(always)]
-    fn eval(&mut self, j: usize, u: Vec2, light: &AreaSampler, sp: &SurfacePoint, lobe: &Lobe) -> bool {
-        let bit = 1u64 << j;
-        if self.done & bit == 0 {
-            self.done |= bit;
-            if let Some(ls) = light.sample(sp.p, u) {
-                let cos = sp.ns.dot(ls.dir);
-                if cos > 0.0 && sp.ng.dot(ls.dir) > 0.0 {
-                    self.valid |= bit;
-                    self.w[j] = ls.irradiance * cos;
-                    self.phong[j] = lobe.phong(ls.dir);
-                    self.dirs[j] = ls.dir;
-                    self.dists[j] = ls.dist;
+    /// Evaluates the light at the points `us` of the unit square (at most
+    /// [`RATIO_MAX`]), four lanes at a time ([`AreaSampler::sample4`]) with
+    /// the operations of [`Lobe::eval`], so each sample has the same bits as
+    /// when evaluated alone.
+    #[inline]
+    fn new(us: &[Vec2], light: &AreaSampler, sp: &SurfacePoint, lobe: &Lobe) -> Self {
+        let mut out = Self::default();
+        for (c, chunk) in us.chunks(4).enumerate() {
+            let (mut ux, mut uy) = ([0.0; 4], [0.0; 4]);
+            for (i, u) in chunk.iter().enumerate() {
+                (ux[i], uy[i]) = (u.x, u.y);
+            }
+            let live = (1u32 << chunk.len()) - 1;
+            match light.sample4(sp.p, Vec4::from_array(ux), Vec4::from_array(uy)) {
+                Some(ls) => out.put4(c * 4, &ls, live, light.radiance(), sp, lobe),
+                None => {
+                    for (i, &u) in chunk.iter().enumerate() {
+                        if let Some(ls) = light.sample(sp.p, u) {
+                            out.put1(c * 4 + i, &ls, sp, lobe);
+                        }
+                    }
                 }
             }
         }
-        self.valid & bit != 0
+        out
+    }
+
+    /// Stores lanes `live` of `ls` as samples `first..first + 4`.
+    #[inline(always)]
+    fn put4(
+        &mut self,
+        first: usize,
+        ls: &LightSamples4,
+        live: u32,
+        radiance: Vec3,
+        sp: &SurfacePoint,
+        lobe: &Lobe,
+    ) {
+        let dot = |v: Vec3| ls.dir[0] * v.x + ls.dir[1] * v.y + ls.dir[2] * v.z;
+        let cos = dot(sp.ns);
+        let valid = ls.valid & live & (cos.cmpgt(Vec4::ZERO) & dot(sp.ng).cmpgt(Vec4::ZERO)).bitmask();
+        let w = [0, 1, 2].map(|a| (Vec4::splat(radiance[a]) * ls.scale * cos).to_array());
+        let phong = if lobe.has_spec {
+            let rv = dot(lobe.mirrored_view);
+            Vec4::select(rv.cmpgt(Vec4::ZERO), phong_lobe4(rv, lobe.shininess), Vec4::ZERO).to_array()
+        } else {
+            [0.0; 4]
+        };
+        let (dir, dist) = (ls.dir.map(|v| v.to_array()), ls.dist.to_array());
+        for i in 0..4 {
+            if valid & (1 << i) != 0 {
+                let j = first + i;
+                self.valid |= 1 << j;
+                self.w[j] = Vec3::new(w[0][i], w[1][i], w[2][i]);
+                self.phong[j] = phong[i];
+                self.dirs[j] = Vec3::new(dir[0][i], dir[1][i], dir[2][i]);
+                self.dists[j] = dist[i];
+            }
+        }
+    }
+
+    /// Stores `ls` as sample `j` if it lies above both horizons.
+    #[inline]
+    fn put1(&mut self, j: usize, ls: &LightSample, sp: &SurfacePoint, lobe: &Lobe) {
+        let cos = sp.ns.dot(ls.dir);
+        if cos > 0.0 && sp.ng.dot(ls.dir) > 0.0 {
+            self.valid |= 1 << j;
+            self.w[j] = ls.irradiance * cos;
+            self.phong[j] = lobe.phong(ls.dir);
+            self.dirs[j] = ls.dir;
+            self.dists[j] = ls.dist;
+        }
     }
 }
 
@@ -1296,6 +1345,25 @@ pub fn phong_lobe(x: f32, s: f32) -> f32 {
     }
 }
 
+/// [`phong_lobe`] in four lanes, with the same operations in each.
+#[inline]
+pub fn phong_lobe4(x: Vec4, s: f32) -> Vec4 {
+    if (0.0..=4096.0).contains(&s) && s == crate::textures::floor_f32(s) {
+        let mut n = s as u32;
+        let (mut base, mut acc) = (x, Vec4::ONE);
+        while n > 0 {
+            if n & 1 == 1 {
+                acc *= base;
+            }
+            base *= base;
+            n >>= 1;
+        }
+        acc
+    } else {
+        Vec4::from_array(x.to_array().map(|x| math::powf(x, s)))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1432,6 +1500,23 @@ mod tests {
             for x in [0.0f32, 0.3, 0.9, 0.999, 1.0] {
                 let (a, b) = (phong_lobe(x, s), math::powf(x, s));
                 assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn four_lane_phong_lobe_is_phong_lobe_in_every_lane() {
+        let xs = [-0.5f32, 0.0, 0.3, 0.9, 0.999, 1.0, 1.5, f32::NAN];
+        for s in [0.0f32, 1.0, 2.0, 7.0, 32.0, 40.0, 100.0, 12.5, 4097.0] {
+            for x in xs.chunks(4) {
+                let four = phong_lobe4(Vec4::from_slice(x), s).to_array();
+                for (i, &x) in x.iter().enumerate() {
+                    let one = phong_lobe(x, s);
+                    assert!(
+                        four[i].to_bits() == one.to_bits() || (four[i].is_nan() && one.is_nan()),
+                        "{x}^{s}"
+                    );
+                }
             }
         }
     }

@@ -336,6 +336,59 @@ impl AreaSampler<'_> {
         }
         Some(LightSample { dir, dist, irradiance: self.radiance * (cos_light * density / d2) })
     }
+
+    /// [`AreaSampler::sample`] for four unit-square points at once (lane `i`:
+    /// `(ux[i], uy[i])`), one SIMD lane each. Every lane goes through the same
+    /// IEEE operations in the same order as `sample` does on one point, so it
+    /// holds the same bits; a lane whose `sample` is `None` has its bit clear
+    /// in [`LightSamples4::valid`]. `None` for a quad that is not a
+    /// parallelogram (rare: its samples go through [`Light::point_on`] one by one).
+    #[inline]
+    pub fn sample4(&self, p: Vec3, ux: Vec4, uy: Vec4) -> Option<LightSamples4> {
+        let mul_add = |v0: Vec3, e1: Vec3, a: Vec4, e2: Vec3, b: Vec4, axis: usize| {
+            Vec4::splat(v0[axis]) + Vec4::splat(e1[axis]) * a + Vec4::splat(e2[axis]) * b
+        };
+        let (q, density) = match self.shape {
+            Shape::Triangle { v0, e1, e2, density } => {
+                // `square_to_triangle` in every lane.
+                let upper = uy.cmpgt(ux);
+                let (hx, hy) = (ux * 0.5, uy * 0.5);
+                let b1 = Vec4::select(upper, hx, ux - hy);
+                let b2 = Vec4::select(upper, uy - hx, hy);
+                ([0, 1, 2].map(|a| mul_add(v0, e1, b1, e2, b2, a)), density)
+            }
+            Shape::Parallelogram { v0, es, et, density } => {
+                ([0, 1, 2].map(|a| mul_add(v0, es, ux, et, uy, a)), density)
+            }
+            Shape::General => return None,
+        };
+        let d = [q[0] - Vec4::splat(p.x), q[1] - Vec4::splat(p.y), q[2] - Vec4::splat(p.z)];
+        let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        let dist = d2.sqrt();
+        let inv = Vec4::ONE / dist;
+        let dir = d.map(|c| c * inv);
+        let n = self.normal;
+        let cos_light = -(dir[0] * n.x + dir[1] * n.y + dir[2] * n.z);
+        // As in `sample`: no sample where `d2` is NaN or not positive, or
+        // where `cos_light` is not positive (a NaN one passes).
+        let valid = (d2.cmpgt(Vec4::ZERO) & !cos_light.cmple(Vec4::ZERO)).bitmask();
+        Some(LightSamples4 { dir, dist, scale: cos_light * density / d2, valid })
+    }
+}
+
+/// Four samples of an area light from one shading point, by lane
+/// ([`AreaSampler::sample4`]): what [`LightSample`] holds for one.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSamples4 {
+    /// Unit direction towards the light: `x`, `y` and `z` of the four lanes.
+    pub dir: [Vec4; 3],
+    /// Distance to the sampled point.
+    pub dist: Vec4,
+    /// The irradiance divided by the radiance ([`LightSample::irradiance`]
+    /// is the radiance times this).
+    pub scale: Vec4,
+    /// Bit `i` set where lane `i` holds a sample.
+    pub valid: u32,
 }
 
 #[cfg(test)]
@@ -456,6 +509,46 @@ mod tests {
             }
         }
         assert!(quad(1.0, 2.0).area_sampler(Vec3::new(0.0, 3.0, 0.0)).is_none(), "behind the lamp");
+    }
+
+    #[test]
+    fn four_lane_samples_are_the_single_samples_bit_for_bit() {
+        let tri = Light::Area {
+            vertices: vec![Vec3::new(-1.0, 4.0, 0.0), Vec3::new(0.0, 4.5, 2.0), Vec3::new(1.0, 4.0, 0.5)],
+            radiance: Vec3::ONE,
+        };
+        let s = Sampler::new(5, 6, 7, 8);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let mut compared = 0;
+        for light in [quad(2.0, 3.0), tri] {
+            for _ in 0..2_000 {
+                let p = Vec3::new(next() * 8.0 - 4.0, next() * 6.0 - 1.0, next() * 8.0 - 4.0);
+                let Some(prepared) = light.area_sampler(p) else { continue };
+                let u: [Vec2; 4] = std::array::from_fn(|_| Vec2::new(next(), next()));
+                let ux = Vec4::from_array(u.map(|u| u.x));
+                let uy = Vec4::from_array(u.map(|u| u.y));
+                let four = prepared.sample4(p, ux, uy).expect("triangle or parallelogram");
+                for (i, &u) in u.iter().enumerate() {
+                    let one = prepared.sample(p, u);
+                    assert_eq!(four.valid & (1 << i) != 0, one.is_some(), "{light:?} from {p} at {u}");
+                    let Some(one) = one else { continue };
+                    compared += 1;
+                    let dir = Vec3::new(four.dir[0][i], four.dir[1][i], four.dir[2][i]);
+                    assert_eq!(dir.to_array().map(f32::to_bits), one.dir.to_array().map(f32::to_bits));
+                    assert_eq!(four.dist[i].to_bits(), one.dist.to_bits());
+                    let irradiance = prepared.radiance() * four.scale[i];
+                    assert_eq!(
+                        irradiance.to_array().map(f32::to_bits),
+                        one.irradiance.to_array().map(f32::to_bits)
+                    );
+                }
+            }
+        }
+        assert!(compared > 4_000, "only {compared} samples compared");
     }
 
     #[test]
