@@ -854,9 +854,9 @@ impl<'a> Integrator<'a> {
     ) -> u8 {
         let Some(points) = self.corner_points(light) else { return 15 };
         let mut hidden = 0u8;
-        for (k, &q) in points.iter().enumerate() {
+        for (k, ray) in ShadowRay::towards4(origin, &points).iter().enumerate() {
             counts.shadow += 1;
-            if ShadowRay::towards(origin, q).blocked(self.scene, cell) {
+            if ray.blocked(self.scene, cell) {
                 hidden |= 1 << k;
             }
         }
@@ -1012,7 +1012,8 @@ impl Integrator<'_> {
         for (j, u) in us[..n].iter_mut().enumerate() {
             *u = self.light_sample_in(&set, area.first.wrapping_add(j as u32), &area.sampler);
         }
-        let samples = RatioSamples::new(&us[..n], light, sp, lobe);
+        let mut samples = RatioSamples::default();
+        samples.fill(&us[..n], light, sp, lobe);
         if !clear && (hidden != 0 || !self.adaptive_shadows) {
             for j in 0..n {
                 if samples.valid & (1 << j) == 0 {
@@ -1075,9 +1076,8 @@ impl RatioSamples {
     /// [`RATIO_MAX`]), four lanes at a time ([`AreaSampler::sample4`]) with
     /// the operations of [`Lobe::eval`], so each sample has the same bits as
     /// when evaluated alone.
-    #[inline]
-    fn new(us: &[Vec2], light: &AreaSampler, sp: &SurfacePoint, lobe: &Lobe) -> Self {
-        let mut out = Self::default();
+    #[inline(always)]
+    fn fill(&mut self, us: &[Vec2], light: &AreaSampler, sp: &SurfacePoint, lobe: &Lobe) {
         for (c, chunk) in us.chunks(4).enumerate() {
             let (mut ux, mut uy) = ([0.0; 4], [0.0; 4]);
             for (i, u) in chunk.iter().enumerate() {
@@ -1085,17 +1085,16 @@ impl RatioSamples {
             }
             let live = (1u32 << chunk.len()) - 1;
             match light.sample4(sp.p, Vec4::from_array(ux), Vec4::from_array(uy)) {
-                Some(ls) => out.put4(c * 4, &ls, live, light.radiance(), sp, lobe),
+                Some(ls) => self.put4(c * 4, &ls, live, light.radiance(), sp, lobe),
                 None => {
                     for (i, &u) in chunk.iter().enumerate() {
                         if let Some(ls) = light.sample(sp.p, u) {
-                            out.put1(c * 4 + i, &ls, sp, lobe);
+                            self.put1(c * 4 + i, &ls, sp, lobe);
                         }
                     }
                 }
             }
         }
-        out
     }
 
     /// Stores lanes `live` of `ls` as samples `first..first + 4`.
@@ -1290,12 +1289,18 @@ impl ShadowRay {
         Self { ray: Ray::new(origin, dir), t_max: dist * SHADOW_SHORTEN }
     }
 
-    /// The shadow ray from `origin` to the light point `to`.
+    /// The shadow rays from `origin` to the four light points `to`, worked
+    /// out side by side in SIMD lanes with the operations of
+    /// `Self::new(origin, d / |d|, |d|)` (`d = to − origin`), so each ray has
+    /// the same bits as when made alone.
     #[inline]
-    fn towards(origin: Vec3, to: Vec3) -> Self {
-        let d = to - origin;
-        let dist = d.length();
-        Self::new(origin, d / dist, dist)
+    fn towards4(origin: Vec3, to: &[Vec3; 4]) -> [Self; 4] {
+        let axis = |a: usize| Vec4::from_array(to.map(|q| q[a])) - Vec4::splat(origin[a]);
+        let (dx, dy, dz) = (axis(0), axis(1), axis(2));
+        let dist = (dx * dx + dy * dy + dz * dz).sqrt();
+        let (dx, dy, dz, dist) =
+            ((dx / dist).to_array(), (dy / dist).to_array(), (dz / dist).to_array(), dist.to_array());
+        std::array::from_fn(|k| Self::new(origin, Vec3::new(dx[k], dy[k], dz[k]), dist[k]))
     }
 
     /// Whether anything blocks the ray; `cell` is what the shadow cells
@@ -1500,6 +1505,29 @@ mod tests {
             for x in [0.0f32, 0.3, 0.9, 0.999, 1.0] {
                 let (a, b) = (phong_lobe(x, s), math::powf(x, s));
                 assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn four_shadow_rays_at_once_are_the_single_rays_bit_for_bit() {
+        let s = Sampler::new(9, 8, 7, 6);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d) * 20.0 - 10.0
+        };
+        for _ in 0..1_000 {
+            let origin = Vec3::new(next(), next(), next());
+            let to: [Vec3; 4] = std::array::from_fn(|_| Vec3::new(next(), next(), next()));
+            for (ray, q) in ShadowRay::towards4(origin, &to).iter().zip(to) {
+                let d = q - origin;
+                let one = ShadowRay::new(origin, d / d.length(), d.length());
+                let bits = |r: &ShadowRay| {
+                    let [x, y, z] = r.ray.dir.to_array().map(f32::to_bits);
+                    (r.ray.origin, [x, y, z, r.t_max.to_bits()])
+                };
+                assert_eq!(bits(ray), bits(&one), "{origin} to {q}");
             }
         }
     }
