@@ -196,14 +196,12 @@ impl SurfacePoint {
     /// Builds the shading data of `hit` on `ray`.
     #[inline]
     pub fn new(scene: &Scene, ray: &Ray, hit: &Hit) -> Self {
-        let tri = &scene.triangles[hit.prim as usize];
         let sh = &scene.shading[hit.prim as usize];
         let (u, v) = (hit.u, hit.v);
         let w = 1.0 - u - v;
         let p = ray.at(hit.t);
-        let n = tri.normal();
-        let world2 = n.length();
-        let mut ng = if world2 > 0.0 { n / world2 } else { -ray.dir };
+        let unit_normal = scene.unit_normals.get(hit.prim as usize).copied().flatten();
+        let mut ng = unit_normal.unwrap_or(-ray.dir);
         let ns = sh.normals[0] * w + sh.normals[1] * u + sh.normals[2] * v;
         let ns_len = ns.length();
         let mut ns = if ns_len > 0.0 && ns_len.is_finite() { ns / ns_len } else { ng };
@@ -238,20 +236,17 @@ impl SurfacePoint {
     /// texture coordinates `uvs`. For isotropic UV mappings the larger extent
     /// equals [`SurfacePoint::uv_width`].
     pub fn uv_footprint(&self, v: &[Vec3; 3], uvs: &[Vec2; 3], dir: Vec3, cone_width: f32) -> Vec2 {
-        let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
-        let n = e1.cross(e2);
-        let n2 = n.length_squared();
-        if n2 <= 0.0 || !n2.is_finite() {
-            return Vec2::ZERO;
-        }
-        let (d1, d2) = (uvs[1] - uvs[0], uvs[2] - uvs[0]);
-        // Gradient of a linear function with increments f1, f2 along e1, e2.
-        let (a, b) = (e2.cross(n), n.cross(e1));
-        let grad_u = (a * d1.x + b * d2.x) / n2;
-        let grad_v = (a * d1.y + b * d2.y) / n2;
+        self.uv_footprint_from(uv_gradients(v, uvs), v, dir, cone_width)
+    }
+
+    /// [`SurfacePoint::uv_footprint`] from the triangle's [`uv_gradients`].
+    #[inline]
+    fn uv_footprint_from(&self, grads: Option<[Vec3; 2]>, v: &[Vec3; 3], dir: Vec3, cone_width: f32) -> Vec2 {
+        let Some([grad_u, grad_v]) = grads else { return Vec2::ZERO };
         // In-plane ellipse axes: minor ⟂ ray, major along its projection.
         let minor = dir.cross(self.ng);
-        let minor = if minor.length_squared() > 1e-12 { minor.normalize() } else { e1.normalize() };
+        let minor =
+            if minor.length_squared() > 1e-12 { minor.normalize() } else { (v[1] - v[0]).normalize() };
         let major = self.ng.cross(minor);
         let stretch = 1.0 / self.cos_view.max(1e-4);
         let extent = |g: Vec3| {
@@ -279,6 +274,22 @@ impl SurfacePoint {
         let r = reflect(dir, self.ns);
         if r.dot(self.ng) > 0.0 { r } else { reflect(dir, self.ng) }
     }
+}
+
+/// The world-space gradients of `u` and of `v` over the plane of the
+/// triangle `v` with texture coordinates `uvs`, `None` for a degenerate
+/// triangle. Fixed per triangle, so the scene works them out once.
+pub fn uv_gradients(v: &[Vec3; 3], uvs: &[Vec2; 3]) -> Option<[Vec3; 2]> {
+    let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
+    let n = e1.cross(e2);
+    let n2 = n.length_squared();
+    if n2 <= 0.0 || !n2.is_finite() {
+        return None;
+    }
+    let (d1, d2) = (uvs[1] - uvs[0], uvs[2] - uvs[0]);
+    // Gradient of a linear function with increments f1, f2 along e1, e2.
+    let (a, b) = (e2.cross(n), n.cross(e1));
+    Some([(a * d1.x + b * d2.x) / n2, (a * d1.y + b * d2.y) / n2])
 }
 
 /// UV units per world unit on the triangle `v` with texture coordinates
@@ -599,9 +610,9 @@ impl<'a> Integrator<'a> {
                     Albedo::Texture { texture, tint } => match scene.textures.get(texture as usize) {
                         Some(t) => {
                             let i = hit.prim as usize;
-                            let fp = sp.uv_footprint(
+                            let fp = sp.uv_footprint_from(
+                                scene.uv_gradients.get(i).copied().flatten(),
                                 &scene.triangles[i].v,
-                                &scene.shading[i].uvs,
                                 ray.dir,
                                 cone.width_at(hit.t),
                             );

@@ -63,6 +63,13 @@ impl Default for Material {
     }
 }
 
+impl Material {
+    /// True when the material's colour comes from a texture.
+    pub fn has_texture(&self) -> bool {
+        matches!(self, Material::Phong { albedo: Albedo::Texture { .. }, .. })
+    }
+}
+
 /// Mirror reflection of direction `i` about unit normal `n`: `R = I − 2 (I·N) N`.
 #[inline]
 pub fn reflect(i: Vec3, n: Vec3) -> Vec3 {

@@ -7,6 +7,7 @@
 use crate::bvh::Bvh;
 use crate::cameras::Camera;
 use crate::geometry::{Aabb, Ray};
+use crate::integrator::uv_gradients;
 use crate::lights::Light;
 use crate::materials::Material;
 use crate::render::RenderSettings;
@@ -78,6 +79,21 @@ pub struct Scene {
     /// What can block shadow rays to each light, per cell of space, filled
     /// on demand (made from `triangles` and `lights` by [`Scene::new`]).
     shadow_cells: ShadowCells,
+    /// Per triangle: its unit geometric normal, `None` where degenerate
+    /// ([`unit_normal`]); the shading of every hit needs it.
+    pub(crate) unit_normals: Vec<Option<Vec3>>,
+    /// Per triangle: the world-space gradients of its `u` and `v` texture
+    /// coordinates ([`crate::integrator::uv_gradients`]), for the filter
+    /// footprints of texture lookups. Empty when no material has a texture.
+    pub(crate) uv_gradients: Vec<Option<[Vec3; 2]>>,
+}
+
+/// The unit geometric normal `(v1 − v0) × (v2 − v0) / |…|` of `tri`, `None`
+/// when that length is not positive.
+fn unit_normal(tri: &Triangle) -> Option<Vec3> {
+    let n = tri.normal();
+    let len = n.length();
+    (len > 0.0).then(|| n / len)
 }
 
 impl Scene {
@@ -88,7 +104,20 @@ impl Scene {
         let bvh = Bvh::build(&parts.triangles);
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
+        let unit_normals = parts.triangles.iter().map(unit_normal).collect();
+        let textured = parts.materials.iter().any(Material::has_texture);
+        let uv_gradients = match textured {
+            true => parts
+                .triangles
+                .iter()
+                .zip(&parts.shading)
+                .map(|(t, sh)| uv_gradients(&t.v, &sh.uvs))
+                .collect(),
+            false => Vec::new(),
+        };
         Scene {
+            unit_normals,
+            uv_gradients,
             triangles: parts.triangles,
             shading: parts.shading,
             materials: parts.materials,
