@@ -404,7 +404,9 @@ impl<'a> Integrator<'a> {
             return self.light_samples;
         }
         // NaN weights take one sample (`max` ignores NaN).
-        let n = (self.light_samples as f32 * w.max(0.0)).ceil();
+        // ⌈x⌉ as −⌊−x⌋: `f32::ceil` is a call into the runtime's `ceilf`
+        // without SSE4.1 (see `floor_f32`).
+        let n = -crate::textures::floor_f32(-(self.light_samples as f32 * w.max(0.0)));
         (n as u32).clamp(1, self.light_samples)
     }
 
