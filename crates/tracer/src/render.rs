@@ -21,7 +21,7 @@ use crate::integrator::{Integrator, RayCone, RayCounts, SampleId};
 use crate::math;
 use crate::sampling::{Sampler, ceil_sqrt, stratified_square};
 use crate::scene::Scene;
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -370,11 +370,19 @@ pub fn render_tile_with(
             let lanes = || (0..PACKET_LANES as u32).filter(move |l| active & (1 << l) != 0);
             let mut sums = [Vec3::ZERO; PACKET_LANES];
             for s in 0..spp {
-                let mut rays = [Ray::new(Vec3::ZERO, Vec3::Z); PACKET_LANES];
-                for lane in lanes() {
+                // Image coordinates of every lane (those past the tile's edge
+                // too: their rays are made but not traced), then the rays
+                // four at a time.
+                let (mut fx, mut fy) = ([0.0f32; PACKET_LANES], [0.0f32; PACKET_LANES]);
+                for lane in 0..PACKET_LANES as u32 {
                     let (x, y) = lane_xy(bx, by, lane);
-                    rays[lane as usize] = camera_ray(x, y, s);
+                    let o = pixel_offset(x, y, s, spp, seed);
+                    (fx[lane as usize], fy[lane as usize]) = (x as f32 + o.x, y as f32 + o.y);
                 }
+                let quad = |f: &[f32; PACKET_LANES], k: usize| Vec4::from_slice(&f[4 * k..4 * k + 4]);
+                let quads: [[Ray; 4]; PACKET_LANES / 4] =
+                    std::array::from_fn(|k| camera.ray4(quad(&fx, k) / w, quad(&fy, k) / h));
+                let rays: [Ray; PACKET_LANES] = std::array::from_fn(|j| quads[j / 4][j % 4]);
                 let hits =
                     scene.bvh.intersect8(&rays, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], active);
                 let samples = pixels.map(|pixel| SampleId { pixel, index: s });
