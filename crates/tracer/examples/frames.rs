@@ -1,4 +1,4 @@
-//! Renders one scene several times on one thread, as an interactive session
+//! Renders one scene several times (on one thread unless told otherwise), as an interactive session
 //! does (the scene's shadow cells fill during the first frame), and prints
 //! each frame's time: a loop for profilers. The cost of a warm frame is the
 //! difference between two runs with different frame counts, e.g.
@@ -9,8 +9,9 @@
 //! valgrind --tool=callgrind target/release/examples/frames scenes/paper.toml 320 240 3
 //! ```
 //!
-//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells]` (the last
-//! fills the cells around every surface before the first frame, as a slave does).
+//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N]`
+//! (`--fill-cells` fills the cells around every surface before the first frame, as a
+//! slave does; `--threads` renders on N threads instead of one).
 
 use isin_tracer::render::{TraceOptions, render_frame_with};
 use isin_tracer::{AssetSource, RenderSettings, load_scene};
@@ -27,7 +28,7 @@ impl AssetSource for Dir {
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: frames SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells]";
+    let usage = "usage: frames SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N]";
     let [scene_path, width, height, frames] = args.get(..4).ok_or(usage)? else { return Err(usage.into()) };
     let number = |s: &String| s.parse::<u32>().map_err(|e| format!("{s}: {e}"));
     let (width, height, frames) = (number(width)?, number(height)?, number(frames)?);
@@ -38,7 +39,11 @@ fn main() -> Result<(), String> {
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let scene = load_scene(scene_path, &text, &mut Dir(base)).map_err(|e| e.to_string())?;
     let settings = RenderSettings { width, height, ..scene.settings };
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().map_err(|e| e.to_string())?;
+    let threads = match args.iter().position(|a| a == "--threads") {
+        Some(i) => number(args.get(i + 1).ok_or(usage)?)? as usize,
+        None => 1,
+    };
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| e.to_string())?;
     pool.install(|| {
         if args.iter().any(|a| a == "--fill-cells") {
             let t = Instant::now();
