@@ -1385,6 +1385,7 @@ pub fn phong_lobe4(x: Vec4, s: f32) -> Vec4 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lights::Light;
     use crate::scene::{SceneParts, TriangleShading};
     use crate::shapes::Triangle;
 
@@ -1520,6 +1521,76 @@ mod tests {
                 assert!((a - b).abs() <= 1e-5 * b.max(1e-30) + 1e-30, "{x}^{s}: {a} vs {b}");
             }
         }
+    }
+
+    #[test]
+    fn ratio_samples_four_at_a_time_are_the_single_samples_bit_for_bit() {
+        // A parallelogram lamp (the four-lane path) and a trapezoid (one by one).
+        let parallelogram = vec![
+            Vec3::new(-1.0, 5.0, -1.0),
+            Vec3::new(1.0, 5.0, -1.0),
+            Vec3::new(1.5, 5.0, 1.0),
+            Vec3::new(-0.5, 5.0, 1.0),
+        ];
+        let trapezoid = vec![
+            Vec3::new(-1.0, 5.0, -1.0),
+            Vec3::new(1.0, 5.0, -1.0),
+            Vec3::new(0.5, 5.0, 1.0),
+            Vec3::new(-0.5, 5.0, 1.0),
+        ];
+        let s = Sampler::new(4, 3, 2, 1);
+        let mut d = 0;
+        let mut next = || {
+            d += 1;
+            s.get(d)
+        };
+        let mut compared = 0;
+        for vertices in [parallelogram, trapezoid] {
+            let light = Light::Area { vertices, radiance: Vec3::new(1.0, 0.9, 0.8) };
+            for i in 0..500 {
+                let p = Vec3::new(next() * 6.0 - 3.0, next() * 2.0, next() * 6.0 - 3.0);
+                let Some(prepared) = light.area_sampler(p) else { continue };
+                let ng = Vec3::new(next() - 0.5, 1.0, next() - 0.5).normalize();
+                let ns = (ng + Vec3::new(next() - 0.5, 0.0, next() - 0.5) * 0.4).normalize();
+                let sp = SurfacePoint {
+                    p,
+                    ng,
+                    ns,
+                    uv: Vec2::ZERO,
+                    front: true,
+                    material: 0,
+                    eps: 1e-4,
+                    cos_view: 1.0,
+                };
+                let view = Vec3::new(next() - 0.5, -1.0, next() - 0.5).normalize();
+                let lobe = Lobe {
+                    diffuse: Vec3::splat(0.2),
+                    spec: Vec3::splat(0.5),
+                    has_spec: i % 4 != 0,
+                    shininess: [32.0, 7.5, 1.0][i % 3],
+                    mirrored_view: reflect(view, sp.ns),
+                    origin: sp.p,
+                };
+                let us: Vec<Vec2> = (0..1 + i % RATIO_MAX).map(|_| Vec2::new(next(), next())).collect();
+                let (mut four, mut one) = (RatioSamples::default(), RatioSamples::default());
+                four.fill(&us, &prepared, &sp, &lobe);
+                for (j, &u) in us.iter().enumerate() {
+                    if let Some(ls) = prepared.sample(sp.p, u) {
+                        one.put1(j, &ls, &sp, &lobe);
+                    }
+                }
+                assert_eq!(four.valid, one.valid);
+                for j in (0..us.len()).filter(|&j| one.valid & (1 << j) != 0) {
+                    compared += 1;
+                    let bits = |r: &RatioSamples| {
+                        let v = |v: Vec3| v.to_array().map(f32::to_bits);
+                        (v(r.w[j]), r.phong[j].to_bits(), v(r.dirs[j]), r.dists[j].to_bits())
+                    };
+                    assert_eq!(bits(&four), bits(&one), "sample {j} from {p}");
+                }
+            }
+        }
+        assert!(compared > 1_000, "only {compared} samples compared");
     }
 
     #[test]

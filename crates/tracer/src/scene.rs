@@ -15,6 +15,7 @@ use crate::shadows::{CellAnswer, CellIndex, ShadowCells};
 use crate::shapes::{Hit, Triangle};
 use crate::textures::Texture;
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 
 /// Per-triangle data needed only once a hit has been found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -104,16 +105,12 @@ impl Scene {
         let bvh = Bvh::build(&parts.triangles);
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
-        let unit_normals = parts.triangles.iter().map(unit_normal).collect();
-        let textured = parts.materials.iter().any(Material::has_texture);
-        let uv_gradients = match textured {
-            true => parts
-                .triangles
-                .iter()
-                .zip(&parts.shading)
-                .map(|(t, sh)| uv_gradients(&t.v, &sh.uvs))
-                .collect(),
-            false => Vec::new(),
+        let unit_normals = parts.triangles.par_iter().map(unit_normal).collect();
+        let uv_gradients = if parts.materials.iter().any(Material::has_texture) {
+            let triangles = parts.triangles.par_iter().zip(&parts.shading);
+            triangles.map(|(t, sh)| uv_gradients(&t.v, &sh.uvs)).collect()
+        } else {
+            Vec::new()
         };
         Scene {
             unit_normals,
