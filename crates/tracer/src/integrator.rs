@@ -1347,38 +1347,39 @@ pub fn triangle_curvature(v: &[Vec3; 3], normals: &[Vec3; 3]) -> f32 {
 /// otherwise. Both are deterministic.
 #[inline]
 pub fn phong_lobe(x: f32, s: f32) -> f32 {
-    if (0.0..=4096.0).contains(&s) && s == crate::textures::floor_f32(s) {
-        let mut n = s as u32;
-        let (mut base, mut acc) = (x, 1.0f32);
-        while n > 0 {
-            if n & 1 == 1 {
-                acc *= base;
-            }
-            base *= base;
-            n >>= 1;
-        }
-        acc
-    } else {
-        math::powf(x, s)
+    match integer_exponent(s) {
+        Some(n) => power(x, 1.0, n),
+        None => math::powf(x, s),
     }
+}
+
+/// `s` as an integer exponent for [`power`], when it is one of 0..=4096.
+#[inline]
+fn integer_exponent(s: f32) -> Option<u32> {
+    ((0.0..=4096.0).contains(&s) && s == crate::textures::floor_f32(s)).then_some(s as u32)
+}
+
+/// `x^n` by squaring (`one` is the multiplicative identity): the same
+/// multiplications in the same order for a float and for each SIMD lane.
+#[inline(always)]
+fn power<T: Copy + std::ops::MulAssign>(x: T, one: T, mut n: u32) -> T {
+    let (mut base, mut acc) = (x, one);
+    while n > 0 {
+        if n & 1 == 1 {
+            acc *= base;
+        }
+        base *= base;
+        n >>= 1;
+    }
+    acc
 }
 
 /// [`phong_lobe`] in four lanes, with the same operations in each.
 #[inline]
 pub fn phong_lobe4(x: Vec4, s: f32) -> Vec4 {
-    if (0.0..=4096.0).contains(&s) && s == crate::textures::floor_f32(s) {
-        let mut n = s as u32;
-        let (mut base, mut acc) = (x, Vec4::ONE);
-        while n > 0 {
-            if n & 1 == 1 {
-                acc *= base;
-            }
-            base *= base;
-            n >>= 1;
-        }
-        acc
-    } else {
-        Vec4::from_array(x.to_array().map(|x| math::powf(x, s)))
+    match integer_exponent(s) {
+        Some(n) => power(x, Vec4::ONE, n),
+        None => Vec4::from_array(x.to_array().map(|x| math::powf(x, s))),
     }
 }
 
