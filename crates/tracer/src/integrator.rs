@@ -194,7 +194,7 @@ pub struct SurfacePoint {
 
 impl SurfacePoint {
     /// Builds the shading data of `hit` on `ray`.
-    #[inline]
+    #[inline(always)]
     pub fn new(scene: &Scene, ray: &Ray, hit: &Hit) -> Self {
         let sh = &scene.shading[hit.prim as usize];
         let (u, v) = (hit.u, hit.v);
@@ -525,7 +525,7 @@ impl<'a> Integrator<'a> {
 
     /// The secondary rays the material at `hit` spawns (see [`Bounce`]),
     /// leaving out those past the depth limit or below [`MIN_THROUGHPUT`].
-    #[inline]
+    #[inline(always)]
     fn bounce(
         &self,
         ray: &Ray,
