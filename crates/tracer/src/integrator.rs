@@ -613,7 +613,7 @@ impl<'a> Integrator<'a> {
                         Some(t) => {
                             let i = hit.prim as usize;
                             let fp = sp.uv_footprint_from(
-                                scene.uv_gradients.get(i).copied().flatten(),
+                                scene.uv_gradients(hit.prim),
                                 &scene.triangles[i].v,
                                 ray.dir,
                                 cone.width_at(hit.t),

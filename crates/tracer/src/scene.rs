@@ -83,10 +83,15 @@ pub struct Scene {
     /// Per triangle: its unit geometric normal, `None` where degenerate
     /// ([`unit_normal`]); the shading of every hit needs it.
     pub(crate) unit_normals: Vec<Option<Vec3>>,
-    /// Per triangle: the world-space gradients of its `u` and `v` texture
-    /// coordinates ([`crate::integrator::uv_gradients`]), for the filter
-    /// footprints of texture lookups. Empty when no material has a texture.
-    pub(crate) uv_gradients: Vec<Option<[Vec3; 2]>>,
+    /// The world-space gradients of the `u` and `v` texture coordinates
+    /// ([`crate::integrator::uv_gradients`]) of the triangles with a textured
+    /// material, for the filter footprints of their texture lookups; see
+    /// [`Scene::uv_gradients`].
+    uv_gradients: Vec<Option<[Vec3; 2]>>,
+    /// Per triangle, its entry in `uv_gradients` (`u32::MAX` for the others);
+    /// empty when no material has a texture, so that a large untextured mesh
+    /// beside a textured floor costs 4 bytes a triangle, not 28.
+    uv_gradient_slots: Vec<u32>,
 }
 
 /// The unit geometric normal `(v1 − v0) × (v2 − v0) / |…|` of `tri`, `None`
@@ -106,15 +111,30 @@ impl Scene {
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
         let unit_normals = parts.triangles.par_iter().map(unit_normal).collect();
-        let uv_gradients = if parts.materials.iter().any(Material::has_texture) {
-            let triangles = parts.triangles.par_iter().zip(&parts.shading);
-            triangles.map(|(t, sh)| uv_gradients(&t.v, &sh.uvs)).collect()
+        let textured = |sh: &TriangleShading| {
+            parts.materials.get(sh.material as usize).is_some_and(Material::has_texture)
+        };
+        let mut textured_ids = Vec::new();
+        let uv_gradient_slots = if parts.materials.iter().any(Material::has_texture) {
+            let slot = |(i, sh): (usize, &TriangleShading)| {
+                if !textured(sh) {
+                    return u32::MAX;
+                }
+                textured_ids.push(i);
+                (textured_ids.len() - 1) as u32
+            };
+            parts.shading.iter().enumerate().map(slot).collect()
         } else {
             Vec::new()
         };
+        let uv_gradients = textured_ids
+            .par_iter()
+            .map(|&i| uv_gradients(&parts.triangles[i].v, &parts.shading[i].uvs))
+            .collect();
         Scene {
             unit_normals,
             uv_gradients,
+            uv_gradient_slots,
             triangles: parts.triangles,
             shading: parts.shading,
             materials: parts.materials,
@@ -128,6 +148,14 @@ impl Scene {
             bvh,
             shadow_cells,
         }
+    }
+
+    /// The gradients of triangle `prim`'s texture coordinates, if its
+    /// material has a texture and the triangle is not degenerate.
+    #[inline]
+    pub(crate) fn uv_gradients(&self, prim: u32) -> Option<[Vec3; 2]> {
+        let slot = *self.uv_gradient_slots.get(prim as usize)?;
+        self.uv_gradients.get(slot as usize).copied().flatten()
     }
 
     /// Nearest hit with `t_min < t < t_max`.
