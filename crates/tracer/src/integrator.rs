@@ -662,6 +662,9 @@ impl<'a> Integrator<'a> {
         let mut out = [self.scene.background; PACKET_LANES];
         let mut sps = [None; PACKET_LANES];
         let mut bounces = [Bounce::default(); PACKET_LANES];
+        for hit in lanes(active).filter_map(|l| hits[l].as_ref()) {
+            self.scene.prefetch_shading(hit.prim);
+        }
         for l in lanes(active) {
             if let Some(hit) = &hits[l] {
                 let sp = SurfacePoint::new(self.scene, &rays[l], hit);

@@ -158,6 +158,32 @@ impl Scene {
         self.uv_gradients.get(slot as usize).copied().flatten()
     }
 
+    /// Asks the CPU to start loading what the shading of a hit on triangle
+    /// `prim` reads first (its shading record and unit normal). A hint that
+    /// changes no result: in a large mesh those are cache misses, and a
+    /// packet's lanes then wait for theirs together instead of one by one.
+    #[inline(always)]
+    pub(crate) fn prefetch_shading(&self, prim: u32) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let i = prim as usize;
+            if let (Some(sh), Some(n)) = (self.shading.get(i), self.unit_normals.get(i)) {
+                let sh: *const i8 = std::ptr::from_ref(sh).cast();
+                let last = sh.wrapping_add(std::mem::size_of::<TriangleShading>() - 1);
+                // SAFETY: SSE is part of the x86_64 baseline; a prefetch never
+                // faults, and the addresses lie inside the records.
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(sh);
+                    _mm_prefetch::<_MM_HINT_T0>(last);
+                    _mm_prefetch::<_MM_HINT_T0>(std::ptr::from_ref(n).cast());
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = prim;
+    }
+
     /// Nearest hit with `t_min < t < t_max`.
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
