@@ -38,6 +38,10 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+/// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
+#[global_allocator]
+static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages;
+
 #[path = "common/embree_mesh.rs"]
 mod embree_mesh;
 use embree_mesh::{BenchMesh, load_mesh, subdivide};

@@ -18,6 +18,10 @@ use isin_tracer::{AssetSource, RenderSettings, load_scene};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
+#[global_allocator]
+static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages;
+
 struct Dir(PathBuf);
 
 impl AssetSource for Dir {

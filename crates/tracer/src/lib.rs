@@ -25,7 +25,8 @@
 //! [`meshes`] (built-in primitives), [`shadows`] (what can block shadow rays,
 //! per region of space), [`scene`] (the built, renderable scene),
 //! [`scenefile`] (the human-editable description and its loaders),
-//! [`integrator`] (Whitted shading) and [`render`] (tiles and frames).
+//! [`integrator`] (Whitted shading), [`render`] (tiles and frames) and
+//! [`memory`] (huge pages for large scenes, for binaries that opt in).
 
 pub mod bvh;
 pub mod cameras;
@@ -34,6 +35,7 @@ pub mod integrator;
 pub mod lights;
 pub mod materials;
 pub mod math;
+pub mod memory;
 pub mod meshes;
 pub mod render;
 pub mod sampling;
