@@ -9,8 +9,9 @@
 //! valgrind --tool=callgrind target/release/examples/frames scenes/paper.toml 320 240 3
 //! ```
 //!
-//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N]`
-//! (`--fill-cells` fills the cells around every surface before the first frame, as a
+//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N] [--moving]`
+//! (`--moving` renders with the viewer's settings while the camera moves: 1 spp, one
+//! shadow ray per light; `--fill-cells` fills the cells around every surface before the first frame, as a
 //! slave does; `--threads` renders on N threads instead of one).
 
 use isin_tracer::render::{TraceOptions, render_frame_with};
@@ -32,7 +33,8 @@ impl AssetSource for Dir {
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: frames SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N]";
+    let usage =
+        "usage: frames SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N] [--moving]";
     let [scene_path, width, height, frames] = args.get(..4).ok_or(usage)? else { return Err(usage.into()) };
     let number = |s: &String| s.parse::<u32>().map_err(|e| format!("{s}: {e}"));
     let (width, height, frames) = (number(width)?, number(height)?, number(frames)?);
@@ -42,7 +44,11 @@ fn main() -> Result<(), String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{scene_path}: {e}"))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let scene = load_scene(scene_path, &text, &mut Dir(base)).map_err(|e| e.to_string())?;
-    let settings = RenderSettings { width, height, ..scene.settings };
+    let mut settings = RenderSettings { width, height, ..scene.settings };
+    if args.iter().any(|a| a == "--moving") {
+        settings.spp = 1;
+        settings.light_samples = 1;
+    }
     let threads = match args.iter().position(|a| a == "--threads") {
         Some(i) => number(args.get(i + 1).ok_or(usage)?)? as usize,
         None => 1,
