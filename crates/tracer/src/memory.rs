@@ -7,10 +7,14 @@
 //! page walk itself misses the caches. Linux can back memory with 2 MiB pages
 //! instead, but on most distributions only where a program asks for it
 //! (`/sys/kernel/mm/transparent_hugepage/enabled` = `madvise`) — which is what
-//! Embree does for its BVH. [`HugePages`] asks for it: allocations of at least
-//! [`HugePages::MIN_BYTES`] are aligned to 2 MiB and advised with
-//! `madvise(MADV_HUGEPAGE)` before they are first touched; everything else
-//! goes straight to the system allocator.
+//! Embree does for its BVH. [`HugePages`] asks for it: on Linux, blocks of at
+//! least [`HugePages::MIN_BYTES`] are mapped directly, 2 MiB aligned, and
+//! advised with `madvise(MADV_HUGEPAGE)` before they are first touched.
+//! Everything else goes straight to the system allocator.
+//!
+//! Large blocks grow with `mremap`, which moves their pages instead of
+//! copying them: a vector that doubles its way up to 100 MB is not written
+//! twice, and the process never holds the old and the new copy at once.
 //!
 //! The advice is a hint: where the kernel refuses it (or on other systems)
 //! memory simply stays in small pages. It changes no value the tracer
@@ -23,107 +27,205 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 
-/// Size of a transparent huge page on x86_64 and most aarch64 kernels.
-const HUGE_PAGE: usize = 2 << 20;
-
-/// The system allocator, with huge-page advice on large blocks (see the module docs).
+/// The system allocator, with huge pages for large blocks (see the module docs).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct HugePages;
 
 impl HugePages {
-    /// Smallest allocation that is aligned to a huge page and advised. Below
-    /// this the alignment's slack (up to 2 MiB of address space) is not worth it.
+    /// Smallest block that is mapped on its own and advised. Below this the
+    /// alignment's slack (up to 2 MiB of address space) is not worth it.
     pub const MIN_BYTES: usize = 4 << 20;
-
-    /// The layout actually requested from the system for `layout`.
-    #[inline]
-    fn system_layout(layout: Layout) -> Layout {
-        if layout.size() >= Self::MIN_BYTES && layout.align() < HUGE_PAGE {
-            // A power of two at least the old alignment, and the size is far
-            // below `isize::MAX - HUGE_PAGE` for any allocation that succeeds.
-            Layout::from_size_align(layout.size(), HUGE_PAGE).unwrap_or(layout)
-        } else {
-            layout
-        }
-    }
 }
 
-/// Advises the kernel to back `[ptr, ptr + len)` with huge pages. Called
-/// before the block is first written, so its page faults allocate huge pages.
-fn advise(ptr: *mut u8, len: usize) {
-    #[cfg(target_os = "linux")]
-    {
-        // SAFETY: `ptr` starts a live allocation of at least `len` bytes that
-        // we own; MADV_HUGEPAGE only changes how the kernel backs those pages
-        // (never their contents). `ptr` is 2 MiB aligned, hence page aligned,
-        // as madvise requires. A failure (e.g. THP compiled out) is harmless.
+/// Whether `layout` is served by [`large`] rather than the system allocator.
+#[inline]
+fn is_large(layout: &Layout) -> bool {
+    cfg!(target_os = "linux") && layout.size() >= HugePages::MIN_BYTES && layout.align() <= large::ALIGN
+}
+
+#[cfg(target_os = "linux")]
+mod large {
+    //! Huge-page-aligned anonymous mappings. Every function returns null on
+    //! failure and leaves existing mappings as they were.
+
+    use std::ptr::null_mut;
+
+    /// Alignment of every large block: one transparent huge page on x86_64
+    /// and most aarch64 kernels.
+    pub(super) const ALIGN: usize = 2 << 20;
+
+    /// Bytes mapped for a block of `size` bytes (whole pages).
+    pub(super) fn mapped_len(size: usize) -> usize {
+        const PAGE: usize = 4096;
+        size.div_ceil(PAGE) * PAGE
+    }
+
+    /// Asks for huge pages on `[p, p + len)` (a hint: failure is harmless).
+    unsafe fn advise(p: *mut u8, len: usize) {
+        // SAFETY: the caller owns the page-aligned mapping `[p, p + len)`;
+        // MADV_HUGEPAGE changes how it is backed, never its contents.
+        unsafe { libc::madvise(p.cast(), len, libc::MADV_HUGEPAGE) };
+    }
+
+    /// A fresh, zeroed, advised mapping of `len` bytes (whole pages) at an
+    /// [`ALIGN`]-aligned address.
+    pub(super) unsafe fn map(len: usize) -> *mut u8 {
+        let Some(total) = len.checked_add(ALIGN) else { return null_mut() };
+        // SAFETY: an anonymous private mapping at an address of the kernel's
+        // choosing touches no existing memory.
+        let p = unsafe {
+            libc::mmap(
+                null_mut(),
+                total,
+                libc::PROT_READ | libc::PROT_WRITE,
+                libc::MAP_PRIVATE | libc::MAP_ANONYMOUS,
+                -1,
+                0,
+            )
+        };
+        if p == libc::MAP_FAILED {
+            return null_mut();
+        }
+        let start = p as usize;
+        let head = start.next_multiple_of(ALIGN) - start;
+        let tail = total - head - len;
+        // SAFETY: both ranges lie inside the mapping just made, which nothing
+        // else knows of; what stays is `[start + head, start + head + len)`.
         unsafe {
-            libc::madvise(ptr.cast(), len, libc::MADV_HUGEPAGE);
+            let base = p.cast::<u8>();
+            if head > 0 {
+                libc::munmap(base.cast(), head);
+            }
+            if tail > 0 {
+                libc::munmap(base.add(head + len).cast(), tail);
+            }
+            let block = base.add(head);
+            advise(block, len);
+            block
         }
     }
-    #[cfg(not(target_os = "linux"))]
-    let _ = (ptr, len);
+
+    /// Unmaps a block made by [`map`] or [`remap`] with this length.
+    pub(super) unsafe fn unmap(p: *mut u8, len: usize) {
+        // SAFETY: the caller passes a whole block it owns.
+        unsafe { libc::munmap(p.cast(), len) };
+    }
+
+    /// The block `p` of `old` bytes resized to `new` bytes (both whole
+    /// pages), its contents kept: shrunk or grown in place where the address
+    /// space allows, otherwise its pages moved (not copied) to a fresh
+    /// aligned address. Null on failure, with `p` untouched.
+    pub(super) unsafe fn remap(p: *mut u8, old: usize, new: usize) -> *mut u8 {
+        // SAFETY (all calls): `p` is a whole block of `old` bytes that the
+        // caller owns; the target of a move is a fresh mapping of `new`
+        // bytes made here, which MREMAP_FIXED replaces.
+        unsafe {
+            if new <= old {
+                if new < old {
+                    libc::munmap(p.add(new).cast(), old - new);
+                }
+                return p;
+            }
+            if libc::mremap(p.cast(), old, new, 0) != libc::MAP_FAILED {
+                advise(p, new);
+                return p;
+            }
+            let target = map(new);
+            if target.is_null() {
+                return null_mut();
+            }
+            let flags = libc::MREMAP_MAYMOVE | libc::MREMAP_FIXED;
+            if libc::mremap(p.cast(), old, new, flags, target.cast::<libc::c_void>()) == libc::MAP_FAILED {
+                unmap(target, new);
+                return null_mut();
+            }
+            advise(target, new);
+            target
+        }
+    }
 }
 
-// SAFETY: every block comes from `System` with `system_layout(layout)` and is
-// returned to it with the same layout (a pure function of the caller's layout,
-// which `GlobalAlloc` guarantees is the one it allocated with); `advise` never
-// changes memory contents.
+#[cfg(not(target_os = "linux"))]
+mod large {
+    //! Never used: [`super::is_large`] is false off Linux.
+
+    pub(super) const ALIGN: usize = 1;
+
+    pub(super) fn mapped_len(size: usize) -> usize {
+        size
+    }
+
+    pub(super) unsafe fn map(_len: usize) -> *mut u8 {
+        std::ptr::null_mut()
+    }
+
+    pub(super) unsafe fn unmap(_p: *mut u8, _len: usize) {}
+
+    pub(super) unsafe fn remap(_p: *mut u8, _old: usize, _new: usize) -> *mut u8 {
+        std::ptr::null_mut()
+    }
+}
+
+// SAFETY: a block is large exactly when `is_large` holds for its layout (a
+// pure function of the layout `GlobalAlloc` hands back with the block), and
+// then it is a mapping of `mapped_len(size)` bytes aligned to at least its
+// layout's alignment; every other block comes from and goes back to
+// `System` with its own layout. Mappings are zeroed by the kernel.
 unsafe impl GlobalAlloc for HugePages {
     #[inline]
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let sys = Self::system_layout(layout);
-        // SAFETY: forwarded contract: `layout` (hence `sys`) has a non-zero size.
-        let p = unsafe { System.alloc(sys) };
-        if sys != layout && !p.is_null() {
-            advise(p, layout.size());
+        if is_large(&layout) {
+            // SAFETY: a fresh mapping.
+            return unsafe { large::map(large::mapped_len(layout.size())) };
         }
-        p
+        // SAFETY: forwarded contract (`layout` has a non-zero size).
+        unsafe { System.alloc(layout) }
     }
 
     #[inline]
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let sys = Self::system_layout(layout);
-        if sys == layout {
-            // SAFETY: forwarded contract.
-            return unsafe { System.alloc_zeroed(layout) };
+        if is_large(&layout) {
+            // SAFETY: a fresh mapping, zeroed by the kernel.
+            return unsafe { large::map(large::mapped_len(layout.size())) };
         }
-        // Advise first, then zero: zeroing is the first touch.
-        // SAFETY: forwarded contract; `p` holds `layout.size()` writable bytes.
-        unsafe {
-            let p = self.alloc(layout);
-            if !p.is_null() {
-                std::ptr::write_bytes(p, 0, layout.size());
-            }
-            p
-        }
+        // SAFETY: forwarded contract.
+        unsafe { System.alloc_zeroed(layout) }
     }
 
     #[inline]
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` came from `alloc` with this `layout`, i.e. from
-        // `System` with `system_layout(layout)`.
-        unsafe { System.dealloc(ptr, Self::system_layout(layout)) }
+        // SAFETY: `ptr` came from `alloc` with this `layout` (see the impl's
+        // safety comment for where that put it).
+        unsafe {
+            if is_large(&layout) {
+                large::unmap(ptr, large::mapped_len(layout.size()));
+            } else {
+                System.dealloc(ptr, layout);
+            }
+        }
     }
 
     #[inline]
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        // SAFETY (both branches): `ptr` came from `alloc` with `layout`;
+        // SAFETY (all branches): `ptr` came from `alloc` with `layout`;
         // `new_size` is non-zero and valid for `layout.align()` (the caller's
-        // contract).
+        // contract). A moved block gets the first `min(old, new)` bytes.
         unsafe {
             let new_layout = Layout::from_size_align_unchecked(new_size, layout.align());
-            if Self::system_layout(layout) == layout && Self::system_layout(new_layout) == new_layout {
-                return System.realloc(ptr, layout, new_size);
+            match (is_large(&layout), is_large(&new_layout)) {
+                (false, false) => System.realloc(ptr, layout, new_size),
+                (true, true) => {
+                    large::remap(ptr, large::mapped_len(layout.size()), large::mapped_len(new_size))
+                }
+                _ => {
+                    let p = self.alloc(new_layout);
+                    if !p.is_null() {
+                        std::ptr::copy_nonoverlapping(ptr, p, layout.size().min(new_size));
+                        self.dealloc(ptr, layout);
+                    }
+                    p
+                }
             }
-            // Crossing into (or staying in) huge-page territory: a fresh,
-            // advised block and a copy.
-            let p = self.alloc(new_layout);
-            if !p.is_null() {
-                std::ptr::copy_nonoverlapping(ptr, p, layout.size().min(new_size));
-                self.dealloc(ptr, layout);
-            }
-            p
         }
     }
 }
@@ -132,30 +234,64 @@ unsafe impl GlobalAlloc for HugePages {
 mod tests {
     use super::*;
 
+    /// Fills `len` bytes at `p` with a pattern keyed by `seed`.
+    unsafe fn fill(p: *mut u8, len: usize, seed: u8) {
+        for i in (0..len).step_by(4093) {
+            // SAFETY: the caller owns `len` bytes at `p`.
+            unsafe { p.add(i).write(seed.wrapping_add(i as u8)) };
+        }
+    }
+
+    /// Whether `fill(p, len, seed)`'s pattern is there.
+    unsafe fn holds(p: *const u8, len: usize, seed: u8) -> bool {
+        // SAFETY: the caller owns `len` bytes at `p`.
+        (0..len).step_by(4093).all(|i| unsafe { p.add(i).read() } == seed.wrapping_add(i as u8))
+    }
+
     #[test]
-    fn large_blocks_are_huge_page_aligned_and_keep_their_contents() {
+    fn blocks_keep_their_contents_through_every_kind_of_resize() {
         let a = HugePages;
-        let small = Layout::from_size_align(1000, 8).unwrap();
-        let large = Layout::from_size_align(HugePages::MIN_BYTES + 12_345, 64).unwrap();
-        // SAFETY: non-zero sizes; every block is freed with its own layout.
+        let min = HugePages::MIN_BYTES;
+        // SAFETY: non-zero sizes; every block is resized and freed with the
+        // layout it has at that moment.
         unsafe {
+            let small = Layout::from_size_align(1000, 8).unwrap();
             let s = a.alloc(small);
             assert!(!s.is_null());
-            std::ptr::write_bytes(s, 7, small.size());
-            // Growing a small block past the threshold moves it to an aligned one.
-            let g = a.realloc(s, small, large.size());
-            assert!(!g.is_null());
-            assert_eq!(g as usize % HUGE_PAGE, 0);
-            assert!(std::slice::from_raw_parts(g, small.size()).iter().all(|&b| b == 7));
-            let grown = Layout::from_size_align(large.size(), small.align()).unwrap();
-            // Shrinking back keeps the prefix too.
-            let s2 = a.realloc(g, grown, 500);
-            assert!(std::slice::from_raw_parts(s2, 500).iter().all(|&b| b == 7));
-            a.dealloc(s2, Layout::from_size_align(500, 8).unwrap());
+            fill(s, 1000, 1);
+            // Small → large: a fresh mapping, huge-page aligned.
+            let mut size = min + 12_345;
+            let mut p = a.realloc(s, small, size);
+            assert!(!p.is_null());
+            assert!(cfg!(not(target_os = "linux")) || p as usize % large::ALIGN == 0);
+            assert!(holds(p, 1000, 1));
+            fill(p, size, 2);
+            // Large → larger, several times (in place or moved), and a
+            // block mapped right after it to force a move.
+            let blocker_layout = Layout::from_size_align(min, 8).unwrap();
+            let blocker = a.alloc(blocker_layout);
+            assert!(!blocker.is_null());
+            for _ in 0..3 {
+                let next = size * 2 + 777;
+                p = a.realloc(p, Layout::from_size_align(size, 8).unwrap(), next);
+                assert!(!p.is_null());
+                assert!(cfg!(not(target_os = "linux")) || p as usize % large::ALIGN == 0);
+                assert!(holds(p, size, 2), "contents moved with the block");
+                size = next;
+                fill(p, size, 2);
+            }
+            a.dealloc(blocker, blocker_layout);
+            // Large → smaller large, then → small.
+            let shrunk = min + 1;
+            p = a.realloc(p, Layout::from_size_align(size, 8).unwrap(), shrunk);
+            assert!(holds(p, shrunk, 2));
+            p = a.realloc(p, Layout::from_size_align(shrunk, 8).unwrap(), 500);
+            assert!(holds(p, 500, 2));
+            a.dealloc(p, Layout::from_size_align(500, 8).unwrap());
 
+            let large = Layout::from_size_align(min * 3, 64).unwrap();
             let z = a.alloc_zeroed(large);
             assert!(!z.is_null());
-            assert_eq!(z as usize % HUGE_PAGE, 0);
             assert!(std::slice::from_raw_parts(z, large.size()).iter().all(|&b| b == 0));
             a.dealloc(z, large);
         }
