@@ -9,10 +9,10 @@
 //! valgrind --tool=callgrind target/release/examples/frames scenes/paper.toml 320 240 3
 //! ```
 //!
-//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N] [--moving]`
-//! (`--moving` renders with the viewer's settings while the camera moves: 1 spp, one
-//! shadow ray per light; `--fill-cells` fills the cells around every surface before the first frame, as a
-//! slave does; `--threads` renders on N threads instead of one).
+//! Arguments: `SCENE WIDTH HEIGHT FRAMES [--no-shadow-cells] [--fill-cells] [--threads N]
+//! [--moving]` (`--fill-cells` fills the cells around every surface before the first frame, as
+//! a slave does; `--threads` renders on N threads instead of one; `--moving` renders with the
+//! viewer's settings while the camera moves: 1 spp, one shadow ray per light).
 
 use isin_tracer::render::{TraceOptions, render_frame_with};
 use isin_tracer::{AssetSource, RenderSettings, load_scene};
