@@ -559,7 +559,14 @@ mod avx {
                         let eq = _mm256_and_ps(_mm256_and_ps(ok, has), _mm256_cmp_ps::<_CMP_EQ_OQ>(t, best));
                         tie = _mm256_or_ps(_mm256_andnot_ps(lt, tie), eq);
                         if _mm256_movemask_ps(lt) != 0 {
-                            let id = _mm256_castsi256_ps(_mm256_set1_epi32(((first & !3) + lane) as i32));
+                            let at = (first & !3) + lane;
+                            if bvh.prefetch {
+                                // The hit's primitive index is read when the
+                                // walk ends: start loading it (a hint).
+                                let p = bvh.prim_ids.as_ptr().wrapping_add(at as usize);
+                                _mm_prefetch::<_MM_HINT_T0>(p.cast());
+                            }
+                            let id = _mm256_castsi256_ps(_mm256_set1_epi32(at as i32));
                             best = _mm256_blendv_ps(best, t, lt);
                             bu = _mm256_blendv_ps(bu, u, lt);
                             bv = _mm256_blendv_ps(bv, v, lt);

@@ -866,6 +866,9 @@ pub(super) fn leaf_bits<const AVX: bool>(node: &WideNode) -> u32 {
 
 /// Tests the leaf of child word `word` for the nearest-hit query: a hit nearer
 /// than `best_t` (the lowest lane on ties) becomes the best, as `(lane, u, v)`.
+/// With `ids` (large trees), a new best lane's entry there starts loading: the
+/// hit's primitive index is read when the walk ends, and on a large mesh it is
+/// a cache miss that the rest of the walk can hide.
 #[inline(always)]
 fn nearest_in_leaf(
     lr: &LeafRay,
@@ -874,18 +877,31 @@ fn nearest_in_leaf(
     t_min: f32,
     best_t: &mut f32,
     best: &mut Option<(u32, f32, f32)>,
+    ids: Option<&[u32]>,
 ) {
     let (first, count) = leaf_range(word);
     let h = lr.hits(blocks, first, count, t_min, *best_t);
     let mut m = h.mask;
+    let mut improved = None;
     while m != 0 {
         let lane = m.trailing_zeros() as usize;
         m &= m - 1;
         if h.t[lane] < *best_t {
             *best_t = h.t[lane];
-            *best = Some(((first & !3) + lane as u32, h.u[lane], h.v[lane]));
+            let at = (first & !3) + lane as u32;
+            *best = Some((at, h.u[lane], h.v[lane]));
+            improved = Some(at);
         }
     }
+    #[cfg(target_arch = "x86_64")]
+    if let (Some(ids), Some(at)) = (ids, improved) {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: SSE is part of the x86_64 baseline; a prefetch never faults
+        // (`wrapping_add`: no pointer arithmetic promises).
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(ids.as_ptr().wrapping_add(at as usize).cast()) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (ids, improved);
 }
 
 /// Nearest hit (see [`Bvh::intersect`]).
@@ -926,6 +942,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
     let r = WideRay::new(ray);
     let lr = LeafRay::new(ray, simd);
     let blocks = &bvh.blocks[..];
+    let ids = bvh.prefetch.then_some(&bvh.prim_ids[..]);
     let mut best_t = t_max;
     let mut best: Option<(u32, f32, f32)> = None;
     let mut stack = Stack::<(u32, f32)>::new();
@@ -939,7 +956,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
                 if e[k] <= best_t * ROBUST_EXIT {
-                    nearest_in_leaf(&lr, blocks, node.child[k], t_min, &mut best_t, &mut best);
+                    nearest_in_leaf(&lr, blocks, node.child[k], t_min, &mut best_t, &mut best, ids);
                 }
             }
         } else {
@@ -960,7 +977,7 @@ fn intersect_with<const AVX: bool>(bvh: &Bvh, ray: &Ray, t_min: f32, t_max: f32)
                 let k = leaves.trailing_zeros() as usize;
                 leaves &= leaves - 1;
                 if e[k] <= best_t * ROBUST_EXIT {
-                    nearest_in_leaf(&lr, blocks, node.child[k], t_min, &mut best_t, &mut best);
+                    nearest_in_leaf(&lr, blocks, node.child[k], t_min, &mut best_t, &mut best, ids);
                 }
             }
             // Interior children still in front of the best hit, nearest first
