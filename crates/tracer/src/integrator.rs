@@ -1542,12 +1542,7 @@ mod tests {
             Vec3::new(0.5, 5.0, 1.0),
             Vec3::new(-0.5, 5.0, 1.0),
         ];
-        let s = Sampler::new(4, 3, 2, 1);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d)
-        };
+        let mut next = Sampler::new(4, 3, 2, 1).stream();
         let mut compared = 0;
         for vertices in [parallelogram, trapezoid] {
             let light = Light::Area { vertices, radiance: Vec3::new(1.0, 0.9, 0.8) };
@@ -1599,12 +1594,8 @@ mod tests {
 
     #[test]
     fn four_shadow_rays_at_once_are_the_single_rays_bit_for_bit() {
-        let s = Sampler::new(9, 8, 7, 6);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d) * 20.0 - 10.0
-        };
+        let mut uniform = Sampler::new(9, 8, 7, 6).stream();
+        let mut next = || uniform() * 20.0 - 10.0;
         for _ in 0..1_000 {
             let origin = Vec3::new(next(), next(), next());
             let to: [Vec3; 4] = std::array::from_fn(|_| Vec3::new(next(), next(), next()));

@@ -517,12 +517,7 @@ mod tests {
             vertices: vec![Vec3::new(-1.0, 4.0, 0.0), Vec3::new(0.0, 4.5, 2.0), Vec3::new(1.0, 4.0, 0.5)],
             radiance: Vec3::ONE,
         };
-        let s = Sampler::new(5, 6, 7, 8);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d)
-        };
+        let mut next = Sampler::new(5, 6, 7, 8).stream();
         let mut compared = 0;
         for light in [quad(2.0, 3.0), tri] {
             for _ in 0..2_000 {

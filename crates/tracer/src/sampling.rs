@@ -70,6 +70,17 @@ impl Sampler {
         to_unit(self.bits(dim))
     }
 
+    /// Dimensions 1, 2, 3, … one per call: a fixed stream of uniform floats
+    /// in `[0, 1)` for tests that need many random inputs.
+    #[cfg(test)]
+    pub(crate) fn stream(self) -> impl FnMut() -> f32 {
+        let mut dim = 0;
+        move || {
+            dim += 1;
+            self.get(dim)
+        }
+    }
+
     /// Two uniform floats in `[0, 1)` for dimension `dim`, from the two halves
     /// of one 64-bit hash (half the work of two [`Sampler::get`] calls).
     #[inline]

@@ -332,12 +332,7 @@ mod tests {
 
     #[test]
     fn three_axis_sweep_is_the_one_axis_sweep() {
-        let s = crate::sampling::Sampler::new(6, 5, 4, 3);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d)
-        };
+        let mut next = crate::sampling::Sampler::new(6, 5, 4, 3).stream();
         let specials = [0.0, -0.0, 1e-30, 3e38, f32::INFINITY, f32::NEG_INFINITY];
         let mut found = 0;
         for case in 0..3000usize {

@@ -256,12 +256,8 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn sse_and_scalar_triangle_tests_agree_bit_for_bit() {
-        let s = Sampler::new(5, 6, 7, 8);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d) * 4.0 - 2.0
-        };
+        let mut uniform = Sampler::new(5, 6, 7, 8).stream();
+        let mut next = || uniform() * 4.0 - 2.0;
         let (mut hits, mut edge_cases) = (0, 0);
         for i in 0..40_000 {
             let mut block = TriBlock::EMPTY;

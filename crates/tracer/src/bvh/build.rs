@@ -274,12 +274,7 @@ mod tests {
     /// Random small triangles in clusters, with duplicates and degenerate ones,
     /// enough of them for the parallel binning and partition paths.
     fn soup(n: usize) -> Vec<Triangle> {
-        let s = Sampler::new(7, 7, 7, 7);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d)
-        };
+        let mut next = Sampler::new(7, 7, 7, 7).stream();
         let mut tris = Vec::with_capacity(n);
         while tris.len() < n {
             let cluster = Vec3::new((tris.len() % 5) as f32 * 40.0, 0.0, (tris.len() % 3) as f32 * 25.0);

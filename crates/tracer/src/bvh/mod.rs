@@ -451,12 +451,7 @@ mod tests {
         assert!(!plain.prefetch, "a small tree does not prefetch");
         let mut hinted = plain.clone();
         hinted.prefetch = true;
-        let s = crate::sampling::Sampler::new(3, 1, 4, 1);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d)
-        };
+        let mut next = crate::sampling::Sampler::new(3, 1, 4, 1).stream();
         let mut hits = 0;
         for _ in 0..4000 {
             let o = Vec3::new(next() * 50.0 - 5.0, next() * 6.0 - 1.0, next() * 50.0 - 5.0);

@@ -228,12 +228,8 @@ mod tests {
 
     #[test]
     fn tiny_nodes_get_the_cheapest_of_all_bipartitions() {
-        let s = crate::sampling::Sampler::new(3, 1, 4, 1);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d) * 10.0
-        };
+        let mut uniform = crate::sampling::Sampler::new(3, 1, 4, 1).stream();
+        let mut next = || uniform() * 10.0;
         for case in 0..300 {
             let n = 2 + case % (TINY_MAX - 1);
             let all: Vec<PrimRef> =

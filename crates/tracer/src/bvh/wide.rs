@@ -1125,12 +1125,8 @@ mod tests {
     fn avx_sse_and_scalar_box_tests_agree_bit_for_bit() {
         // Random boxes and rays, including axis-parallel directions, origins on
         // box planes and empty slots.
-        let s = Sampler::new(1, 2, 3, 4);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d) * 8.0 - 4.0
-        };
+        let mut uniform = Sampler::new(1, 2, 3, 4).stream();
+        let mut next = || uniform() * 8.0 - 4.0;
         for i in 0..20_000 {
             let mut node = WideNode::EMPTY;
             for k in 0..(1 + i % W) {
@@ -1202,12 +1198,7 @@ mod tests {
     fn pushing_nearest_last_visits_children_in_descend_nearest_order() {
         // Random entry distances with many ties, random interior masks and
         // limits, on top of a non-empty stack: both give the same sequence.
-        let s = Sampler::new(9, 8, 7, 6);
-        let mut d = 0;
-        let mut next = || {
-            d += 1;
-            s.get(d)
-        };
+        let mut next = Sampler::new(9, 8, 7, 6).stream();
         let mut node = WideNode::EMPTY;
         for (k, c) in node.child.iter_mut().enumerate() {
             *c = 100 + k as u32;
