@@ -68,8 +68,10 @@ fn main() -> Result<(), String> {
             let t = Instant::now();
             let (_, counts) = render_frame_with(&scene, &scene.camera, &settings, 32, &options, &|_| {});
             println!(
-                "frame {i}: {:.1} ms, {} shadow rays traced, {} shadow cells filled",
+                "frame {i}: {:.1} ms, {} primary, {} secondary, {} shadow rays traced, {} shadow cells filled",
                 t.elapsed().as_secs_f64() * 1e3,
+                counts.primary,
+                counts.secondary,
                 counts.shadow,
                 scene.shadow_cells_filled()
             );

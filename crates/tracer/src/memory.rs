@@ -18,7 +18,16 @@
 //!
 //! The advice is a hint: where the kernel refuses it (or on other systems)
 //! memory simply stays in small pages. It changes no value the tracer
-//! computes, only where the bytes live. Binaries opt in with
+//! computes, only where the bytes live.
+//!
+//! **Opting out.** With the kernel's default `defrag` setting (`madvise`), a
+//! fault in an advised block compacts memory on the spot when no free 2 MiB
+//! page is at hand: on a long-running machine with fragmented memory, loading
+//! a large scene can then stall for a fraction of a second. Setting the
+//! environment variable `ISIN_HUGE_PAGES=0` (or `off`) leaves the advice out;
+//! large blocks are still mapped on their own and grown without copies.
+//!
+//! Binaries opt in with
 //!
 //! ```ignore
 //! #[global_allocator]
@@ -43,6 +52,14 @@ fn is_large(layout: &Layout) -> bool {
     cfg!(target_os = "linux") && layout.size() >= HugePages::MIN_BYTES && layout.align() <= large::ALIGN
 }
 
+/// Whether large blocks are advised, given the value of `ISIN_HUGE_PAGES`
+/// (if set): yes unless it is `0`, `off`, `no` or `false` (any case).
+#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+fn advice_wanted_for(value: Option<&[u8]>) -> bool {
+    let off = |v: &[u8]| [&b"0"[..], b"off", b"no", b"false"].iter().any(|o| v.eq_ignore_ascii_case(o));
+    !value.is_some_and(|v| off(v.trim_ascii()))
+}
+
 #[cfg(target_os = "linux")]
 mod large {
     //! Huge-page-aligned anonymous mappings. Every function returns null on
@@ -60,11 +77,39 @@ mod large {
         size.div_ceil(PAGE) * PAGE
     }
 
-    /// Asks for huge pages on `[p, p + len)` (a hint: failure is harmless).
+    /// Asks for huge pages on `[p, p + len)` (a hint: failure is harmless),
+    /// unless the environment opts out (see the module docs).
     unsafe fn advise(p: *mut u8, len: usize) {
+        if !advice_wanted() {
+            return;
+        }
         // SAFETY: the caller owns the page-aligned mapping `[p, p + len)`;
         // MADV_HUGEPAGE changes how it is backed, never its contents.
         unsafe { libc::madvise(p.cast(), len, libc::MADV_HUGEPAGE) };
+    }
+
+    /// `ISIN_HUGE_PAGES`, read once. Through `getenv`, which does not
+    /// allocate: this runs inside the allocator.
+    fn advice_wanted() -> bool {
+        use std::sync::atomic::{AtomicU8, Ordering};
+        // 0: not read yet; 1: advise; 2: do not.
+        static STATE: AtomicU8 = AtomicU8::new(0);
+        match STATE.load(Ordering::Relaxed) {
+            1 => true,
+            2 => false,
+            _ => {
+                // SAFETY: the name is a NUL-terminated string; a non-null
+                // result points to the variable's NUL-terminated value, read
+                // at once. (Like every `getenv`, it must not race a `setenv`;
+                // the tracer's binaries never set variables.)
+                let wanted = unsafe {
+                    let v = libc::getenv(c"ISIN_HUGE_PAGES".as_ptr());
+                    super::advice_wanted_for((!v.is_null()).then(|| std::ffi::CStr::from_ptr(v).to_bytes()))
+                };
+                STATE.store(if wanted { 1 } else { 2 }, Ordering::Relaxed);
+                wanted
+            }
+        }
     }
 
     /// A fresh, zeroed, advised mapping of `len` bytes (whole pages) at an
@@ -246,6 +291,17 @@ mod tests {
     unsafe fn holds(p: *const u8, len: usize, seed: u8) -> bool {
         // SAFETY: the caller owns `len` bytes at `p`.
         (0..len).step_by(4093).all(|i| unsafe { p.add(i).read() } == seed.wrapping_add(i as u8))
+    }
+
+    #[test]
+    fn the_environment_switches_the_advice_off() {
+        assert!(advice_wanted_for(None));
+        for on in [&b"1"[..], b"on", b"yes", b"", b"always"] {
+            assert!(advice_wanted_for(Some(on)), "{on:?}");
+        }
+        for off in [&b"0"[..], b"off", b"OFF", b" no ", b"False"] {
+            assert!(!advice_wanted_for(Some(off)), "{off:?}");
+        }
     }
 
     #[test]
