@@ -1,6 +1,6 @@
 //! Renders one scene several times (on one thread unless told otherwise), as an interactive session
-//! does (the scene's shadow cells fill during the first frame), and prints
-//! each frame's time and its camera, secondary and shadow rays: a loop for profilers. The cost of a warm frame is the
+//! does (the scene's shadow cells fill during the first frame), and prints each frame's time and
+//! its camera, secondary and shadow rays: a loop for profilers. The cost of a warm frame is the
 //! difference between two runs with different frame counts, e.g.
 //!
 //! ```sh
