@@ -330,12 +330,19 @@ impl ApplicationHandler<Wake> for App<'_> {
                 }
             }
             WindowEvent::ModifiersChanged(m) => self.modifiers = m.state(),
-            WindowEvent::KeyboardInput { event, .. } => {
+            WindowEvent::KeyboardInput { event, is_synthetic, .. } => {
                 let PhysicalKey::Code(code) = event.physical_key else { return };
+                // A press is a command only when a key goes down in this window:
+                // not a system key repeat, and not one of the presses winit
+                // makes up on focus for every key that is already down (X11).
+                // A key being pressed while the window gains focus arrives both
+                // ways, and would otherwise act twice (the overlay toggled on
+                // and off again).
                 if event.state == ElementState::Released {
                     self.held.release(code);
                 } else if let Some(command) = command_for_key(code, self.modifiers.shift_key())
                     && !event.repeat
+                    && !is_synthetic
                 {
                     self.command(event_loop, code, command);
                 }
