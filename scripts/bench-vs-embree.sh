@@ -7,6 +7,8 @@
 #   scripts/bench-vs-embree.sh            # everything (about 10–15 minutes)
 #   REPS=3 scripts/bench-vs-embree.sh     # fewer Embree repetitions
 #   CASES="bunny sponza" scripts/bench-vs-embree.sh
+#   ROUNDS=3 scripts/bench-vs-embree.sh   # measure both three times, alternating, and
+#                                         # say in how many rounds each bar held
 #
 # Needs: root (or libembree-dev already installed) for apt-get, gcc, python3,
 # cargo. Embree is built into target/embree/, never into ../shared. Raw outputs
@@ -36,4 +38,4 @@ echo "== building isin's tracer benchmark (release)…"
 cargo bench -p isin-tracer --bench tracer --no-run 2>&1 | tail -1
 
 exec python3 "$ROOT/scripts/bench_vs_embree.py" --embree "$ROOT/target/embree/embree_bench" \
-  --meshes "$MESHES" --out "$OUT" --reps "${REPS:-5}" ${CASES:+--cases $CASES}
+  --meshes "$MESHES" --out "$OUT" --reps "${REPS:-5}" --rounds "${ROUNDS:-1}" ${CASES:+--cases $CASES}

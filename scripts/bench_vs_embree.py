@@ -97,6 +97,42 @@ def ratio(a, b):
     return None if a is None or b is None or b == 0 else a / b
 
 
+# (isin metric, table label, Embree metric)
+METRICS = [("primary", "primary, single ray (Mrays/s)", "primary"),
+           ("primary8", "primary, 8-ray packets, isin vs Embree (Mrays/s)", "primary8"),
+           ("incoherent", "incoherent (Mrays/s)", "incoherent"),
+           ("shadow", "shadow, area light (Mrays/s)", "shadow"),
+           ("build", "BVH build (ms; ratio = isin time / Embree time)", "build")]
+
+
+def bars(embree, rows, cases):
+    """Issue 6's bars of one round, in table order: per mesh, metric and thread count, isin's row,
+    Embree's figure, isin's figure compared (best run; builds: median), the ratio and whether the
+    bar is met (throughput ≥ Embree's; build ≤ 2× Embree's time)."""
+    out = []
+    for c in cases:
+        for metric, label, emetric in METRICS:
+            for t in (1, 2):
+                r = rows.get((c, metric, t))
+                if r is None and metric == "primary8":
+                    # A bench without isin's packet row: its single rays against Embree's packets.
+                    r = rows.get((c, "primary", t))
+                if r is None:
+                    continue
+                ev = embree[c].get((emetric, t))
+                if metric == "build":
+                    best = r["isin"]
+                    vs = ratio(r["isin"], ev)
+                    met = vs is not None and vs <= 2.0
+                else:
+                    best = r.get("isin_best")
+                    vs = ratio(best, ev)
+                    met = vs is not None and vs >= 1.0
+                out.append({"mesh": c, "label": label, "threads": t, "row": r, "embree": ev, "best": best,
+                            "emetric": emetric, "ratio": vs, "met": met})
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--embree", required=True)
@@ -104,6 +140,9 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--cases", nargs="*", default=list(CASES))
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="measure Embree and isin this many times, alternating, and say in how many "
+                         "rounds each bar held (bars near 1 flip with the machine's load)")
     a = ap.parse_args()
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     cases = [c for c in a.cases if c in CASES and os.path.exists(os.path.join(a.meshes, CASES[c][0]))]
@@ -114,22 +153,29 @@ def main():
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     load_before = open("/proc/loadavg").read().split()[:3]
 
-    embree, embree_rss = {}, {}
-    for c in cases:
-        mesh, extra = CASES[c]
-        print(f"== Embree: {c}", file=sys.stderr)
-        log = os.path.join(a.out, f"embree-{c}.txt")
-        code, rss = run_measured([a.embree, os.path.join(a.meshes, mesh), "-reps", str(a.reps)] + extra, log)
-        if code != 0:
-            sys.exit(f"embree_bench failed on {c} (exit {code}); see {log}")
-        embree[c] = parse_embree(open(log).read())
-        embree_rss[c] = rss
+    rounds = []  # per round: (Embree figures per mesh, isin rows, isin document)
+    embree_rss = {}
+    for n in range(max(1, a.rounds)):
+        tag = "" if n == 0 else f"-r{n + 1}"
+        embree = {}
+        for c in cases:
+            mesh, extra = CASES[c]
+            print(f"== Embree: {c}" + (f" (round {n + 1})" if a.rounds > 1 else ""), file=sys.stderr)
+            log = os.path.join(a.out, f"embree-{c}{tag}.txt")
+            code, rss = run_measured([a.embree, os.path.join(a.meshes, mesh), "-reps", str(a.reps)] + extra,
+                                     log)
+            if code != 0:
+                sys.exit(f"embree_bench failed on {c} (exit {code}); see {log}")
+            embree[c] = parse_embree(open(log).read())
+            embree_rss[c] = rss
 
-    print("== isin, bvh, obvhs: " + " ".join(cases), file=sys.stderr)
-    code, _ = run_measured([exe, "--bench", "json=tracer.json"] + cases, os.path.join(a.out, "tracer.txt"))
-    if code != 0:
-        sys.exit(f"tracer bench failed (exit {code})")
-    rows, doc = isin_rows(os.path.join(a.out, "tracer.json"))
+        print("== isin, bvh, obvhs: " + " ".join(cases), file=sys.stderr)
+        code, _ = run_measured([exe, "--bench", f"json=tracer{tag}.json"] + cases,
+                               os.path.join(a.out, f"tracer{tag}.txt"))
+        if code != 0:
+            sys.exit(f"tracer bench failed (exit {code})")
+        rows, doc = isin_rows(os.path.join(a.out, f"tracer{tag}.json"))
+        rounds.append((embree, rows, doc))
     rss_isin = None
     if "dragon_1.6M" in cases:
         # Peak RSS of a process that, like embree_bench, holds only one library's
@@ -149,39 +195,18 @@ def main():
           "| isin/Embree | isin/bvh | isin/obvhs | Embree per CPU-s | isin per CPU-s | ratio per CPU-s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     summary = []
-    for c in cases:
-        e = embree[c]
-        for metric, label, emetric in [("primary", "primary, single ray (Mrays/s)", "primary"),
-                                       ("primary8", "primary, 8-ray packets, isin vs Embree (Mrays/s)",
-                                        "primary8"),
-                                       ("incoherent", "incoherent (Mrays/s)", "incoherent"),
-                                       ("shadow", "shadow, area light (Mrays/s)", "shadow"),
-                                       ("build", "BVH build (ms; ratio = isin time / Embree time)", "build")]:
-            for t in (1, 2):
-                r = rows.get((c, metric, t))
-                if r is None and metric == "primary8":
-                    # A bench without isin's packet row: its single rays against Embree's packets.
-                    r = rows.get((c, "primary", t))
-                ev = e.get((emetric, t))
-                if r is None:
-                    continue
-                best = r.get("isin_best") if metric != "build" else r["isin"]
-                if metric == "build":
-                    vs_embree = ratio(r["isin"], ev)
-                    goal = vs_embree is not None and vs_embree <= 2.0
-                else:
-                    vs_embree = ratio(best, ev)
-                    goal = vs_embree is not None and vs_embree >= 1.0
-                if emetric == "primary8":
-                    bvh_v = obvhs_v = r_bvh = r_obvhs = None
-                else:
-                    bvh_v, obvhs_v = r.get("bvh"), r.get("obvhs")
-                    r_bvh, r_obvhs = r.get("isin_over_bvh"), r.get("isin_over_obvhs")
-                e_cpu, i_cpu = e.get((emetric + "/cpu", t)), r.get("isin_per_cpu")
-                print(f"| {c} | {label} | {t} | {fmt(ev)} | {fmt(best)} | {fmt(r['isin'])} | {fmt(bvh_v)} "
-                      f"| {fmt(obvhs_v)} | {fmt(vs_embree)}{'' if goal else ' ✗'} | {fmt(r_bvh)} | {fmt(r_obvhs)} "
-                      f"| {fmt(e_cpu)} | {fmt(i_cpu)} | {fmt(ratio(i_cpu, e_cpu))} |")
-                summary.append(goal)
+    for b in bars(embree, rows, cases):
+        r, ev, best, emetric = b["row"], b["embree"], b["best"], b["emetric"]
+        if emetric == "primary8":
+            bvh_v = obvhs_v = r_bvh = r_obvhs = None
+        else:
+            bvh_v, obvhs_v = r.get("bvh"), r.get("obvhs")
+            r_bvh, r_obvhs = r.get("isin_over_bvh"), r.get("isin_over_obvhs")
+        e_cpu, i_cpu = embree[b["mesh"]].get((emetric + "/cpu", b["threads"])), r.get("isin_per_cpu")
+        print(f"| {b['mesh']} | {b['label']} | {b['threads']} | {fmt(ev)} | {fmt(best)} | {fmt(r['isin'])} "
+              f"| {fmt(bvh_v)} | {fmt(obvhs_v)} | {fmt(b['ratio'])}{'' if b['met'] else ' ✗'} | {fmt(r_bvh)} "
+              f"| {fmt(r_obvhs)} | {fmt(e_cpu)} | {fmt(i_cpu)} | {fmt(ratio(i_cpu, e_cpu))} |")
+        summary.append(b["met"])
     print("\nisin/bvh and isin/obvhs: how many times faster isin is (median vs median; builds: time ratio).")
     print("Per CPU-s: rays per CPU-second of the process (Embree: of its tracing threads), which other "
           "load on the machine disturbs far less than wall time.")
@@ -194,10 +219,25 @@ def main():
         print(f"\nPeak RSS, dragon 1.6M (mesh + BVH + the ray sets, whole process): "
               f"isin {fmt(rss_isin, 0)} MB, Embree {fmt(embree_rss.get('dragon_1.6M'), 0)} MB.")
     print(f"\nbars met: {sum(summary)} of {len(summary)}")
+    if len(rounds) > 1:
+        per_round = [bars(e, r, cases) for e, r, _ in rounds]
+        print(f"\n### The bars in each of {len(rounds)} rounds (Embree, then isin, alternating; the table "
+              f"above is the last round)\n")
+        print("| mesh | case | threads | isin/Embree per round | met in |")
+        print("|---|---|---|---|---|")
+        always = 0
+        for k, b in enumerate(per_round[-1]):
+            ratios = [rb[k]["ratio"] for rb in per_round]
+            met = sum(rb[k]["met"] for rb in per_round)
+            always += met == len(rounds)
+            print(f"| {b['mesh']} | {b['label']} | {b['threads']} | {', '.join(fmt(x) for x in ratios)} "
+                  f"| {met} of {len(rounds)} |")
+        some = sum(any(rb[k]["met"] for rb in per_round) for k in range(len(per_round[-1])))
+        print(f"\nbars met in every round: {always} of {len(per_round[-1])}; in at least one: {some}")
     strided = [n for n in doc["notes"] if "every" in n]
     if strided:
         print(f"\n{len(strided)} library/case pairs traced an evenly strided subset to stay within the time "
-              f"budget (the load makes this common); the list is in {os.path.join(a.out, 'tracer.json')}.")
+              f"budget (the load makes this common); the list is in {os.path.join(a.out, f'tracer{tag}.json')}.")
 
 
 if __name__ == "__main__":
