@@ -14,7 +14,7 @@
 //!   colours instead of aliasing.
 
 use crate::math;
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec3A};
 
 /// A texture, evaluated at a UV coordinate with a filter footprint.
 #[derive(Clone, Debug, PartialEq)]
@@ -42,7 +42,10 @@ pub struct MipMap {
 struct Level {
     width: u32,
     height: u32,
-    texels: Vec<Vec3>,
+    /// Stored as [`Vec3A`] (16 bytes, SIMD-aligned): a lookup loads each texel
+    /// with one instruction and blends all three channels at once, with the
+    /// same operations per channel as on a `Vec3`, so the same bits.
+    texels: Vec<Vec3A>,
 }
 
 /// Largest accepted image side, to bound allocations from untrusted input.
@@ -84,9 +87,9 @@ impl MipMap {
         let table = srgb8_table();
         let texels = rgba[..n * 4]
             .chunks_exact(4)
-            .map(|p| Vec3::new(table[p[0] as usize], table[p[1] as usize], table[p[2] as usize]))
+            .map(|p| Vec3A::new(table[p[0] as usize], table[p[1] as usize], table[p[2] as usize]))
             .collect();
-        Some(Self::from_linear(width, height, texels))
+        Some(Self::from_texels(width, height, texels))
     }
 
     /// Builds the pyramid from linear RGB texels, row-major, row 0 on top.
@@ -97,6 +100,11 @@ impl MipMap {
     /// # Panics
     /// If `texels.len() != width * height` or a side is zero.
     pub fn from_linear(width: u32, height: u32, texels: Vec<Vec3>) -> Self {
+        Self::from_texels(width, height, texels.into_iter().map(Vec3A::from).collect())
+    }
+
+    /// [`MipMap::from_linear`] on texels already in their stored form.
+    fn from_texels(width: u32, height: u32, texels: Vec<Vec3A>) -> Self {
         assert!(width > 0 && height > 0 && texels.len() == width as usize * height as usize);
         let mut levels = vec![Level { width, height, texels }];
         loop {
@@ -123,7 +131,7 @@ impl MipMap {
     /// Texel `(x, y)` of level `level` (linear RGB).
     pub fn texel(&self, level: usize, x: u32, y: u32) -> Vec3 {
         let l = &self.levels[level];
-        l.texels[(y * l.width + x) as usize]
+        l.texels[(y * l.width + x) as usize].into()
     }
 
     /// Trilinear lookup with a footprint `width` UV units wide.
@@ -132,17 +140,17 @@ impl MipMap {
         let size = base.width.max(base.height) as f32;
         let texels_wide = width * size;
         if texels_wide.is_nan() || texels_wide <= 1.0 {
-            return base.bilinear(uv);
+            return base.bilinear(uv).into();
         }
         let lod = math::log2(texels_wide).min((self.levels.len() - 1) as f32);
         let l0 = lod as usize; // lod > 0 here
         let f = lod - l0 as f32;
         let a = self.levels[l0].bilinear(uv);
         if f <= 0.0 || l0 + 1 >= self.levels.len() {
-            return a;
+            return a.into();
         }
         let b = self.levels[l0 + 1].bilinear(uv);
-        a * (1.0 - f) + b * f
+        (a * (1.0 - f) + b * f).into()
     }
 }
 
@@ -186,13 +194,13 @@ fn wrap(x: f32) -> f32 {
 
 impl Level {
     #[inline]
-    fn at(&self, x: u32, y: u32) -> Vec3 {
+    fn at(&self, x: u32, y: u32) -> Vec3A {
         self.texels[(y * self.width + x) as usize]
     }
 
     /// Bilinear lookup with repeat wrapping; texel centres are at
     /// `((i + ½)/W, (j + ½)/H)`.
-    fn bilinear(&self, uv: Vec2) -> Vec3 {
+    fn bilinear(&self, uv: Vec2) -> Vec3A {
         let (w, h) = (self.width, self.height);
         let x = wrap(uv.x) * w as f32 - 0.5;
         let y = wrap(uv.y) * h as f32 - 0.5;
@@ -215,20 +223,20 @@ impl Level {
         let wx = box_weights(w, nw);
         let wy = box_weights(h, nh);
         // Horizontal pass: h rows × nw.
-        let mut tmp = vec![Vec3::ZERO; (nw * h) as usize];
+        let mut tmp = vec![Vec3A::ZERO; (nw * h) as usize];
         for y in 0..h {
             for (nx, taps) in wx.iter().enumerate() {
-                let mut acc = Vec3::ZERO;
+                let mut acc = Vec3A::ZERO;
                 for &(x, wgt) in taps {
                     acc += self.at(x, y) * wgt;
                 }
                 tmp[(y * nw) as usize + nx] = acc;
             }
         }
-        let mut texels = vec![Vec3::ZERO; (nw * nh) as usize];
+        let mut texels = vec![Vec3A::ZERO; (nw * nh) as usize];
         for (ny, taps) in wy.iter().enumerate() {
             for nx in 0..nw as usize {
-                let mut acc = Vec3::ZERO;
+                let mut acc = Vec3A::ZERO;
                 for &(y, wgt) in taps {
                     acc += tmp[(y * nw) as usize + nx] * wgt;
                 }
