@@ -32,10 +32,10 @@ TRACE_RE = re.compile(r"^\s+(.*?)\s+thr=(\d+)\s+rays=\s*(\d+)\s+wall best\s+([\d
 BUILD_RE = re.compile(r"^build MEDIUM\(default\)\s+threads=(\d+):\s+([\d.]+) ms")
 
 
-def run_measured(cmd, log):
+def run_measured(cmd, log, env=None):
     """Runs cmd, tees stdout to `log`, returns (exit code, peak RSS of the process in MB)."""
     with open(log, "w") as f:
-        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
         for line in p.stdout:
             f.write(line)
             sys.stderr.write("  | " + line)
@@ -153,6 +153,15 @@ def main():
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     load_before = open("/proc/loadavg").read().split()[:3]
 
+    # EMBREE_ISA (see bench-vs-embree.sh): the wrapper that passes it to Embree
+    # is preloaded into embree_bench only.
+    isa = os.environ.get("EMBREE_ISA", "")
+    embree_env = dict(os.environ)
+    if isa and os.environ.get("EMBREE_PRELOAD"):
+        embree_env["LD_PRELOAD"] = os.environ["EMBREE_PRELOAD"]
+    elif isa:
+        sys.exit("EMBREE_ISA needs the wrapper that scripts/bench-vs-embree.sh builds")
+
     rounds = []  # per round: (Embree figures per mesh, isin rows, isin document)
     embree_rss = {}
     for n in range(max(1, a.rounds)):
@@ -163,7 +172,7 @@ def main():
             print(f"== Embree: {c}" + (f" (round {n + 1})" if a.rounds > 1 else ""), file=sys.stderr)
             log = os.path.join(a.out, f"embree-{c}{tag}.txt")
             code, rss = run_measured([a.embree, os.path.join(a.meshes, mesh), "-reps", str(a.reps)] + extra,
-                                     log)
+                                     log, embree_env)
             if code != 0:
                 sys.exit(f"embree_bench failed on {c} (exit {code}); see {log}")
             embree[c] = parse_embree(open(log).read())
@@ -190,7 +199,8 @@ def main():
     print(f"\n## isin vs Embree {started} — {doc['machine']}")
     print(f"load average before {' '.join(load_before)}, after {' '.join(load_after)}; "
           f"Embree: best of {a.reps} (build: best of 3); isin: best and median of {doc['reps']} "
-          f"(build: median of 3); bvh/obvhs: median.\n")
+          f"(build: median of 3); bvh/obvhs: median.")
+    print(f"Embree's kernels: {isa.upper() + ' (forced with EMBREE_ISA)' if isa else 'the best ISA the CPU has'}.\n")
     print("| mesh | case | threads | Embree | isin best | isin median | bvh | obvhs "
           "| isin/Embree | isin/bvh | isin/obvhs | Embree per CPU-s | isin per CPU-s | ratio per CPU-s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
