@@ -35,15 +35,16 @@ if ! dpkg -s libembree-dev >/dev/null 2>&1 && [ ! -e /usr/include/embree3/rtcore
 fi
 # The anchor's build.sh builds next to itself; build the same way into target/.
 gcc -O2 -march=native -o "$ROOT/target/embree/embree_bench" "$ANCHOR/embree_bench.c" -lembree3 -lpthread -lm
+# embree_bench takes no ISA option; with EMBREE_ISA the Python driver preloads a
+# wrapper of rtcNewDevice that adds it, into embree_bench only.
+EMBREE_PRELOAD=""
 if [ -n "${EMBREE_ISA:-}" ]; then
-  # embree_bench takes no ISA option; a preloaded wrapper of rtcNewDevice adds it.
   gcc -O2 -shared -fPIC -o "$ROOT/target/embree/embree_isa.so" "$ROOT/scripts/embree_isa.c" -ldl
-  export LD_PRELOAD="$ROOT/target/embree/embree_isa.so"
+  EMBREE_PRELOAD="$ROOT/target/embree/embree_isa.so"
 fi
 
 echo "== building isin's tracer benchmark (release)…"
 cargo bench -p isin-tracer --bench tracer --no-run 2>&1 | tail -1
 
-# LD_PRELOAD (with EMBREE_ISA) must reach embree_bench only.
-exec env -u LD_PRELOAD EMBREE_PRELOAD="${LD_PRELOAD:-}" python3 "$ROOT/scripts/bench_vs_embree.py" --embree "$ROOT/target/embree/embree_bench" \
+exec env EMBREE_PRELOAD="$EMBREE_PRELOAD" python3 "$ROOT/scripts/bench_vs_embree.py" --embree "$ROOT/target/embree/embree_bench" \
   --meshes "$MESHES" --out "$OUT" --reps "${REPS:-5}" --rounds "${ROUNDS:-1}" ${CASES:+--cases $CASES}
