@@ -5,13 +5,13 @@
 use crate::assets::load_scene_file;
 use actix::Addr;
 use anyhow::Context;
-use isin_actors::auth::{self, Ticket};
-use isin_actors::auth::{ENCRYPTED_TCP, PLAINTEXT_TCP};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, SlaveOptions, Tracer};
-use isin_actors::transport::Transport;
 use isin_actors::viewer;
+use isin_cluster::auth::{self, Ticket};
+use isin_cluster::auth::{ENCRYPTED_TCP, PLAINTEXT_TCP};
 use isin_tracer::{Camera, RenderSettings};
+use isin_transport::Transport;
 use isin_transport_quic::QuicTransport;
 use isin_transport_tcp::TcpTransport;
 use isin_transport_tcp::tls::{Fingerprint, Identity};
@@ -141,7 +141,7 @@ pub fn render_frame(
     width: Option<u32>,
     height: Option<u32>,
     spp: Option<u32>,
-) -> anyhow::Result<(isin_tracer::Frame, isin_actors::protocol::FrameStats, String, u64)> {
+) -> anyhow::Result<(isin_tracer::Frame, isin_cluster::protocol::FrameStats, String, u64)> {
     let transport = client_transport(ticket)?;
     actix::System::new().block_on(async move {
         let (v, scene, mut events) = viewer::connect(transport.as_ref(), ticket, "render").await?;

@@ -3,10 +3,10 @@
 use super::cluster;
 use crate::assets::load_scene_file;
 use clap::Args;
-use isin_actors::auth::{self, Ticket};
-use isin_actors::codec::Compression;
 use isin_actors::master::{Master, MasterConfig};
-use isin_actors::scheduler::SchedulerConfig;
+use isin_cluster::auth::{self, Ticket};
+use isin_cluster::codec::Compression;
+use isin_cluster::scheduler::SchedulerConfig;
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -72,7 +72,7 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.compression = args.compression;
     let name = match (args.transport.as_str(), args.insecure) {
         (_, false) => args.transport.as_str(),
-        ("tcp", true) => isin_actors::auth::PLAINTEXT_TCP,
+        ("tcp", true) => isin_cluster::auth::PLAINTEXT_TCP,
         (other, true) => anyhow::bail!("--insecure is for TCP only; --transport {other} is always encrypted"),
     };
     let (transport, fingerprint) = cluster::server_transport(name, args.identity.as_deref())?;

@@ -19,12 +19,12 @@
 
 use super::cluster;
 use anyhow::Context;
-use isin_actors::auth::Ticket;
 use isin_actors::client::HANDSHAKE_TIMEOUT;
-use isin_actors::protocol::SceneInfo;
 use isin_actors::viewer::{
     self, Disconnect, GetSlaves, GetWireStats, RequestFrameAs, SlaveList, ViewerActor, ViewerEvent,
 };
+use isin_cluster::auth::Ticket;
+use isin_cluster::protocol::SceneInfo;
 use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate, Worker};
 use std::collections::BTreeMap;
 use std::thread::JoinHandle;
@@ -220,7 +220,7 @@ impl Link {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isin_actors::protocol::SlaveEntry;
+    use isin_cluster::protocol::SlaveEntry;
 
     fn entry(id: u64, alive: bool) -> SlaveEntry {
         SlaveEntry { id, name: format!("s#{id}"), addr: "127.0.0.1:1".into(), threads: 2, alive }

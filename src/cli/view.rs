@@ -11,7 +11,7 @@ use super::remote::Remote;
 use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
-use isin_actors::auth::Ticket;
+use isin_cluster::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings};
 use isin_viewer::stats::Summary;
 use isin_viewer::{CameraPath, Divisor, FrameReport, MovingResolution};

@@ -89,7 +89,7 @@ pub enum RawPeer {
     Tcp(std::net::TcpStream),
     /// A TLS/TCP or QUIC connection that passed TLS (it knows the ticket's
     /// fingerprint) but not the token handshake.
-    Framed(tokio::runtime::Runtime, isin_actors::transport::Connection),
+    Framed(tokio::runtime::Runtime, isin_transport::Connection),
 }
 
 impl RawPeer {
@@ -98,12 +98,12 @@ impl RawPeer {
         if c.transport == Transport::TcpInsecure {
             return RawPeer::Tcp(std::net::TcpStream::connect(&c.addr).expect("connect"));
         }
-        let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
+        let ticket: isin_cluster::auth::Ticket = c.ticket.parse().expect("ticket");
         let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
         let fp: isin_transport_quic::tls::Fingerprint = fp.parse().expect("fingerprint");
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
         let conn = rt.block_on(async {
-            let t: Box<dyn isin_actors::transport::Transport> = match c.transport {
+            let t: Box<dyn isin_transport::Transport> = match c.transport {
                 Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
                 _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
             };
@@ -406,7 +406,7 @@ impl Cluster {
 
     /// The master's ticket with its token replaced by `token`.
     pub fn ticket_with_token(&self, token: &str) -> String {
-        let mut t: isin_actors::auth::Ticket = self.ticket.parse().expect("ticket");
+        let mut t: isin_cluster::auth::Ticket = self.ticket.parse().expect("ticket");
         t.token = token.to_string();
         t.to_string()
     }

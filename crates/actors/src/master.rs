@@ -6,16 +6,16 @@
 //! actix messages from per-connection reader tasks (`Inbound`, `Closed`),
 //! so a connection that sends garbage is closed without disturbing the others.
 
-use crate::auth;
-use crate::codec::{self, Codec, Compression};
-use crate::protocol::{
+use actix::prelude::*;
+use isin_cluster::auth;
+use isin_cluster::codec::{self, Codec, Compression};
+use isin_cluster::protocol::{
     self, DEFAULT_MAX_FRAME, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, MAX_SLAVE_TEXT,
     MAX_SLAVES_LISTED, Message, Role, SceneHash, SceneInfo, SlaveEntry, TileAssignment, Welcome, WireBundle,
 };
-use crate::scheduler::{DeathCause, Output, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo};
-use crate::transport::{ConnStats, Connection, FrameSender, Listener};
-use actix::prelude::*;
+use isin_cluster::scheduler::{DeathCause, Output, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::{ConnStats, Connection, FrameSender, Listener};
 use serde_bytes::ByteBuf;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -609,7 +609,7 @@ pub struct Accepted(pub Connection);
 #[rtype(result = "()")]
 struct Inbound {
     peer: u64,
-    frame: Result<Vec<u8>, crate::transport::TransportError>,
+    frame: Result<Vec<u8>, isin_transport::TransportError>,
 }
 
 /// Connection `peer` ended.

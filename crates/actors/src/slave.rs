@@ -14,13 +14,13 @@
 //! pipeline frames, handing out the next frame's tiles while the older frame's
 //! are still queued here.
 
-use crate::auth::Ticket;
 use crate::client::{self, JoinError};
-use crate::codec::{self, Codec};
-use crate::protocol::{self, FrameId, Message, Role, SceneHash, TileAssignment, TileId, TileResult};
-use crate::transport::{FrameSender, Transport, TransportError};
 use actix::prelude::*;
+use isin_cluster::auth::Ticket;
+use isin_cluster::codec::{self, Codec};
+use isin_cluster::protocol::{self, FrameId, Message, Role, SceneHash, TileAssignment, TileId, TileResult};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
+use isin_transport::{FrameSender, Transport, TransportError};
 use serde_bytes::ByteBuf;
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -269,7 +269,7 @@ pub async fn run<R: Renderer>(
 
 /// An authenticated, scene-synced connection, ready for tiles.
 pub struct Session<S> {
-    conn: crate::transport::Connection,
+    conn: isin_transport::Connection,
     scene: Arc<S>,
     name: String,
     codec: Codec,
@@ -351,7 +351,7 @@ pub async fn serve<R: Renderer>(
     opts: &SlaveOptions,
 ) -> String {
     let (done_tx, done_rx) = oneshot::channel();
-    let crate::transport::Connection { sender, mut receiver, .. } = session.conn;
+    let isin_transport::Connection { sender, mut receiver, .. } = session.conn;
     let actor = SlaveActor {
         sender,
         scene: session.scene,

@@ -2,12 +2,12 @@
 //! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
 //! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
 
-use crate::auth::Ticket;
 use crate::client::{self, JoinError};
-use crate::protocol::{self, FrameStats, Message, Role, SceneInfo, SlaveEntry};
-use crate::transport::{ConnStats, FrameSender, Transport, TransportError};
 use actix::prelude::*;
+use isin_cluster::auth::Ticket;
+use isin_cluster::protocol::{self, FrameStats, Message, Role, SceneInfo, SlaveEntry};
 use isin_tracer::{Camera, Frame, RenderSettings, Tile};
+use isin_transport::{ConnStats, FrameSender, Transport, TransportError};
 use std::time::Duration;
 use tokio::sync::mpsc;
 
@@ -258,9 +258,10 @@ pub async fn connect(
     name: &str,
 ) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
     let (conn, welcome) =
-        client::handshake(transport, ticket, Role::Viewer, name, 0, None, &crate::codec::Codec::ALL).await?;
+        client::handshake(transport, ticket, Role::Viewer, name, 0, None, &isin_cluster::codec::Codec::ALL)
+            .await?;
     let (sink, events) = mpsc::unbounded_channel();
-    let crate::transport::Connection { sender, mut receiver, .. } = conn;
+    let isin_transport::Connection { sender, mut receiver, .. } = conn;
     let addr = ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0 }.start();
     let target = addr.clone();
     tokio::spawn(async move {

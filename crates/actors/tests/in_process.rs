@@ -2,15 +2,15 @@
 //! fake renderer (a pixel's bytes are a hash of its coordinates and the
 //! camera), so these run without the ray tracer.
 
-use isin_actors::auth::Ticket;
 use isin_actors::client::JoinError;
-use isin_actors::codec::{Codec, Compression};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, SlaveOptions};
-use isin_actors::transport::Transport;
-use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer;
+use isin_cluster::auth::Ticket;
+use isin_cluster::codec::{Codec, Compression};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Transport;
+use isin_transport::mem::MemTransport;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -172,7 +172,7 @@ async fn a_viewer_whose_frame_is_superseded_by_another_viewer_is_told() {
 #[actix::test]
 async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by_others() {
     use isin_actors::client;
-    use isin_actors::protocol::{self, Message, Role, TileResult};
+    use isin_cluster::protocol::{self, Message, Role, TileResult};
     let t = MemTransport::new();
     let (master, ticket) = start_master(&t, "tok").await;
     // A hand-driven slave that lies about a tile's size.
@@ -263,7 +263,7 @@ async fn absurd_frame_requests_get_an_error_and_the_viewer_stays_connected() {
 #[actix::test]
 async fn a_peer_speaking_another_protocol_version_is_told_so() {
     use isin_actors::client;
-    use isin_actors::protocol::{self, Message};
+    use isin_cluster::protocol::{self, Message};
     let t = MemTransport::new();
     let (master, ticket) = start_master(&t, "tok").await;
     let mut conn = t.connect(&ticket.addr).await.unwrap();
@@ -322,7 +322,7 @@ async fn a_request_under_the_callers_number_comes_back_tagged_with_it_and_the_sl
 #[actix::test]
 async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
     use isin_actors::client;
-    use isin_actors::protocol::Role;
+    use isin_cluster::protocol::Role;
     let all = Codec::ALL;
     for (compression, best) in [
         (Compression::Auto, Codec::ALL[0]),

@@ -1,15 +1,15 @@
 //! The master tells its viewers which slaves it has: when a viewer joins, and
 //! again whenever a slave joins or dies.
 
-use isin_actors::auth::Ticket;
 use isin_actors::client;
-use isin_actors::codec::Codec;
 use isin_actors::master::{Master, MasterConfig};
-use isin_actors::protocol::{Message, Role, SlaveEntry};
-use isin_actors::transport::Transport;
-use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer::{self, GetSlaves, SlaveList, ViewerActor};
+use isin_cluster::auth::Ticket;
+use isin_cluster::codec::Codec;
+use isin_cluster::protocol::{Message, Role, SlaveEntry};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Transport;
+use isin_transport::mem::MemTransport;
 use std::time::Duration;
 
 /// Waits (up to 10 s) for a slave list that `want` accepts.
@@ -35,7 +35,7 @@ async fn fake_slave(
     ticket: &Ticket,
     name: &str,
     threads: u32,
-) -> isin_actors::transport::Connection {
+) -> isin_transport::Connection {
     let (mut conn, _) =
         client::handshake(t, ticket, Role::Slave, name, threads, None, &[Codec::Raw]).await.unwrap();
     let hash = loop {

@@ -2,13 +2,13 @@
 //! rendered stop between bands of rows, not at their end; and the tracer's
 //! banded rendering gives the bytes of one whole-tile render.
 
-use isin_actors::auth::Ticket;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, Renderer, SlaveOptions, Tracer};
-use isin_actors::transport::Transport;
-use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer;
+use isin_cluster::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
+use isin_transport::Transport;
+use isin_transport::mem::MemTransport;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};

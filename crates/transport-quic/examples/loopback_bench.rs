@@ -19,8 +19,8 @@
 #[path = "../tests/relay/mod.rs"]
 mod relay;
 
-use isin_actors::protocol::{self, DEFAULT_MAX_FRAME, Message, TileResult};
-use isin_actors::transport::{Connection, Transport};
+use isin_cluster::protocol::{self, DEFAULT_MAX_FRAME, Message, TileResult};
+use isin_transport::{Connection, Transport};
 use isin_transport_quic::QuicTransport;
 use isin_transport_quic::tls::Identity;
 use isin_transport_tcp::TcpTransport;

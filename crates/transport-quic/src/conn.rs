@@ -24,7 +24,7 @@
 use crate::config::QuicOptions;
 use crate::stats::Registry;
 use crate::wire::{self, Classifier, Delivery};
-use isin_actors::transport::{ConnShared, Connection, FrameReceiver, FrameSender, Outgoing, TransportError};
+use isin_transport::{ConnShared, Connection, FrameReceiver, FrameSender, Outgoing, TransportError};
 use quinn::{ConnectionError, ReadError, RecvStream, SendStream, VarInt};
 use std::collections::{BTreeMap, VecDeque};
 use std::io;
@@ -87,7 +87,7 @@ pub fn spawn(
 ) -> Connection {
     registry.add(&conn);
     let peer = conn.remote_address().to_string();
-    let shared = ConnShared::new(isin_actors::protocol::HANDSHAKE_MAX_FRAME);
+    let shared = ConnShared::new(isin_transport::INITIAL_MAX_FRAME);
     let (out_tx, out_rx) = mpsc::unbounded_channel();
     let (in_tx, in_rx) = mpsc::channel(INBOUND_QUEUE);
     let (ctrl_tx, ctrl_rx) = mpsc::channel(EVENT_QUEUE);

@@ -49,7 +49,7 @@
 //! ## Example
 //! ```no_run
 //! # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
-//! use isin_actors::transport::Transport;
+//! use isin_transport::Transport;
 //! use isin_transport_quic::{QuicTransport, tls::Identity};
 //! let identity = Identity::generate()?;
 //! let fingerprint = identity.fingerprint(); // goes into the join ticket
@@ -72,7 +72,7 @@ pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
 pub use isin_transport_tcp::tls;
 pub use stats::WireStats;
 
-use isin_actors::transport::{BoxFuture, Connection, Listener, Transport, TransportError};
+use isin_transport::{BoxFuture, Connection, Listener, Transport, TransportError};
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use quinn::{Endpoint, EndpointConfig, TokioRuntime, VarInt};
 use std::net::SocketAddr;

@@ -24,7 +24,7 @@
 //! [`Classifier`]'s decision; [`protocol_classifier`] marks isin's tile
 //! messages (`TileResult`, `FrameTile`) and nothing else.
 
-use isin_actors::protocol::{self, FrameTile, Message, TileResult};
+use isin_cluster::protocol::{self, FrameTile, Message, TileResult};
 use isin_tracer::Tile;
 use std::sync::OnceLock;
 
@@ -147,7 +147,7 @@ pub fn parse_stream_header(h: &[u8; STREAM_HEADER]) -> (u64, u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isin_actors::protocol::{FrameStats, Hello, Role};
+    use isin_cluster::protocol::{FrameStats, Hello, Role};
     use isin_tracer::{Camera, RenderSettings};
     use serde_bytes::ByteBuf;
 
@@ -159,7 +159,7 @@ mod tests {
                 id: 123_456,
                 tile: Tile { x: 64, y: 0, w: 64, h: 64 },
                 render_micros: 9,
-                codec: isin_actors::codec::Codec::Qoi,
+                codec: isin_cluster::codec::Codec::Qoi,
                 pixels: ByteBuf::from(vec![1u8; 12_288]),
             }),
             Message::FrameTile(FrameTile {
@@ -167,7 +167,7 @@ mod tests {
                 slave: u64::MAX,
                 slave_name: "TileResult#9".into(),
                 tile: Tile { x: 64, y: 128, w: 64, h: 64 },
-                codec: isin_actors::codec::Codec::Lz4,
+                codec: isin_cluster::codec::Codec::Lz4,
                 pixels: ByteBuf::from(vec![2u8; 12_288]),
             }),
         ];
@@ -181,7 +181,7 @@ mod tests {
                 client_nonce: [0; 32],
                 proof: [0; 32],
                 cached_scene: None,
-                codecs: isin_actors::codec::offer(),
+                codecs: isin_cluster::codec::offer(),
             }),
             Message::Ready { hash: [0; 32] },
             Message::Cancel { frame: 1, tiles: vec![1] },

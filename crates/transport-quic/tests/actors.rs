@@ -6,12 +6,12 @@
 
 mod relay;
 
-use isin_actors::auth::Ticket;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, SlaveOptions};
-use isin_actors::transport::Transport;
 use isin_actors::viewer;
+use isin_cluster::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Transport;
 use isin_transport_quic::QuicTransport;
 use isin_transport_quic::tls::Identity;
 use relay::Relay;

@@ -8,8 +8,8 @@
 
 mod relay;
 
-use isin_actors::protocol::HANDSHAKE_MAX_FRAME;
-use isin_actors::transport::{Connection, Listener, Transport, TransportError};
+use isin_transport::INITIAL_MAX_FRAME as HANDSHAKE_MAX_FRAME;
+use isin_transport::{Connection, Listener, Transport, TransportError};
 use isin_transport_quic::tls::{self, Identity};
 use isin_transport_quic::wire::{self, Delivery};
 use isin_transport_quic::{QuicOptions, QuicTransport};
@@ -152,7 +152,7 @@ async fn many_frames_round_trip_both_ways_with_ordering_rules_and_counters() {
 
 #[tokio::test]
 async fn the_protocol_classifier_sends_tiles_on_streams_and_the_rest_in_order() {
-    use isin_actors::protocol::{self, Message, TileResult};
+    use isin_cluster::protocol::{self, Message, TileResult};
     let id = Identity::generate().unwrap();
     let server = QuicTransport::server(&id).unwrap();
     let client = QuicTransport::client(id.fingerprint()).unwrap();

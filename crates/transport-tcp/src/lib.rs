@@ -1,7 +1,7 @@
 //! # isin-transport-tcp — the cluster transport over TCP
 //!
 //! Length-delimited frames over tokio TCP streams, implementing the
-//! [`isin_actors::transport::Transport`] interface the actors use. By default
+//! [`isin_transport::Transport`] interface the actors use. By default
 //! the stream is TLS 1.3 ([`TcpTransport::server`] / [`TcpTransport::client`]):
 //! the master presents its self-signed [`tls::Identity`], the slave pins the
 //! certificate's SHA-256 from the join ticket (no "accept any certificate"),
@@ -19,7 +19,7 @@
 //! own task under a timeout, so a peer that stalls it holds up no one.
 //!
 //! ## Counting
-//! Over TLS, [`ConnStats`](isin_actors::transport::ConnStats) bytes are what
+//! Over TLS, [`ConnStats`](isin_transport::ConnStats) bytes are what
 //! crossed the socket — handshake, record headers and authentication tags
 //! included — counted by a wrapper under the TLS layer ([`counted`]). Over
 //! plaintext they are the frames and their 4-byte length prefixes, which is
@@ -29,9 +29,10 @@ pub mod counted;
 pub mod tls;
 
 use counted::Counted;
-use isin_actors::protocol::HANDSHAKE_MAX_FRAME;
-use isin_actors::transport::stream::{self, Counting};
-use isin_actors::transport::{BoxFuture, ConnShared, Connection, Listener, Transport, TransportError};
+use isin_transport::stream::{self, Counting};
+use isin_transport::{
+    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, Transport, TransportError,
+};
 use std::sync::Arc;
 use std::time::Duration;
 use tls::{Fingerprint, Identity, PinnedServerVerifier, TlsError};
@@ -151,7 +152,7 @@ fn nodelay(sock: &TcpStream, peer: &str) {
 fn wrap_plain(sock: TcpStream, peer: String) -> Connection {
     nodelay(&sock, &peer);
     let (r, w) = sock.into_split();
-    stream::spawn(r, w, peer, HANDSHAKE_MAX_FRAME)
+    stream::spawn(r, w, peer, INITIAL_MAX_FRAME)
 }
 
 /// Plaintext listener: connections are ready as soon as accepted.
@@ -227,7 +228,7 @@ async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc:
 
 async fn tls_accept(sock: TcpStream, peer: &str, acceptor: &TlsAcceptor) -> Result<Connection, String> {
     nodelay(&sock, peer);
-    let shared = ConnShared::new(HANDSHAKE_MAX_FRAME);
+    let shared = ConnShared::new(INITIAL_MAX_FRAME);
     let tls = acceptor
         .accept(Counted::new(sock, shared.clone()))
         .await
@@ -311,7 +312,7 @@ impl Transport for TcpTransport {
                 .map_err(|e| err(e.to_string()))?;
             let name = tokio_rustls::rustls::pki_types::ServerName::try_from(tls::SERVER_NAME)
                 .map_err(|e| err(e.to_string()))?;
-            let shared = ConnShared::new(HANDSHAKE_MAX_FRAME);
+            let shared = ConnShared::new(INITIAL_MAX_FRAME);
             let tls = TlsConnector::from(Arc::new(cfg))
                 .connect(name, Counted::new(sock, shared.clone()))
                 .await

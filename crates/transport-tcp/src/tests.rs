@@ -134,9 +134,9 @@ async fn oversized_prefix_closes_only_that_connection() {
     for (server_t, client_t) in [(TcpTransport::insecure(), TcpTransport::insecure()), tls_pair()] {
         let mut l = server_t.listen("127.0.0.1:0").await.unwrap();
         let addr = l.local_addr();
-        // A frame of HANDSHAKE_MAX_FRAME + 1 bytes: its prefix alone is refused.
+        // A frame of INITIAL_MAX_FRAME + 1 bytes: its prefix alone is refused.
         let bad_client = client_t.connect(&addr).await.unwrap();
-        bad_client.sender.send(vec![1; HANDSHAKE_MAX_FRAME + 1]).unwrap();
+        bad_client.sender.send(vec![1; INITIAL_MAX_FRAME + 1]).unwrap();
         let mut bad = timeout(BOUND, l.accept()).await.unwrap().unwrap();
         assert!(
             matches!(bad.receiver.recv().await, Some(Err(TransportError::FrameTooLarge { .. }))),
@@ -161,7 +161,7 @@ async fn raw_garbage_is_refused_without_reading_a_body() {
     let addr = l.local_addr();
     let mut raw = tokio::net::TcpStream::connect(&addr).await.unwrap();
     let mut bad = l.accept().await.unwrap();
-    raw.write_all(&(HANDSHAKE_MAX_FRAME as u32 + 1).to_be_bytes()).await.unwrap();
+    raw.write_all(&(INITIAL_MAX_FRAME as u32 + 1).to_be_bytes()).await.unwrap();
     assert!(matches!(bad.receiver.recv().await, Some(Err(TransportError::FrameTooLarge { .. }))));
     bad.sender.close();
     let mut buf = [0u8; 8];

@@ -2,7 +2,7 @@
 //! the same length-delimited codec as TCP. For tests of the actors without
 //! sockets.
 
-use super::{BoxFuture, Connection, Listener, Transport, TransportError, stream};
+use crate::{BoxFuture, Connection, Listener, Transport, TransportError, stream};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use tokio::sync::mpsc;
@@ -57,7 +57,7 @@ impl Transport for MemTransport {
             let (ar, aw) = tokio::io::split(a);
             let (br, bw) = tokio::io::split(b);
             // Both ends start at the handshake limit, as real transports do.
-            let max = crate::protocol::HANDSHAKE_MAX_FRAME;
+            let max = crate::INITIAL_MAX_FRAME;
             let ours = stream::spawn(ar, aw, addr.to_string(), max);
             let theirs = stream::spawn(br, bw, "mem-peer".to_string(), max);
             listener.send(theirs).map_err(|_| refused())?;

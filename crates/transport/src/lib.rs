@@ -1,4 +1,6 @@
-//! The transport interface: what the actors need from a network, and nothing
+//! # isin-transport — the interface every transport implements
+//!
+//! What the actors need from a network, and nothing
 //! about which network it is.
 //!
 //! A [`Transport`] listens and connects; either way the result is a
@@ -21,6 +23,12 @@ use tokio::sync::{Notify, mpsc};
 
 pub mod mem;
 pub mod stream;
+
+/// The largest frame every new connection accepts until the application
+/// raises it ([`FrameSender::set_max_frame`]) — once the peer has proved who
+/// it is. An unauthenticated peer cannot make anyone allocate more than this.
+/// It must hold the protocol's largest handshake message.
+pub const INITIAL_MAX_FRAME: usize = 16 << 10;
 
 /// A boxed, sendable future (the trait methods are object-safe this way).
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;

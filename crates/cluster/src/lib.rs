@@ -1,0 +1,19 @@
+//! # isin-cluster — the cluster's decisions, with no I/O
+//!
+//! Everything the master decides, as plain state machines driven from
+//! outside (quinn-proto's shape): inputs are `handle_*` calls with the time as
+//! an argument, outputs are polled. Nothing here touches a socket, a file, a
+//! clock or an async runtime — `Cargo.toml` has none of them — so tests drive
+//! whole clusters of simulated peers on a virtual clock.
+//!
+//! Modules:
+//! - [`protocol`]: every message, the versioned wire encoding, scene hashes.
+//! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never sent),
+//!   join tickets (`isin://TOKEN@HOST:PORT?fp=CERT-SHA256`).
+//! - [`codec`]: tile compression (QOI, LZ4, raw), negotiated at join; bounded,
+//!   panic-free decoding of untrusted tiles.
+//! - [`scheduler`]: which tile goes to which slave, who is dead.
+pub mod auth;
+pub mod codec;
+pub mod protocol;
+pub mod scheduler;
