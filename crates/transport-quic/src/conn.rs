@@ -142,7 +142,7 @@ async fn write_loop(
             item = rx.recv() => item,
         };
         let frame = match item {
-            Some(Outgoing::Frame(f)) => f,
+            Some(Outgoing::Frame(f, _)) => f,
             Some(Outgoing::Close) | None => break,
         };
         let Ok(len) = u32::try_from(frame.len()) else {

@@ -195,11 +195,25 @@ pub struct ConnStats {
     pub frames_received: u64,
 }
 
+/// How a frame may travel relative to the others on its connection. The
+/// sender chooses (the cluster core classes its messages); a transport that
+/// has one ordered byte stream (TCP) treats both alike.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Delivery {
+    /// In send order with every other frame: never overtakes, nor is
+    /// overtaken by, anything sent before it.
+    #[default]
+    Ordered,
+    /// May overtake other independent frames sent since the last ordered one
+    /// (tiles: a lost packet delays only its own tile), never an ordered frame.
+    Independent,
+}
+
 /// What the writer side of a transport is asked to do, in order.
 #[derive(Debug)]
 pub enum Outgoing {
-    /// Send this frame.
-    Frame(Vec<u8>),
+    /// Send this frame, delivered as it says.
+    Frame(Vec<u8>, Delivery),
     /// Flush what was queued before, then close.
     Close,
 }
@@ -217,12 +231,19 @@ impl FrameSender {
         Self { tx, shared }
     }
 
-    /// Queues a frame; `Err(Closed)` once the connection is closed.
+    /// Queues an [ordered](Delivery::Ordered) frame; `Err(Closed)` once the
+    /// connection is closed.
     pub fn send(&self, frame: Vec<u8>) -> Result<(), TransportError> {
+        self.send_as(frame, Delivery::Ordered)
+    }
+
+    /// Queues a frame delivered as `delivery` says; `Err(Closed)` once the
+    /// connection is closed.
+    pub fn send_as(&self, frame: Vec<u8>, delivery: Delivery) -> Result<(), TransportError> {
         if self.shared.is_closed() {
             return Err(TransportError::Closed);
         }
-        self.tx.send(Outgoing::Frame(frame)).map_err(|_| TransportError::Closed)
+        self.tx.send(Outgoing::Frame(frame, delivery)).map_err(|_| TransportError::Closed)
     }
 
     /// Flushes what was queued, then closes both directions.

@@ -67,7 +67,7 @@ async fn write_loop<W: AsyncWrite + Unpin>(
         let mut next = Some(first);
         while let Some(item) = next.take() {
             match item {
-                Outgoing::Frame(frame) => {
+                Outgoing::Frame(frame, _) => {
                     let Ok(len) = u32::try_from(frame.len()) else {
                         tracing::error!(len = frame.len(), "frame too long for the wire; dropped");
                         continue;
