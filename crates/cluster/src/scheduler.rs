@@ -159,6 +159,29 @@ pub enum ResultOutcome {
     Stale,
     /// No such tile in the frame (or it was split after being handed out): drop it.
     Unknown,
+    /// `slave` was never handed this tile: refused, nothing changed.
+    Foreign,
+}
+
+/// Whether a slave's result for a tile may be taken, asked before its pixels
+/// are looked at ([`Scheduler::check_result`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResultCheck {
+    /// The slave was handed this tile, which is still outstanding: decode
+    /// the pixels (they must cover this rectangle) and pass them to
+    /// [`Scheduler::handle_result`].
+    Held {
+        /// The tile's rectangle.
+        tile: Tile,
+    },
+    /// The slave was handed this tile, but it is already delivered (another
+    /// copy won) or split: drop the result.
+    Finished,
+    /// The frame is no longer known (superseded or long completed): drop it.
+    Stale,
+    /// The frame is known but this slave was never handed this tile (or no
+    /// such tile exists): a result that is not the slave's to give.
+    Foreign,
 }
 
 /// Why a frame could not be started.
@@ -236,9 +259,22 @@ struct TileRec {
     tile: Tile,
     state: TileState,
     holders: Vec<SlaveId>,
+    /// Every slave this tile was ever handed to in this frame (holders past
+    /// and present): only their results are the tile's.
+    assigned: Vec<SlaveId>,
     assigned_at: Duration,
     /// Put back in the queue by a death and not handed out since.
     requeued: bool,
+}
+
+impl TileRec {
+    /// Hands the tile to `slave` (as a holder, and for good as an assignee).
+    fn hand_to(&mut self, slave: SlaveId) {
+        self.holders.push(slave);
+        if !self.assigned.contains(&slave) {
+            self.assigned.push(slave);
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -310,6 +346,20 @@ impl Scheduler {
     pub fn tile(&self, frame: FrameId, id: TileId) -> Option<Tile> {
         let f = self.frames.iter().find(|f| f.id == frame)?;
         f.tiles.get(id as usize).map(|r| r.tile)
+    }
+
+    /// Whether a result from `slave` for tile `id` of `frame` may be taken:
+    /// only a slave that was handed the tile may deliver it. Changes nothing.
+    pub fn check_result(&self, slave: SlaveId, frame: FrameId, id: TileId) -> ResultCheck {
+        let Some(f) = self.frames.iter().find(|f| f.id == frame) else { return ResultCheck::Stale };
+        let Some(rec) = f.tiles.get(id as usize) else { return ResultCheck::Foreign };
+        if !rec.assigned.contains(&slave) {
+            return ResultCheck::Foreign;
+        }
+        match rec.state {
+            TileState::Queued | TileState::InFlight => ResultCheck::Held { tile: rec.tile },
+            TileState::Done | TileState::Split => ResultCheck::Finished,
+        }
     }
 
     /// Whether `slave` is alive in the scheduler's eyes.
@@ -473,6 +523,9 @@ impl Scheduler {
             self.waste(slave);
             return ResultOutcome::Stale;
         };
+        if f.tiles.get(tile as usize).is_some_and(|rec| !rec.assigned.contains(&slave)) {
+            return ResultOutcome::Foreign;
+        }
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.in_flight.remove(&(frame, tile));
         }
@@ -562,6 +615,7 @@ impl Scheduler {
                 tile,
                 state: TileState::Queued,
                 holders: Vec::new(),
+                assigned: Vec::new(),
                 assigned_at: now,
                 requeued: false,
             })
@@ -645,7 +699,7 @@ impl Scheduler {
                 let f = &mut self.frames[fi];
                 let rec = &mut f.tiles[tile as usize];
                 rec.state = TileState::InFlight;
-                rec.holders.push(*id);
+                rec.hand_to(*id);
                 rec.assigned_at = now;
                 if std::mem::take(&mut rec.requeued) {
                     *reassigned.entry((*id, f.id)).or_default() += 1;
@@ -693,7 +747,7 @@ impl Scheduler {
                     let Some((_, fi, tile)) = straggler else { break };
                     let f = &mut self.frames[fi];
                     let rec = &mut f.tiles[tile as usize];
-                    rec.holders.push(*id);
+                    rec.hand_to(*id);
                     s.in_flight.insert((f.id, tile));
                     f.stats.duplicated += 1;
                     batches.entry((*id, f.id)).or_default().push(TileJob { id: tile, tile: rec.tile });
@@ -766,7 +820,8 @@ fn move_waiting_tiles(
             outputs.push_back(Output::Cancel { slave: victim, frame, tiles: vec![tile] });
             let f = &mut frames[fi];
             let rec = &mut f.tiles[tile as usize];
-            rec.holders = vec![*id];
+            rec.holders.clear();
+            rec.hand_to(*id);
             rec.assigned_at = now;
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
@@ -834,6 +889,7 @@ fn next_tile(
                     tile: c,
                     state: TileState::Queued,
                     holders: Vec::new(),
+                    assigned: Vec::new(),
                     assigned_at: Duration::ZERO,
                     requeued,
                 });

@@ -179,6 +179,9 @@ impl Sim {
                     self.log.accepted.entry(frame).or_default().push(tile);
                 }
                 ResultOutcome::Duplicate | ResultOutcome::Stale | ResultOutcome::Unknown => {}
+                ResultOutcome::Foreign => {
+                    panic!("slave {slave} refused for tile {} of frame {frame}", job.id)
+                }
             }
             self.drain();
         }
@@ -464,11 +467,30 @@ fn duplicate_result_is_reported_and_not_delivered_twice() {
     s.handle_join(Duration::ZERO, 1, "a", 1);
     s.submit_frame(Duration::ZERO, 1, 8, 8).unwrap();
     while s.poll_output(Duration::ZERO).is_some() {}
-    // Slave 2 returns the tile although only slave 1 got it: still the first.
-    s.handle_join(Duration::ZERO, 2, "b", 1);
-    assert!(matches!(s.handle_result(MS, 2, 1, 0), ResultOutcome::Accepted { .. }));
+    assert!(matches!(s.handle_result(MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
     assert_eq!(s.handle_result(2 * MS, 1, 1, 0), ResultOutcome::Duplicate);
     assert_eq!(s.handle_result(2 * MS, 1, 1, 99), ResultOutcome::Unknown);
+}
+
+#[test]
+fn a_result_from_a_slave_never_handed_the_tile_is_foreign_and_changes_nothing() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.submit_frame(Duration::ZERO, 1, 8, 8).unwrap();
+    while s.poll_output(Duration::ZERO).is_some() {}
+    s.handle_join(Duration::ZERO, 2, "b", 1);
+    let rect = s.tile(1, 0).unwrap();
+    assert_eq!(s.check_result(2, 1, 0), ResultCheck::Foreign);
+    assert_eq!(s.check_result(2, 1, 99), ResultCheck::Foreign);
+    assert_eq!(s.check_result(1, 1, 0), ResultCheck::Held { tile: rect });
+    assert_eq!(s.check_result(1, 7, 0), ResultCheck::Stale);
+    assert_eq!(s.handle_result(MS, 2, 1, 0), ResultOutcome::Foreign);
+    // Still outstanding: the holder's result is the one delivered.
+    assert_eq!(s.open_frame(), Some(1));
+    assert!(matches!(s.handle_result(2 * MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
+    assert_eq!(s.check_result(1, 1, 0), ResultCheck::Finished);
+    assert_eq!(s.check_result(2, 1, 0), ResultCheck::Foreign);
+    assert_eq!(s.slaves().iter().map(|i| i.tiles_done).collect::<Vec<_>>(), vec![1, 0]);
 }
 
 #[test]
