@@ -62,6 +62,39 @@ pub fn generate_token() -> Result<String, AuthError> {
     Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }
 
+/// Fresh challenge nonces without asking the operating system each time:
+/// `HMAC-SHA256(seed, counter)`, unpredictable to anyone who does not know the
+/// seed and never repeated. The master's core takes its seed from
+/// [`random_bytes`] at start (tests give a fixed one, so runs repeat).
+#[derive(Clone)]
+pub struct Nonces {
+    seed: [u8; 32],
+    counter: u64,
+}
+
+impl Nonces {
+    /// A source keyed by `seed` (32 random bytes).
+    pub fn new(seed: [u8; 32]) -> Self {
+        Self { seed, counter: 0 }
+    }
+
+    /// The next nonce.
+    pub fn next_nonce(&mut self) -> [u8; 32] {
+        self.counter += 1;
+        let mut m = HmacSha256::new_from_slice(&self.seed).expect("HMAC accepts keys of any length");
+        m.update(b"isin-nonce");
+        m.update(&self.counter.to_be_bytes());
+        m.finalize().into_bytes().into()
+    }
+}
+
+impl fmt::Debug for Nonces {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // Never log the seed.
+        write!(f, "Nonces(#{})", self.counter)
+    }
+}
+
 fn mac(token: &str, label: &[u8], role: Role, server_nonce: &[u8; 32], client_nonce: &[u8; 32]) -> [u8; 32] {
     let mut m = HmacSha256::new_from_slice(token.as_bytes()).expect("HMAC accepts keys of any length");
     m.update(label);
@@ -181,6 +214,16 @@ mod tests {
         assert!(!proofs_match(&p, &client_proof("secret", Role::Viewer, &s, &c)));
         assert!(!proofs_match(&p, &client_proof("secret", Role::Slave, &c, &s)));
         assert!(!proofs_match(&p, &server_proof("secret", Role::Slave, &s, &c)));
+    }
+
+    #[test]
+    fn nonces_never_repeat_and_depend_on_the_seed() {
+        let mut a = Nonces::new([1; 32]);
+        let mut b = Nonces::new([2; 32]);
+        let (a1, a2, b1) = (a.next_nonce(), a.next_nonce(), b.next_nonce());
+        assert_ne!(a1, a2);
+        assert_ne!(a1, b1);
+        assert_eq!(Nonces::new([1; 32]).next_nonce(), a1);
     }
 
     #[test]

@@ -13,7 +13,15 @@
 //! - [`codec`]: tile compression (QOI, LZ4, raw), negotiated at join; bounded,
 //!   panic-free decoding of untrusted tiles.
 //! - [`scheduler`]: which tile goes to which slave, who is dead.
+//! - [`cluster`]: the whole master — peers, handshakes, liveness, frames, the
+//!   roster — as one state machine around the scheduler; its docs say what it
+//!   decides, what it trusts and what each budget is.
+//! - [`limits`]: the bounds of a frame request and the budgets of peers.
 pub mod auth;
+pub mod cluster;
 pub mod codec;
+pub mod limits;
 pub mod protocol;
 pub mod scheduler;
+
+pub use cluster::{Class, Cluster, ClusterConfig, ClusterStatus, PeerId, Transmit};
