@@ -174,7 +174,7 @@ async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Add
     let listener = tcp.listen("127.0.0.1:0").await?;
     let ticket = Ticket {
         transport: ENCRYPTED_TCP.into(),
-        token: cfg.token.clone(),
+        token: cfg.cluster.token.clone(),
         addr: listener.local_addr(),
         fingerprint: Some(identity.fingerprint().to_string()),
     };
@@ -215,7 +215,7 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
     let (scene, bundle) = load_scene_file(&default_scene())?;
     let token = auth::generate_token()?;
     let extent = super::view::scene_extent(&scene);
-    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings);
+    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
     drop(scene);
     let (ticket_tx, ticket_rx) = std::sync::mpsc::channel();
     std::thread::Builder::new()
@@ -241,7 +241,7 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
 fn run_default_headless() -> anyhow::Result<()> {
     let (scene, bundle) = load_scene_file(&default_scene())?;
     let token = auth::generate_token()?;
-    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings);
+    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
     let settings: RenderSettings = scene.settings;
     let camera: Camera = scene.camera;
     drop(scene);

@@ -63,13 +63,13 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
         Some(t) => t,
         None => auth::generate_token()?,
     };
-    let mut cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings);
+    let mut cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings)?;
     drop(scene);
-    cfg.scheduler.tile_size = args.tile.max(1);
-    cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
-    cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
-    cfg.scheduler.queue_depth = args.queue_depth;
-    cfg.compression = args.compression;
+    cfg.cluster.scheduler.tile_size = args.tile.max(1);
+    cfg.cluster.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
+    cfg.cluster.scheduler.duplicate_stragglers = !args.no_duplicates;
+    cfg.cluster.scheduler.queue_depth = args.queue_depth;
+    cfg.cluster.compression = args.compression;
     let name = match (args.transport.as_str(), args.insecure) {
         (_, false) => args.transport.as_str(),
         ("tcp", true) => isin_cluster::auth::PLAINTEXT_TCP,

@@ -354,7 +354,7 @@ impl Cluster {
         let mut args = vec!["master", scene.to_str().unwrap(), "--listen", "127.0.0.1:0"];
         args.extend_from_slice(transport.master_args());
         args.extend_from_slice(master_args);
-        let master = Proc::spawn("master", &args, "info,isin_actors::master=debug");
+        let master = Proc::spawn("master", &args, "info,isin_cluster::cluster=debug");
         let ticket = master.wait_for(Stream::Out, "ticket ").trim_start_matches("ticket ").trim().to_string();
         assert!(ticket.starts_with(transport.scheme()), "{transport:?} master printed {ticket}");
         let addr =

@@ -301,6 +301,10 @@ pub async fn join<R: Renderer>(
             welcome.codec
         )));
     }
+    // The master holds every logged-in peer to its heartbeat, and receiving
+    // and loading a large scene takes longer than that: say alive meanwhile.
+    let heartbeats = tokio::spawn(heartbeat_until_dropped(conn.sender.clone(), opts.heartbeat_interval));
+    let _stop_heartbeats = AbortOnDrop(heartbeats);
     if cached != Some(welcome.scene.hash) {
         let (hash, bundle) = loop {
             match client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120))
@@ -340,6 +344,27 @@ pub async fn join<R: Renderer>(
         welcome.codec
     );
     Ok(Session { conn, scene, name: welcome.name, codec: welcome.codec })
+}
+
+/// Sends a heartbeat every `interval` until the connection closes (or the
+/// task is aborted).
+async fn heartbeat_until_dropped(sender: isin_transport::FrameSender, interval: Duration) {
+    let Ok(hb) = protocol::encode(&Message::Heartbeat) else { return };
+    loop {
+        tokio::time::sleep(interval).await;
+        if sender.send(hb.clone()).is_err() {
+            return;
+        }
+    }
+}
+
+/// Aborts a task when dropped.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
 
 /// Serves one session until the connection ends; returns why it ended.

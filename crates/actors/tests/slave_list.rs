@@ -54,7 +54,7 @@ async fn viewers_get_the_slave_list_on_joining_and_on_every_join_and_death() {
     let t = MemTransport::new();
     let bundle = SceneBundle { name: "fake.toml".into(), source: "fake".into(), ..Default::default() };
     let settings = RenderSettings { width: 32, height: 32, ..RenderSettings::default() };
-    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings);
+    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings).unwrap();
     let _master = Master::new(cfg).unwrap().serve(t.listen("master").await.unwrap());
     let ticket =
         Ticket { transport: "mem".into(), token: "tok".into(), addr: "master".into(), fingerprint: None };

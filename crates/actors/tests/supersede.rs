@@ -81,7 +81,7 @@ fn settings(w: u32, h: u32) -> RenderSettings {
 async fn a_newer_frame_stops_the_tile_in_flight_of_the_superseded_one() {
     let t = MemTransport::new();
     let bundle = SceneBundle { name: "fake.toml".into(), source: "fake".into(), ..Default::default() };
-    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings(32, 32));
+    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings(32, 32)).unwrap();
     let master = Master::new(cfg).unwrap().serve(t.listen("master").await.unwrap());
     let ticket =
         Ticket { transport: "mem".into(), token: "tok".into(), addr: "master".into(), fingerprint: None };
