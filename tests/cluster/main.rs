@@ -24,6 +24,7 @@
 //! - `wrong_fingerprint`: a slave whose ticket pins another certificate gives up at once with
 //!   both fingerprints named; the master never sees it authenticate.
 //! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
+//! - [`hostile`]: peers that know the token and lie in the protocol.
 
 mod util;
 
@@ -62,6 +63,8 @@ macro_rules! cluster_test {
         }
     };
 }
+
+mod hostile;
 
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a

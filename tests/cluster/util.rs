@@ -92,23 +92,29 @@ pub enum RawPeer {
     Framed(tokio::runtime::Runtime, isin_transport::Connection),
 }
 
+/// A client of `c`'s transport, pinned to its certificate (for peers the
+/// test drives itself).
+pub fn client_transport(c: &Cluster) -> Box<dyn isin_transport::Transport> {
+    if c.transport == Transport::TcpInsecure {
+        return Box::new(isin_transport_tcp::TcpTransport::insecure());
+    }
+    let ticket: isin_cluster::auth::Ticket = c.ticket.parse().expect("ticket");
+    let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
+    let fp: isin_transport_quic::tls::Fingerprint = fp.parse().expect("fingerprint");
+    match c.transport {
+        Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
+        _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
+    }
+}
+
 impl RawPeer {
     /// Connects to the master of `c`.
     pub fn connect(c: &Cluster) -> RawPeer {
         if c.transport == Transport::TcpInsecure {
             return RawPeer::Tcp(std::net::TcpStream::connect(&c.addr).expect("connect"));
         }
-        let ticket: isin_cluster::auth::Ticket = c.ticket.parse().expect("ticket");
-        let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
-        let fp: isin_transport_quic::tls::Fingerprint = fp.parse().expect("fingerprint");
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
-        let conn = rt.block_on(async {
-            let t: Box<dyn isin_transport::Transport> = match c.transport {
-                Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
-                _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
-            };
-            t.connect(&c.addr).await.expect("connect")
-        });
+        let conn = rt.block_on(async { client_transport(c).connect(&c.addr).await.expect("connect") });
         RawPeer::Framed(rt, conn)
     }
 
