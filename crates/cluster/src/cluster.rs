@@ -507,6 +507,10 @@ impl Cluster {
     pub fn handle_message(&mut self, now: Duration, peer: PeerId, msg: Message) {
         let Some(p) = self.peers.get_mut(&peer) else { return };
         p.last_heard = now;
+        if matches!(p.state, PeerState::Slave) {
+            // Every message from a slave is a sign of life.
+            self.sched.handle_heartbeat(now, peer);
+        }
         match (&p.state, msg) {
             (PeerState::AwaitHello { nonce }, Message::Hello(hello)) => {
                 let nonce = *nonce;
@@ -529,8 +533,7 @@ impl Cluster {
                 self.drain(now);
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r),
-            (PeerState::Slave, Message::Heartbeat) => self.sched.handle_heartbeat(now, peer),
-            (PeerState::Syncing { .. } | PeerState::Viewer { .. }, Message::Heartbeat) => {}
+            (_, Message::Heartbeat) => {}
             (PeerState::Viewer { .. }, Message::FrameRequest { request, camera, settings }) => {
                 self.request_frame(now, peer, request, camera, settings, false);
             }
@@ -621,7 +624,6 @@ impl Cluster {
     }
 
     fn on_result(&mut self, now: Duration, id: PeerId, r: TileResult) {
-        self.sched.handle_heartbeat(now, id);
         tracing::trace!(slave = id, frame = r.frame, tile = r.id, "tile result");
         let rect = match self.sched.check_result(id, r.frame, r.id) {
             ResultCheck::Held { tile } => tile,

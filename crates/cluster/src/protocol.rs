@@ -271,9 +271,9 @@ pub struct FrameStats {
     pub moved: u32,
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
-    /// Bytes the master received from all peers while the frame was open
-    /// (tiles, framing and heartbeats, as the transport counts them — over TLS,
-    /// what crossed the socket): the frame's cost on the slaves' links.
+    /// Bytes of the messages the master received from all peers while the
+    /// frame was open (tiles and heartbeats; the transport's framing and
+    /// encryption not counted): the frame's cost on the slaves' links.
     pub bytes_in: u64,
 }
 
