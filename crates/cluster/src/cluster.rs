@@ -22,9 +22,12 @@
 //!   Slaves then receive the scene (unless they hold one with its hash) and
 //!   say `Ready`; only then do they join the scheduler and the roster.
 //! - **Which tiles go where, who is dead**: the [`Scheduler`].
-//! - **Which frames are open.** A viewer's `FrameRequest` supersedes every
-//!   open frame (other viewers are told theirs was superseded); a
-//!   `QueueFrame` waits behind them. A viewer that leaves takes its frames.
+//! - **Which frames are open.** Every viewer is a client with its own stream
+//!   of frames: its `FrameRequest` supersedes its own open frames and no one
+//!   else's; a `QueueFrame` waits behind them. Between viewers, tiles go out
+//!   by fair share of pixel-samples (the scheduler's docs say how), so two
+//!   people flying through the scene each keep half the cluster. A viewer
+//!   that leaves takes its frames.
 //! - **What viewers hear**: tiles as they arrive (in a codec they decode),
 //!   `FrameDone`, the slave list whenever it changes.
 //!
@@ -696,30 +699,17 @@ impl Cluster {
         }
         let frame = self.next_frame;
         let (w, h) = (settings.width, settings.height);
-        let started = if queue {
-            self.sched.queue_frame(now, frame, w, h)
-        } else {
-            self.sched.submit_frame(now, frame, w, h)
-        };
-        if let Err(e) = started {
+        if let Err(e) = self.sched.open_for(now, viewer, frame, w, h, settings.spp, queue) {
             return self.send(viewer, Message::Error { message: e.to_string() });
         }
         self.next_frame += 1;
-        if !queue {
-            // The scheduler dropped every open frame.
-            for (_, old) in std::mem::take(&mut self.frames) {
-                if let Some(PeerState::Viewer { frames }) =
-                    self.peers.get_mut(&old.viewer).map(|p| &mut p.state)
-                {
-                    frames.clear();
-                }
-                if old.viewer != viewer {
-                    let message = format!("request {} superseded by another viewer's request", old.request);
-                    self.send(old.viewer, Message::Error { message });
+        if let Some(PeerState::Viewer { frames }) = self.peers.get_mut(&viewer).map(|p| &mut p.state) {
+            if !queue {
+                // The scheduler dropped this viewer's open frames (and no one else's).
+                for old in std::mem::take(frames) {
+                    self.frames.remove(&old);
                 }
             }
-        }
-        if let Some(PeerState::Viewer { frames }) = self.peers.get_mut(&viewer).map(|p| &mut p.state) {
             frames.insert(frame);
         }
         self.status.frames_requested += 1;

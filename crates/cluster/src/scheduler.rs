@@ -41,7 +41,16 @@
 //!   connection closed, and its tiles go back to the front of the queue.
 //! - **Superseding.** A newer frame ([`Scheduler::submit_frame`]) replaces the
 //!   open ones; the old frames' tiles are cancelled and their late results are
-//!   reported [`ResultOutcome::Stale`].
+//!   reported [`ResultOutcome::Stale`]. Frames opened for a client
+//!   ([`Scheduler::open_for`]) supersede only that client's own.
+//! - **Fair share between clients.** Several clients (viewers) may have frames
+//!   open at once. Each client is charged the pixel-samples (pixels × samples
+//!   per pixel) delivered to it; the next tile goes to the least charged
+//!   client with a tile queued, its oldest frame first. So clients that all
+//!   keep work queued share the cluster evenly whatever their frame sizes, a
+//!   client that asks for less gets all it asks for, and none starves. A
+//!   client returning after a pause starts level with the least charged one
+//!   still at work, without credit for the pause.
 //! - **Pipelining.** A frame queued with [`Scheduler::queue_frame`] waits behind
 //!   the open ones instead: its tiles go out as soon as the older frames have
 //!   none left to hand out, so no slave idles through the end of one frame
@@ -61,6 +70,10 @@ use std::time::Duration;
 
 /// Identifies a slave (assigned by the master at join).
 pub type SlaveId = u64;
+
+/// Identifies a client (a viewer, a render job): its frames are one stream,
+/// and a new frame of its supersedes only its own.
+pub type ClientId = u64;
 
 /// Scheduling knobs.
 #[derive(Clone, Debug, PartialEq)]
@@ -280,6 +293,10 @@ impl TileRec {
 #[derive(Debug)]
 struct FrameState {
     id: FrameId,
+    client: ClientId,
+    /// Samples per pixel: a pixel of this frame costs this much of its
+    /// client's share.
+    samples: u64,
     width: u32,
     height: u32,
     tiles: Vec<TileRec>,
@@ -304,6 +321,8 @@ pub struct Scheduler {
     outputs: VecDeque<Output>,
     /// Render cost per pixel measured so far, for ordering new frames' tiles.
     costs: cost::CostMap,
+    /// Pixel-samples delivered to each client with open frames (fair share).
+    served: BTreeMap<ClientId, u64>,
 }
 
 impl Scheduler {
@@ -320,6 +339,7 @@ impl Scheduler {
             last_frame: None,
             outputs: VecDeque::new(),
             costs: cost::CostMap::default(),
+            served: BTreeMap::new(),
         }
     }
 
@@ -430,7 +450,7 @@ impl Scheduler {
     }
 
     /// Starts a frame of `width × height`, superseding every open frame (the
-    /// one being rendered and any queued behind it).
+    /// one being rendered and any queued behind it), whoever's it was.
     pub fn submit_frame(
         &mut self,
         now: Duration,
@@ -440,10 +460,7 @@ impl Scheduler {
     ) -> Result<(), SchedulerError> {
         self.check_new(frame, width, height)?;
         self.abandon_frame();
-        let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
-        let edge = frame_tile_size(&self.config, width, height, threads);
-        self.push_frame(now, frame, width, height, edge);
-        Ok(())
+        self.open_for(now, 0, frame, width, height, 1, false)
     }
 
     /// Queues a frame of `width × height` behind the open ones instead of
@@ -459,16 +476,65 @@ impl Scheduler {
         width: u32,
         height: u32,
     ) -> Result<(), SchedulerError> {
+        self.open_for(now, 0, frame, width, height, 1, true)
+    }
+
+    /// Starts a frame of `client`'s, of `width × height` at `samples` per
+    /// pixel. It supersedes the client's own open frames (other clients'
+    /// frames go on), or with `queue` waits behind them, as
+    /// [`Scheduler::queue_frame`] does; a client may have at most
+    /// [`SchedulerConfig::max_open_frames`] open. Between clients, tiles go
+    /// out by fair share (see [`Scheduler::served`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn open_for(
+        &mut self,
+        now: Duration,
+        client: ClientId,
+        frame: FrameId,
+        width: u32,
+        height: u32,
+        samples: u32,
+        queue: bool,
+    ) -> Result<(), SchedulerError> {
         self.check_new(frame, width, height)?;
-        let open = self.frames.iter().filter(|f| !f.done).count();
-        if open >= self.config.max_open_frames as usize {
+        let mine: Vec<FrameId> =
+            self.frames.iter().filter(|f| !f.done && f.client == client).map(|f| f.id).collect();
+        if queue && mine.len() >= self.config.max_open_frames as usize {
             return Err(SchedulerError::TooManyFrames(self.config.max_open_frames));
         }
+        if !queue {
+            for id in mine {
+                self.abandon(id);
+            }
+        }
         self.frames.retain(|f| !f.done);
-        // Full-size tiles: the cluster-sized edge is for the end of a frame,
-        // which the next queued frame fills (and the last one is split at its end).
-        self.push_frame(now, frame, width, height, self.config.tile_size);
+        // A client coming back to work starts level with the least served
+        // one still at work: no credit for the time it was away.
+        if !self.frames.iter().any(|f| f.client == client) {
+            let floor =
+                self.frames.iter().filter_map(|f| self.served.get(&f.client)).min().copied().unwrap_or(0);
+            let served = self.served.entry(client).or_default();
+            *served = (*served).max(floor);
+        }
+        // A frame that waits behind others keeps full-size tiles: its end
+        // is filled by the next frame's tiles (and the last one is split at
+        // its end). Otherwise the edge suits the cluster's size.
+        let edge = if queue {
+            self.config.tile_size
+        } else {
+            let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
+            frame_tile_size(&self.config, width, height, threads)
+        };
+        self.push_frame(now, client, frame, width, height, samples, edge);
         Ok(())
+    }
+
+    /// Pixel-samples delivered so far to each client that has open frames.
+    /// Between clients with tiles queued, the next tile goes to the least
+    /// served; a client whose frames all completed leaves the table, and
+    /// returns level with the least served client then at work.
+    pub fn served(&self) -> &BTreeMap<ClientId, u64> {
+        &self.served
     }
 
     /// Drops every open frame (its requester went away, or a newer request
@@ -492,6 +558,14 @@ impl Scheduler {
             if !tiles.is_empty() {
                 self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
             }
+        }
+        self.forget_if_idle(f.client);
+    }
+
+    /// Drops `client` from the fair-share table once it has no open frame.
+    fn forget_if_idle(&mut self, client: ClientId) {
+        if !self.frames.iter().any(|f| !f.done && f.client == client) {
+            self.served.remove(&client);
         }
     }
 
@@ -563,6 +637,10 @@ impl Scheduler {
         }
         f.remaining_pixels -= pixels.min(f.remaining_pixels);
         f.stats.tiles += 1;
+        let client = f.client;
+        if let Some(served) = self.served.get_mut(&client) {
+            *served += pixels * f.samples;
+        }
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.tiles_done += 1;
             s.pixels_done += pixels;
@@ -582,6 +660,7 @@ impl Scheduler {
             // Keep a completed frame only while it is the newest one.
             let newest = self.frames.back().map(|f| f.id);
             self.frames.retain(|f| !f.done || Some(f.id) == newest);
+            self.forget_if_idle(client);
         }
         ResultOutcome::Accepted { tile: rect }
     }
@@ -608,7 +687,17 @@ impl Scheduler {
         Ok(())
     }
 
-    fn push_frame(&mut self, now: Duration, frame: FrameId, width: u32, height: u32, edge: u32) {
+    #[allow(clippy::too_many_arguments)]
+    fn push_frame(
+        &mut self,
+        now: Duration,
+        client: ClientId,
+        frame: FrameId,
+        width: u32,
+        height: u32,
+        samples: u32,
+        edge: u32,
+    ) {
         let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
             .into_iter()
             .map(|tile| TileRec {
@@ -626,6 +715,8 @@ impl Scheduler {
         self.costs.order(&mut queue, &rects, width, height);
         self.frames.push_back(FrameState {
             id: frame,
+            client,
+            samples: u64::from(samples.max(1)),
             width,
             height,
             queue: queue.into(),
@@ -693,7 +784,8 @@ impl Scheduler {
                 if s.in_flight.len() >= (s.threads + depth) as usize {
                     continue;
                 }
-                let Some((fi, tile)) = next_open_tile(&mut self.frames, cfg, total_threads) else {
+                let Some((fi, tile)) = next_open_tile(&mut self.frames, cfg, total_threads, &self.served)
+                else {
                     break 'rounds;
                 };
                 let f = &mut self.frames[fi];
@@ -831,28 +923,25 @@ fn move_waiting_tiles(
     }
 }
 
-/// Takes the next tile to hand out: from the oldest open frame that has one
-/// queued. Returns the frame's index in `frames` and the tile.
+/// Takes the next tile to hand out: from the least served client (see
+/// [`Scheduler::served`]) that has a tile queued, its oldest frame first (so
+/// with one client, the oldest open frame that has one). Returns the frame's
+/// index in `frames` and the tile.
 fn next_open_tile(
     frames: &mut VecDeque<FrameState>,
     cfg: &SchedulerConfig,
     total_threads: usize,
+    served: &BTreeMap<ClientId, u64>,
 ) -> Option<(usize, TileId)> {
-    // Tiles queued in frames behind each one: with enough of them, the end of
-    // a frame is not the end of the work, and its tiles need no splitting.
-    let mut behind = 0usize;
-    let mut after: Vec<usize> = vec![0; frames.len()];
-    for (i, f) in frames.iter().enumerate().rev() {
-        after[i] = behind;
-        if !f.done {
-            behind += f.queue.len();
-        }
-    }
-    for (i, f) in frames.iter_mut().enumerate() {
-        if f.done {
-            continue;
-        }
-        if let Some(tile) = next_tile(f, cfg, total_threads, after[i]) {
+    // Tiles queued in the other frames: with enough of them, the end of a
+    // frame is not the end of the work, and its tiles need no splitting.
+    let queued: usize = frames.iter().filter(|f| !f.done).map(|f| f.queue.len()).sum();
+    let mut order: Vec<usize> =
+        (0..frames.len()).filter(|&i| !frames[i].done && !frames[i].queue.is_empty()).collect();
+    order.sort_by_key(|&i| (served.get(&frames[i].client).copied().unwrap_or(0), i));
+    for i in order {
+        let behind = queued - frames[i].queue.len();
+        if let Some(tile) = next_tile(&mut frames[i], cfg, total_threads, behind) {
             return Some((i, tile));
         }
     }

@@ -816,3 +816,21 @@ fn pipelined_frames_with_a_hot_spot_keep_slaves_busier_once_costs_are_known() {
     println!("pipelined, 8 frames: grid order {blind:?}, expensive first {learnt:?} (time, idle lane-ms)");
     assert!(learnt.0 < blind.0 && learnt.1 < blind.1, "{learnt:?} vs {blind:?}");
 }
+
+#[test]
+fn a_client_returning_after_a_pause_starts_level_with_the_least_served() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.open_for(Duration::ZERO, 7, 1, 8, 8, 4, false).unwrap();
+    s.open_for(Duration::ZERO, 9, 2, 64, 64, 1, false).unwrap();
+    while s.poll_output(Duration::ZERO).is_some() {}
+    // Client 7's frame (one 8x8 tile at 4 samples) completes: 256 served, then it leaves the table.
+    assert!(matches!(s.handle_result(MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
+    assert!(!s.served().contains_key(&7));
+    let nine = s.served()[&9];
+    s.open_for(2 * MS, 7, 3, 8, 8, 1, false).unwrap();
+    assert_eq!(s.served()[&7], nine, "level with the one still at work");
+    // Superseding its own frame leaves client 9's alone.
+    s.open_for(3 * MS, 7, 4, 8, 8, 1, false).unwrap();
+    assert_eq!(s.open_frames(), vec![2, 4]);
+}

@@ -534,6 +534,16 @@ impl Net {
         self.viewer_sim(v).frames.get(&request).is_some_and(|f| f.done)
     }
 
+    /// Requests of viewer `v` not yet done.
+    pub fn open_requests(&self, v: PeerId) -> usize {
+        self.viewer_sim(v).frames.values().filter(|f| !f.done).count()
+    }
+
+    /// Pixels delivered to viewer `v`, over all its requests.
+    pub fn delivered(&self, v: PeerId) -> u64 {
+        self.viewer_sim(v).frames.values().map(|f| f.writes.iter().map(|&n| u64::from(n)).sum::<u64>()).sum()
+    }
+
     /// Asserts that `request`'s image is every slave's render, each pixel
     /// delivered exactly once.
     pub fn assert_exact(&self, v: PeerId, request: u64) {
