@@ -144,7 +144,9 @@ pub fn render_frame(
 ) -> anyhow::Result<(isin_tracer::Frame, isin_cluster::protocol::FrameStats, String, u64)> {
     let transport = client_transport(ticket)?;
     actix::System::new().block_on(async move {
-        let (v, scene, mut events) = viewer::connect(transport.as_ref(), ticket, "render").await?;
+        // A still: batch work, which fills what people flying leave.
+        let work = isin_cluster::scheduler::Work::Batch;
+        let (v, scene, mut events) = viewer::connect_as(transport.as_ref(), ticket, "render", work).await?;
         let mut settings = scene.settings;
         settings.width = width.unwrap_or(settings.width);
         settings.height = height.unwrap_or(settings.height);

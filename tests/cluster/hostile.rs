@@ -34,7 +34,7 @@ async fn login_slave(c: &Cluster, name: &str) -> (Connection, protocol::Welcome)
     let ticket: Ticket = c.ticket.parse().expect("ticket");
     let t = client_transport(c);
     let (mut conn, welcome) =
-        client::handshake(t.as_ref(), &ticket, Role::Slave, name, 1, None, &[]).await.expect("login");
+        client::handshake(t.as_ref(), &ticket, client::Join::slave(name, 1, None, &[])).await.expect("login");
     loop {
         match client::recv_message(&mut conn, DEFAULT_MAX_FRAME, TIMEOUT).await.expect("the scene") {
             Message::SceneSync { .. } => return (conn, welcome),
@@ -162,6 +162,7 @@ fn logged_in_viewers_cannot_pin_the_masters_memory() {
             proof,
             cached_scene: None,
             codecs: vec![],
+            work: Default::default(),
         };
         write_message(&mut s, &Message::Hello(hello));
         assert!(matches!(read_message(&mut s), Message::Welcome(_)), "viewer {i} not welcomed");

@@ -18,7 +18,7 @@ use crate::client::{self, JoinError};
 use actix::prelude::*;
 use isin_cluster::auth::Ticket;
 use isin_cluster::codec::{self, Codec};
-use isin_cluster::protocol::{self, FrameId, Message, Role, SceneHash, TileAssignment, TileId, TileResult};
+use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId, TileResult};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
 use isin_transport::{FrameSender, Transport, TransportError};
 use serde_bytes::ByteBuf;
@@ -284,16 +284,8 @@ pub async fn join<R: Renderer>(
     cache: &mut Option<SceneCache<R::Scene>>,
 ) -> Result<Session<R::Scene>, JoinError> {
     let cached = cache.as_ref().map(|c| c.hash);
-    let (mut conn, welcome) = client::handshake(
-        transport,
-        ticket,
-        Role::Slave,
-        &opts.name,
-        opts.threads as u32,
-        cached,
-        &opts.codecs,
-    )
-    .await?;
+    let join = client::Join::slave(&opts.name, opts.threads as u32, cached, &opts.codecs);
+    let (mut conn, welcome) = client::handshake(transport, ticket, join).await?;
     if welcome.codec != Codec::Raw && !opts.codecs.contains(&welcome.codec) {
         conn.sender.close();
         return Err(JoinError::Rejected(format!(

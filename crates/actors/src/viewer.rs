@@ -5,7 +5,8 @@
 use crate::client::{self, JoinError};
 use actix::prelude::*;
 use isin_cluster::auth::Ticket;
-use isin_cluster::protocol::{self, FrameStats, Message, Role, SceneInfo, SlaveEntry};
+use isin_cluster::protocol::{self, FrameStats, Message, SceneInfo, SlaveEntry};
+use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, Frame, RenderSettings, Tile};
 use isin_transport::{ConnStats, FrameSender, Transport, TransportError};
 use std::time::Duration;
@@ -257,9 +258,19 @@ pub async fn connect(
     ticket: &Ticket,
     name: &str,
 ) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
-    let (conn, welcome) =
-        client::handshake(transport, ticket, Role::Viewer, name, 0, None, &isin_cluster::codec::Codec::ALL)
-            .await?;
+    connect_as(transport, ticket, name, Work::Interactive).await
+}
+
+/// [`connect`] as a client whose frames are `work`: a batch client's frames
+/// fill what interactive clients leave (a still or an animation rendered
+/// while others fly).
+pub async fn connect_as(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    name: &str,
+    work: Work,
+) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
+    let (conn, welcome) = client::handshake(transport, ticket, client::Join::viewer(name, work)).await?;
     let (sink, events) = mpsc::unbounded_channel();
     let isin_transport::Connection { sender, mut receiver, .. } = conn;
     let addr = ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0 }.start();

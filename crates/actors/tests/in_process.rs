@@ -103,13 +103,13 @@ async fn frames_through_two_slaves_are_exact_and_scene_is_sent_once_each() {
 #[actix::test]
 async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by_others() {
     use isin_actors::client;
-    use isin_cluster::protocol::{self, Message, Role, TileResult};
+    use isin_cluster::protocol::{self, Message, TileResult};
     let t = MemTransport::new();
     let (master, ticket) = start_master(&t, "tok").await;
     // A hand-driven slave that lies about a tile's size.
     // It offers no codec, as a build without compression would: raw it is.
     let (mut conn, welcome) =
-        client::handshake(&t, &ticket, Role::Slave, "liar", 1, None, &[]).await.unwrap();
+        client::handshake(&t, &ticket, client::Join::slave("liar", 1, None, &[])).await.unwrap();
     assert_eq!(welcome.codec, Codec::Raw);
     let max = protocol::DEFAULT_MAX_FRAME;
     loop {
@@ -213,7 +213,6 @@ async fn a_request_under_the_callers_number_comes_back_tagged_with_it_and_the_sl
 #[actix::test]
 async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
     use isin_actors::client;
-    use isin_cluster::protocol::Role;
     let all = Codec::ALL;
     for (compression, best) in [
         (Compression::Auto, Codec::ALL[0]),
@@ -237,8 +236,13 @@ async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
             ),
             (&[][..], Codec::Raw),
         ] {
-            let (conn, welcome) =
-                client::handshake(&t, &ticket, Role::Viewer, "probe", 0, None, offer).await.unwrap();
+            let (conn, welcome) = client::handshake(
+                &t,
+                &ticket,
+                client::Join { codecs: offer, ..client::Join::viewer("probe", Default::default()) },
+            )
+            .await
+            .unwrap();
             assert_eq!(welcome.codec, want, "{compression:?} offered {offer:?}");
             conn.sender.close();
         }

@@ -6,7 +6,7 @@ use isin_actors::master::{Master, MasterConfig};
 use isin_actors::viewer::{self, GetSlaves, SlaveList, ViewerActor};
 use isin_cluster::auth::Ticket;
 use isin_cluster::codec::Codec;
-use isin_cluster::protocol::{Message, Role, SlaveEntry};
+use isin_cluster::protocol::{Message, SlaveEntry};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use isin_transport::Transport;
 use isin_transport::mem::MemTransport;
@@ -37,7 +37,7 @@ async fn fake_slave(
     threads: u32,
 ) -> isin_transport::Connection {
     let (mut conn, _) =
-        client::handshake(t, ticket, Role::Slave, name, threads, None, &[Codec::Raw]).await.unwrap();
+        client::handshake(t, ticket, client::Join::slave(name, threads, None, &[Codec::Raw])).await.unwrap();
     let hash = loop {
         match client::recv_message(&mut conn, 1 << 20, Duration::from_secs(10)).await.unwrap() {
             Message::SceneSync { hash, .. } => break hash,

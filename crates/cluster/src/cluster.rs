@@ -84,7 +84,7 @@ use crate::protocol::{
     SceneInfo, TileAssignment, TileResult, Welcome, WireBundle,
 };
 use crate::scheduler::{
-    DeathCause, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo,
+    DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
 };
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use roster::Roster;
@@ -240,8 +240,8 @@ enum PeerState {
     Syncing { threads: u32, since: Duration },
     /// A slave in the scheduler.
     Slave,
-    /// A viewer, with its open frames.
-    Viewer { frames: BTreeSet<FrameId> },
+    /// A viewer (a client of its own), with its kind of work and its open frames.
+    Viewer { work: Work, frames: BTreeSet<FrameId> },
 }
 
 #[derive(Debug)]
@@ -598,7 +598,7 @@ impl Cluster {
         let max_frame = peer.max_frame;
         match hello.role {
             Role::Viewer => {
-                peer.state = PeerState::Viewer { frames: BTreeSet::new() };
+                peer.state = PeerState::Viewer { work: hello.work, frames: BTreeSet::new() };
                 tracing::info!(viewer = %peer.name, addr = %peer.addr, "viewer {} connected", peer.name);
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
@@ -699,11 +699,16 @@ impl Cluster {
         }
         let frame = self.next_frame;
         let (w, h) = (settings.width, settings.height);
-        if let Err(e) = self.sched.open_for(now, viewer, frame, w, h, settings.spp, queue) {
+        let work = match self.peers.get(&viewer).map(|p| &p.state) {
+            Some(PeerState::Viewer { work, .. }) => *work,
+            _ => return,
+        };
+        let order = FrameOrder { client: viewer, work, width: w, height: h, samples: settings.spp, queue };
+        if let Err(e) = self.sched.open(now, frame, order) {
             return self.send(viewer, Message::Error { message: e.to_string() });
         }
         self.next_frame += 1;
-        if let Some(PeerState::Viewer { frames }) = self.peers.get_mut(&viewer).map(|p| &mut p.state) {
+        if let Some(PeerState::Viewer { frames, .. }) = self.peers.get_mut(&viewer).map(|p| &mut p.state) {
             if !queue {
                 // The scheduler dropped this viewer's open frames (and no one else's).
                 for old in std::mem::take(frames) {
@@ -738,7 +743,7 @@ impl Cluster {
             PeerState::AwaitHello { .. } => self.handshaking -= 1,
             PeerState::Syncing { .. } => {}
             PeerState::Slave => self.sched.handle_disconnect(now, id),
-            PeerState::Viewer { frames } => {
+            PeerState::Viewer { frames, .. } => {
                 for f in frames {
                     self.sched.abandon(f);
                     self.frames.remove(&f);
@@ -800,7 +805,7 @@ impl Cluster {
                         stats.duplicated,
                         stats.requeued
                     );
-                    if let Some(PeerState::Viewer { frames }) =
+                    if let Some(PeerState::Viewer { frames, .. }) =
                         self.peers.get_mut(&spec.viewer).map(|p| &mut p.state)
                     {
                         frames.remove(&frame);

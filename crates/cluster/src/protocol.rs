@@ -9,6 +9,7 @@
 //! fields to rmp-serde, which checks declared lengths against the bytes present.
 
 use crate::codec::{self, Codec, CodecError};
+use crate::scheduler::Work;
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
@@ -18,8 +19,10 @@ use std::collections::BTreeMap;
 /// Version of the protocol spoken by this build; peers must match exactly.
 /// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may
 /// queue frames behind the open one, [`Message::QueueFrame`]. 4: the master
-/// tells viewers its slaves, [`Message::Slaves`].)
-pub const PROTOCOL_VERSION: u16 = 4;
+/// tells viewers its slaves, [`Message::Slaves`]. 5: every viewer is a client
+/// of its own, interactive or batch ([`Hello::work`]), whose requests
+/// supersede only its own frames.)
+pub const PROTOCOL_VERSION: u16 = 5;
 
 /// Most slaves a [`Message::Slaves`] may list; a longer list is refused while
 /// it is decoded, before it is allocated.
@@ -74,6 +77,9 @@ pub struct Hello {
     /// (unknown names are ignored; absent or empty: raw only).
     #[serde(default)]
     pub codecs: Vec<String>,
+    /// Viewers: what kind of work their frames are (slaves: ignored).
+    #[serde(default)]
+    pub work: Work,
 }
 
 /// What a viewer needs to know about the scene being served.
@@ -502,6 +508,7 @@ mod tests {
                 proof: [2; 32],
                 cached_scene: Some([3; 32]),
                 codecs: codec::offer(),
+                work: Work::Batch,
             }),
             Message::Welcome(Welcome {
                 id: 9,

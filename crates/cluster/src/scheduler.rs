@@ -43,6 +43,12 @@
 //!   open ones; the old frames' tiles are cancelled and their late results are
 //!   reported [`ResultOutcome::Stale`]. Frames opened for a client
 //!   ([`Scheduler::open_for`]) supersede only that client's own.
+//! - **Interactive before batch.** Frames are interactive (a viewer waits) or
+//!   batch (stills and animations): interactive tiles go out first, but one
+//!   tile in [`BATCH_FLOOR`] goes to batch work when both are queued, and
+//!   batch tiles go only to idle threads, never into a slave's queue, so an
+//!   interactive frame arriving waits for no batch tiles but those being
+//!   rendered.
 //! - **Fair share between clients.** Several clients (viewers) may have frames
 //!   open at once. Each client is charged the pixel-samples (pixels × samples
 //!   per pixel) delivered to it; the next tile goes to the least charged
@@ -75,6 +81,40 @@ pub type SlaveId = u64;
 /// and a new frame of its supersedes only its own.
 pub type ClientId = u64;
 
+/// What kind of work a frame is (a client says so when it joins).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
+pub enum Work {
+    /// Someone is waiting at a window: latency first.
+    #[default]
+    Interactive,
+    /// A still or an animation nobody watches tile by tile: fills what
+    /// interactive work leaves.
+    Batch,
+}
+
+/// One tile in this many goes to batch work while interactive work is
+/// queued too, so a batch job finishes even while people fly.
+pub const BATCH_FLOOR: u64 = 10;
+
+/// A frame as a client asks for it ([`Scheduler::open`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameOrder {
+    /// Whose frame.
+    pub client: ClientId,
+    /// Its kind of work.
+    pub work: Work,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Samples per pixel: what each pixel costs the client's share.
+    pub samples: u32,
+    /// Wait behind the client's open frames instead of superseding them.
+    pub queue: bool,
+}
+
 /// Scheduling knobs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SchedulerConfig {
@@ -91,6 +131,14 @@ pub struct SchedulerConfig {
     /// Most frames open at once: the one being rendered plus those queued
     /// behind it with [`Scheduler::queue_frame`].
     pub max_open_frames: u32,
+}
+
+impl FrameOrder {
+    /// One interactive client's frame (the [`Scheduler::submit_frame`] and
+    /// [`Scheduler::queue_frame`] streams).
+    fn single(width: u32, height: u32, queue: bool) -> Self {
+        Self { client: 0, work: Work::Interactive, width, height, samples: 1, queue }
+    }
 }
 
 impl Default for SchedulerConfig {
@@ -294,6 +342,7 @@ impl TileRec {
 struct FrameState {
     id: FrameId,
     client: ClientId,
+    work: Work,
     /// Samples per pixel: a pixel of this frame costs this much of its
     /// client's share.
     samples: u64,
@@ -323,6 +372,8 @@ pub struct Scheduler {
     costs: cost::CostMap,
     /// Pixel-samples delivered to each client with open frames (fair share).
     served: BTreeMap<ClientId, u64>,
+    /// Tiles handed out, for [`BATCH_FLOOR`].
+    handed: u64,
 }
 
 impl Scheduler {
@@ -340,6 +391,7 @@ impl Scheduler {
             outputs: VecDeque::new(),
             costs: cost::CostMap::default(),
             served: BTreeMap::new(),
+            handed: 0,
         }
     }
 
@@ -460,7 +512,7 @@ impl Scheduler {
     ) -> Result<(), SchedulerError> {
         self.check_new(frame, width, height)?;
         self.abandon_frame();
-        self.open_for(now, 0, frame, width, height, 1, false)
+        self.open(now, frame, FrameOrder::single(width, height, false))
     }
 
     /// Queues a frame of `width × height` behind the open ones instead of
@@ -476,26 +528,17 @@ impl Scheduler {
         width: u32,
         height: u32,
     ) -> Result<(), SchedulerError> {
-        self.open_for(now, 0, frame, width, height, 1, true)
+        self.open(now, frame, FrameOrder::single(width, height, true))
     }
 
-    /// Starts a frame of `client`'s, of `width × height` at `samples` per
-    /// pixel. It supersedes the client's own open frames (other clients'
-    /// frames go on), or with `queue` waits behind them, as
-    /// [`Scheduler::queue_frame`] does; a client may have at most
-    /// [`SchedulerConfig::max_open_frames`] open. Between clients, tiles go
-    /// out by fair share (see [`Scheduler::served`]).
-    #[allow(clippy::too_many_arguments)]
-    pub fn open_for(
-        &mut self,
-        now: Duration,
-        client: ClientId,
-        frame: FrameId,
-        width: u32,
-        height: u32,
-        samples: u32,
-        queue: bool,
-    ) -> Result<(), SchedulerError> {
+    /// Starts frame `frame` as `order` says. It supersedes the client's own
+    /// open frames (other clients' frames go on), or with
+    /// [`FrameOrder::queue`] waits behind them, as [`Scheduler::queue_frame`]
+    /// does; a client may have at most [`SchedulerConfig::max_open_frames`]
+    /// open. Between clients, tiles go out by kind of work and fair share
+    /// (see [`Scheduler::served`]).
+    pub fn open(&mut self, now: Duration, frame: FrameId, order: FrameOrder) -> Result<(), SchedulerError> {
+        let FrameOrder { client, width, height, queue, .. } = order;
         self.check_new(frame, width, height)?;
         let mine: Vec<FrameId> =
             self.frames.iter().filter(|f| !f.done && f.client == client).map(|f| f.id).collect();
@@ -525,14 +568,16 @@ impl Scheduler {
             let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
             frame_tile_size(&self.config, width, height, threads)
         };
-        self.push_frame(now, client, frame, width, height, samples, edge);
+        self.push_frame(now, frame, order, edge);
         Ok(())
     }
 
     /// Pixel-samples delivered so far to each client that has open frames.
-    /// Between clients with tiles queued, the next tile goes to the least
-    /// served; a client whose frames all completed leaves the table, and
-    /// returns level with the least served client then at work.
+    /// The next tile goes to interactive work before batch work (but one in
+    /// [`BATCH_FLOOR`] to batch work when both are queued), and within a
+    /// kind to the least served client with a tile queued; a client whose
+    /// frames all completed leaves the table, and returns level with the
+    /// least served client then at work.
     pub fn served(&self) -> &BTreeMap<ClientId, u64> {
         &self.served
     }
@@ -687,17 +732,8 @@ impl Scheduler {
         Ok(())
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn push_frame(
-        &mut self,
-        now: Duration,
-        client: ClientId,
-        frame: FrameId,
-        width: u32,
-        height: u32,
-        samples: u32,
-        edge: u32,
-    ) {
+    fn push_frame(&mut self, now: Duration, frame: FrameId, order: FrameOrder, edge: u32) {
+        let FrameOrder { client, work, width, height, samples, .. } = order;
         let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
             .into_iter()
             .map(|tile| TileRec {
@@ -716,6 +752,7 @@ impl Scheduler {
         self.frames.push_back(FrameState {
             id: frame,
             client,
+            work,
             samples: u64::from(samples.max(1)),
             width,
             height,
@@ -784,10 +821,18 @@ impl Scheduler {
                 if s.in_flight.len() >= (s.threads + depth) as usize {
                     continue;
                 }
-                let Some((fi, tile)) = next_open_tile(&mut self.frames, cfg, total_threads, &self.served)
-                else {
-                    break 'rounds;
+                // Batch tiles only to idle threads, never queued behind busy
+                // ones: interactive work arriving waits for no batch queue.
+                let batch = s.in_flight.len() < s.threads as usize;
+                let next =
+                    next_open_tile(&mut self.frames, cfg, total_threads, &self.served, self.handed, batch);
+                let Some((fi, tile)) = next else {
+                    if batch {
+                        break 'rounds;
+                    }
+                    continue;
                 };
+                self.handed += 1;
                 let f = &mut self.frames[fi];
                 let rec = &mut f.tiles[tile as usize];
                 rec.state = TileState::InFlight;
@@ -923,22 +968,35 @@ fn move_waiting_tiles(
     }
 }
 
-/// Takes the next tile to hand out: from the least served client (see
-/// [`Scheduler::served`]) that has a tile queued, its oldest frame first (so
-/// with one client, the oldest open frame that has one). Returns the frame's
-/// index in `frames` and the tile.
+/// Takes the next tile to hand out: interactive work first (but see
+/// [`BATCH_FLOOR`]; `handed` counts the tiles handed out so far), then the
+/// least served client (see [`Scheduler::served`]) that has a tile queued,
+/// its oldest frame first (so with one client, the oldest open frame that
+/// has one); batch work only if `batch`. Returns the frame's index in
+/// `frames` and the tile.
 fn next_open_tile(
     frames: &mut VecDeque<FrameState>,
     cfg: &SchedulerConfig,
     total_threads: usize,
     served: &BTreeMap<ClientId, u64>,
+    handed: u64,
+    batch: bool,
 ) -> Option<(usize, TileId)> {
     // Tiles queued in the other frames: with enough of them, the end of a
     // frame is not the end of the work, and its tiles need no splitting.
     let queued: usize = frames.iter().filter(|f| !f.done).map(|f| f.queue.len()).sum();
-    let mut order: Vec<usize> =
-        (0..frames.len()).filter(|&i| !frames[i].done && !frames[i].queue.is_empty()).collect();
-    order.sort_by_key(|&i| (served.get(&frames[i].client).copied().unwrap_or(0), i));
+    let mut order: Vec<usize> = (0..frames.len())
+        .filter(|&i| {
+            !frames[i].done && !frames[i].queue.is_empty() && (batch || frames[i].work != Work::Batch)
+        })
+        .collect();
+    // Interactive first, but one tile in BATCH_FLOOR to batch when both wait.
+    let batch_turn = handed % BATCH_FLOOR == BATCH_FLOOR - 1;
+    order.sort_by_key(|&i| {
+        let f = &frames[i];
+        let kind = if batch_turn { f.work != Work::Batch } else { f.work != Work::Interactive };
+        (kind, served.get(&f.client).copied().unwrap_or(0), i)
+    });
     for i in order {
         let behind = queued - frames[i].queue.len();
         if let Some(tile) = next_tile(&mut frames[i], cfg, total_threads, behind) {

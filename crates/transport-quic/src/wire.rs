@@ -182,6 +182,7 @@ mod tests {
                 proof: [0; 32],
                 cached_scene: None,
                 codecs: isin_cluster::codec::offer(),
+                work: Default::default(),
             }),
             Message::Ready { hash: [0; 32] },
             Message::Cancel { frame: 1, tiles: vec![1] },

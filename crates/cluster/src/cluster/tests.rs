@@ -419,3 +419,81 @@ fn randomised_clusters_with_hostile_peers_never_lose_duplicate_or_corrupt_a_pixe
         assert_eq!(net.core.status().frames_done as usize, done, "seed {seed}");
     }
 }
+
+/// A viewer flying (a new frame the moment the last one is done), first
+/// alone, then beside a batch job of ten frames: its frames take little
+/// longer than alone (interactive work first), and the job still finishes,
+/// on the idle ends of the viewer's frames and the share `BATCH_FLOOR`
+/// keeps for it.
+#[test]
+fn a_batch_job_still_finishes_while_a_viewer_flies() {
+    let fly = |net: &mut Net, v: PeerId, seed: &mut u64| {
+        if net.open_requests(v) == 0 {
+            *seed += 1;
+            net.request(v, settings(128, 96, *seed), false);
+        }
+    };
+    let mut net = Net::new(sim::config());
+    for _ in 0..2 {
+        net.slave(SlaveSpec { threads: 2, us_per_pixel: 10, ..SlaveSpec::default() });
+    }
+    let alone = net.viewer();
+    net.run_until(|n| n.core.status().slaves.len() == 2 && n.limit(alone).is_some());
+    let mut seed = 0;
+    while net.done_requests(alone) < 5 {
+        fly(&mut net, alone, &mut seed);
+        net.step();
+    }
+    let (flyer, job) = (net.viewer(), net.viewer_of(Work::Batch));
+    net.run_until(|n| n.limit(flyer).is_some() && n.limit(job).is_some());
+    let mut batch = Vec::new();
+    let start = net.now;
+    while batch.len() < 10 || !batch.iter().all(|&r| net.viewer_done(job, r)) {
+        assert!(
+            net.now < start + Duration::from_secs(120),
+            "the batch job starved: {} done",
+            net.done_requests(job)
+        );
+        fly(&mut net, flyer, &mut seed);
+        while batch.len() < 10 && net.open_requests(job) < 2 {
+            seed += 1;
+            batch.push(net.request(job, settings(128, 96, seed), true));
+        }
+        net.step();
+    }
+    for &r in &batch {
+        net.assert_exact(job, r);
+    }
+    let (t_alone, t_beside) = (net.mean_frame_time(alone), net.mean_frame_time(flyer));
+    assert!(
+        t_beside.as_secs_f64() <= 1.5 * t_alone.as_secs_f64(),
+        "frames took {t_beside:?} beside the job, {t_alone:?} alone"
+    );
+}
+
+/// Nobody moving: a batch job keeps its frames queued and the slaves busy.
+#[test]
+fn a_batch_job_takes_at_least_90_percent_of_the_cluster_while_nobody_moves() {
+    let mut net = Net::new(sim::config());
+    for _ in 0..3 {
+        net.slave(SlaveSpec { threads: 2, us_per_pixel: 10, ..SlaveSpec::default() });
+    }
+    let (idle, job) = (net.viewer(), net.viewer_of(Work::Batch));
+    net.run_until(|n| n.core.status().slaves.len() == 3 && n.limit(job).is_some());
+    let still = net.request(idle, settings(64, 48, 1), false);
+    net.run_until(|n| n.viewer_done(idle, still));
+    let mut seed = 1;
+    let (lanes0, busy0) = net.lanes();
+    let start = net.now;
+    while net.now < start + Duration::from_secs(5) {
+        while net.open_requests(job) < 2 {
+            seed += 1;
+            net.request(job, settings(160, 120, seed), true);
+        }
+        net.step();
+    }
+    let (lanes, busy) = net.lanes();
+    let utilisation = (busy - busy0) as f64 / (lanes - lanes0) as f64;
+    assert!(utilisation >= 0.9, "utilisation {utilisation:.3}");
+    assert!(net.done_requests(job) > 5);
+}

@@ -817,20 +817,55 @@ fn pipelined_frames_with_a_hot_spot_keep_slaves_busier_once_costs_are_known() {
     assert!(learnt.0 < blind.0 && learnt.1 < blind.1, "{learnt:?} vs {blind:?}");
 }
 
+fn order(client: ClientId, width: u32, height: u32, samples: u32) -> FrameOrder {
+    FrameOrder { client, work: Work::Interactive, width, height, samples, queue: false }
+}
+
 #[test]
 fn a_client_returning_after_a_pause_starts_level_with_the_least_served() {
     let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
     s.handle_join(Duration::ZERO, 1, "a", 1);
-    s.open_for(Duration::ZERO, 7, 1, 8, 8, 4, false).unwrap();
-    s.open_for(Duration::ZERO, 9, 2, 64, 64, 1, false).unwrap();
+    s.open(Duration::ZERO, 1, order(7, 8, 8, 4)).unwrap();
+    s.open(Duration::ZERO, 2, order(9, 64, 64, 1)).unwrap();
     while s.poll_output(Duration::ZERO).is_some() {}
     // Client 7's frame (one 8x8 tile at 4 samples) completes: 256 served, then it leaves the table.
     assert!(matches!(s.handle_result(MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
     assert!(!s.served().contains_key(&7));
     let nine = s.served()[&9];
-    s.open_for(2 * MS, 7, 3, 8, 8, 1, false).unwrap();
+    s.open(2 * MS, 3, order(7, 8, 8, 1)).unwrap();
     assert_eq!(s.served()[&7], nine, "level with the one still at work");
     // Superseding its own frame leaves client 9's alone.
-    s.open_for(3 * MS, 7, 4, 8, 8, 1, false).unwrap();
+    s.open(3 * MS, 4, order(7, 8, 8, 1)).unwrap();
     assert_eq!(s.open_frames(), vec![2, 4]);
+}
+
+#[test]
+fn batch_work_gets_its_floor_while_interactive_work_is_backlogged() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, queue_depth: 0, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    let interactive = FrameOrder { queue: true, ..order(1, 256, 256, 1) };
+    let batch = FrameOrder { client: 2, work: Work::Batch, ..interactive };
+    let mut next = 1;
+    let mut work: BTreeMap<FrameId, Work> = BTreeMap::new();
+    let (mut to_batch, mut handed) = (0u32, 0u32);
+    while handed < 1000 {
+        // Both clients always have work waiting: two interactive frames, one batch frame.
+        for (o, want) in [(interactive, 2), (batch, 1)] {
+            while s.open_frames().iter().filter(|f| work[f] == o.work).count() < want {
+                s.open(Duration::ZERO, next, o).unwrap();
+                work.insert(next, o.work);
+                next += 1;
+            }
+        }
+        let Some(out) = s.poll_output(Duration::ZERO) else { panic!("no work handed out") };
+        if let Output::Assign { frame, tiles, .. } = out {
+            for t in tiles {
+                handed += 1;
+                to_batch += u32::from(work[&frame] == Work::Batch);
+                s.handle_result(Duration::ZERO, 1, frame, t.id);
+            }
+        }
+    }
+    let share = f64::from(to_batch) / f64::from(handed);
+    assert!((0.09..=0.11).contains(&share), "batch got {share:.3} of the tiles");
 }

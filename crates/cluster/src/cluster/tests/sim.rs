@@ -122,6 +122,8 @@ struct SlaveSim {
 #[derive(Debug)]
 struct ViewFrame {
     settings: RenderSettings,
+    requested: Duration,
+    took: Option<Duration>,
     image: Vec<u8>,
     writes: Vec<u8>,
     done: bool,
@@ -145,6 +147,7 @@ enum Kind {
 #[derive(Debug)]
 struct SimPeer {
     kind: Kind,
+    work: Work,
     behaviour: Behaviour,
     token: String,
     logged_in: bool,
@@ -167,6 +170,9 @@ pub struct Net {
     pub now: Duration,
     peers: BTreeMap<PeerId, SimPeer>,
     next_peer: PeerId,
+    /// Lane-milliseconds of live slaves, and of those the busy ones.
+    lane_ms: u64,
+    busy_lane_ms: u64,
 }
 
 impl Net {
@@ -177,14 +183,17 @@ impl Net {
             now: Duration::ZERO,
             peers: BTreeMap::new(),
             next_peer: 1,
+            lane_ms: 0,
+            busy_lane_ms: 0,
         }
     }
 
-    fn add(&mut self, kind: Kind, behaviour: Behaviour, token: String) -> PeerId {
+    fn add(&mut self, kind: Kind, behaviour: Behaviour, token: String, work: Work) -> PeerId {
         let id = self.next_peer;
         self.next_peer += 1;
         let peer = SimPeer {
             kind,
+            work,
             behaviour,
             token,
             logged_in: false,
@@ -211,17 +220,22 @@ impl Net {
             lanes: vec![None; spec.threads as usize],
             ..SlaveSim::default()
         };
-        self.add(Kind::Slave(sim), spec.behaviour, spec.token)
+        self.add(Kind::Slave(sim), spec.behaviour, spec.token, Work::Interactive)
     }
 
-    /// Connects an honest viewer.
+    /// Connects an honest interactive viewer.
     pub fn viewer(&mut self) -> PeerId {
-        self.add(Kind::Viewer(ViewerSim::default()), Behaviour::Honest, TOKEN.into())
+        self.viewer_of(Work::Interactive)
+    }
+
+    /// Connects an honest viewer whose frames are `work`.
+    pub fn viewer_of(&mut self, work: Work) -> PeerId {
+        self.add(Kind::Viewer(ViewerSim::default()), Behaviour::Honest, TOKEN.into(), work)
     }
 
     /// Connects a peer that says nothing unless told to.
     pub fn raw_peer(&mut self) -> PeerId {
-        self.add(Kind::Raw, Behaviour::Honest, TOKEN.into())
+        self.add(Kind::Raw, Behaviour::Honest, TOKEN.into(), Work::Interactive)
     }
 
     /// Has `peer` send `frame` as it is.
@@ -237,8 +251,16 @@ impl Net {
         sim.next_request += 1;
         let request = sim.next_request;
         let n = (settings.width * settings.height) as usize;
-        sim.frames
-            .insert(request, ViewFrame { settings, image: vec![0; n * 3], writes: vec![0; n], done: false });
+        let requested = self.now;
+        let frame = ViewFrame {
+            settings,
+            requested,
+            took: None,
+            image: vec![0; n * 3],
+            writes: vec![0; n],
+            done: false,
+        };
+        sim.frames.insert(request, frame);
         let camera = Camera::default();
         let msg = if queue {
             Message::QueueFrame { request, camera, settings }
@@ -329,6 +351,7 @@ impl Net {
     }
 
     fn deliver(&mut self, id: PeerId, msg: Message) {
+        let now = self.now;
         let Some(p) = self.peers.get_mut(&id) else { panic!("message to unknown peer {id}") };
         assert!(p.closed.is_none(), "{} sent to peer {id} after closing it", msg.kind());
         p.received.push(msg.clone());
@@ -356,6 +379,7 @@ impl Net {
                     proof,
                     cached_scene: cached,
                     codecs,
+                    work: p.work,
                 }));
             }
             (Kind::Slave(s), Message::Welcome(w)) => {
@@ -444,7 +468,9 @@ impl Net {
                 }
             }
             (Kind::Viewer(v), Message::FrameDone { request, .. }) => {
-                v.frames.get_mut(&request).expect("done for a known request").done = true;
+                let f = v.frames.get_mut(&request).expect("done for a known request");
+                f.done = true;
+                f.took = Some(now - f.requested);
             }
             (Kind::Viewer(v), Message::Error { message }) => v.errors.push(message),
             _ => {}
@@ -467,6 +493,8 @@ impl Net {
             if !speaks {
                 continue;
             }
+            self.lane_ms += s.lanes.len() as u64;
+            self.busy_lane_ms += s.lanes.iter().filter(|l| l.is_some()).count() as u64;
             for lane in 0..s.lanes.len() {
                 if let Some(((frame, job, seed), at)) = s.lanes[lane]
                     && at <= now
@@ -532,6 +560,23 @@ impl Net {
     /// Whether viewer `v` got `FrameDone` for `request`.
     pub fn viewer_done(&self, v: PeerId, request: u64) -> bool {
         self.viewer_sim(v).frames.get(&request).is_some_and(|f| f.done)
+    }
+
+    /// Lane-milliseconds of live slaves so far, and how many of them were busy.
+    pub fn lanes(&self) -> (u64, u64) {
+        (self.lane_ms, self.busy_lane_ms)
+    }
+
+    /// The mean time viewer `v`'s requests took, from request to
+    /// `FrameDone`, among those done.
+    pub fn mean_frame_time(&self, v: PeerId) -> Duration {
+        let took: Vec<Duration> = self.viewer_sim(v).frames.values().filter_map(|f| f.took).collect();
+        took.iter().sum::<Duration>() / took.len().max(1) as u32
+    }
+
+    /// Requests of viewer `v` done so far.
+    pub fn done_requests(&self, v: PeerId) -> usize {
+        self.viewer_sim(v).frames.values().filter(|f| f.done).count()
     }
 
     /// Requests of viewer `v` not yet done.
