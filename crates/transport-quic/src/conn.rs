@@ -2,8 +2,10 @@
 //!
 //! Four tasks per connection:
 //! - the **writer** takes frames from the [`FrameSender`] queue in order and
-//!   puts ordered ones on the control stream and independent ones each on a
-//!   new unidirectional stream (see [`crate::wire`]);
+//!   puts [ordered](Delivery::Ordered) ones on the control stream and
+//!   [independent](Delivery::Independent) ones each on a new unidirectional
+//!   stream (see [`crate::wire`]), as the sender chose — or every frame on the
+//!   control stream with [`QuicOptions::single_stream`];
 //! - the **control reader** parses the peer's control stream;
 //! - the **acceptor** accepts the peer's frame streams and reads each in its
 //!   own task, checking the announced length against the connection's limit
@@ -23,8 +25,10 @@
 
 use crate::config::QuicOptions;
 use crate::stats::Registry;
-use crate::wire::{self, Classifier, Delivery};
-use isin_transport::{ConnShared, Connection, FrameReceiver, FrameSender, Outgoing, TransportError};
+use crate::wire;
+use isin_transport::{
+    ConnShared, Connection, Delivery, FrameReceiver, FrameSender, Outgoing, TransportError,
+};
 use quinn::{ConnectionError, ReadError, RecvStream, SendStream, VarInt};
 use std::collections::{BTreeMap, VecDeque};
 use std::io;
@@ -81,7 +85,6 @@ pub fn spawn(
     control_send: SendStream,
     control_recv: RecvStream,
     endpoint: Option<quinn::Endpoint>,
-    classify: Classifier,
     opts: &QuicOptions,
     registry: Arc<Registry>,
 ) -> Connection {
@@ -94,11 +97,11 @@ pub fn spawn(
     let (indep_tx, indep_rx) = mpsc::channel(EVENT_QUEUE);
     tokio::spawn(control_reader(control_recv, shared.clone(), ctrl_tx));
     tokio::spawn(acceptor(conn.clone(), shared.clone(), indep_tx));
-    let linger = opts.linger;
+    let (linger, single_stream) = (opts.linger, opts.single_stream);
     let s = shared.clone();
     let p = peer.clone();
     tokio::spawn(async move {
-        let writer = write_loop(&conn, control_send, out_rx, &s, classify, linger);
+        let writer = write_loop(&conn, control_send, out_rx, &s, single_stream, linger);
         let reader = sequence(&conn, ctrl_rx, indep_rx, in_tx, &s);
         let (wrote, read) = tokio::join!(writer, reader);
         tracing::debug!(peer = %p, ?wrote, ?read, "QUIC connection done");
@@ -128,7 +131,7 @@ async fn write_loop(
     mut control: SendStream,
     mut rx: mpsc::UnboundedReceiver<Outgoing>,
     shared: &Arc<ConnShared>,
-    classify: Classifier,
+    single_stream: bool,
     linger: Duration,
 ) -> Wrote {
     let closed = conn.closed();
@@ -141,15 +144,16 @@ async fn write_loop(
             _ = &mut closed => return Wrote::Lost,
             item = rx.recv() => item,
         };
-        let frame = match item {
-            Some(Outgoing::Frame(f, _)) => f,
+        let (frame, delivery) = match item {
+            Some(Outgoing::Frame(f, _)) if single_stream => (f, Delivery::Ordered),
+            Some(Outgoing::Frame(f, d)) => (f, d),
             Some(Outgoing::Close) | None => break,
         };
         let Ok(len) = u32::try_from(frame.len()) else {
             tracing::error!(len = frame.len(), "frame too long for the wire; dropped");
             continue;
         };
-        match classify(&frame) {
+        match delivery {
             Delivery::Independent => {
                 let Ok(mut stream) = conn.open_uni().await else { return Wrote::Lost };
                 let header = wire::stream_header(ordered, len);

@@ -16,8 +16,10 @@
 //! it: an ordered frame is delivered after everything sent before it, an
 //! independent frame after the ordered frames sent before it, and independent
 //! frames overtake only each other (details in [`wire`]). Which frames are
-//! independent is a [`wire::Classifier`]; the default,
-//! [`wire::protocol_classifier`], picks isin's two tile messages.
+//! independent is the sender's choice ([`Delivery`](isin_transport::Delivery),
+//! given to [`FrameSender::send_as`](isin_transport::FrameSender::send_as)):
+//! the transport never looks inside a frame. [`QuicOptions::single_stream`]
+//! puts everything on the control stream instead, for comparison.
 //!
 //! ## Why pinning
 //! The master has no certificate from an authority: it generates a
@@ -68,8 +70,8 @@ pub mod wire;
 
 pub use config::QuicOptions;
 pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
-/// The TLS identity and pinning shared with TCP (it lives in `isin-transport-tcp`).
-pub use isin_transport_tcp::tls;
+/// The TLS identity and pinning shared with TCP (the `isin-transport-tls` crate).
+pub use isin_transport_tls as tls;
 pub use stats::WireStats;
 
 use isin_transport::{BoxFuture, Connection, Listener, Transport, TransportError};
@@ -79,7 +81,6 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use tls::{Fingerprint, Identity, TlsError};
 use tokio::sync::mpsc;
-use wire::Classifier;
 
 /// Connections accepted but not yet taken by [`Listener::accept`].
 const ACCEPT_QUEUE: usize = 64;
@@ -92,7 +93,6 @@ pub struct QuicTransport {
     pinned: Option<Fingerprint>,
     identity: Option<Fingerprint>,
     options: QuicOptions,
-    classify: Classifier,
     registry: Arc<stats::Registry>,
 }
 
@@ -130,7 +130,6 @@ impl QuicTransport {
             pinned: None,
             identity: Some(identity.fingerprint()),
             options: QuicOptions::default(),
-            classify: wire::protocol_classifier,
             registry: Arc::default(),
         })
     }
@@ -145,7 +144,6 @@ impl QuicTransport {
             pinned: Some(pinned),
             identity: None,
             options: QuicOptions::default(),
-            classify: wire::protocol_classifier,
             registry: Arc::default(),
         })
     }
@@ -160,13 +158,6 @@ impl QuicTransport {
     /// Replaces the tuning.
     pub fn with_options(mut self, options: QuicOptions) -> Self {
         self.options = options;
-        self
-    }
-
-    /// Replaces the rule deciding which frames may overtake each other
-    /// (default: [`wire::protocol_classifier`]).
-    pub fn with_classifier(mut self, classify: Classifier) -> Self {
-        self.classify = classify;
         self
     }
 
@@ -243,13 +234,8 @@ impl Transport for QuicTransport {
             let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
             let local = endpoint.local_addr().map_err(|e| err(e.to_string()))?.to_string();
             let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
-            let task = tokio::spawn(accept_loop(
-                endpoint.clone(),
-                tx,
-                self.classify,
-                self.options.clone(),
-                self.registry.clone(),
-            ));
+            let task =
+                tokio::spawn(accept_loop(endpoint.clone(), tx, self.options.clone(), self.registry.clone()));
             tracing::debug!(addr = %local, "QUIC listening");
             Ok(Box::new(QuicListener { endpoint, addr: local, rx, task }) as Box<dyn Listener>)
         })
@@ -275,15 +261,7 @@ impl Transport for QuicTransport {
                 .map_err(|e| describe(addr, &e, &verifier))?;
             let (mut send, recv) = conn.open_bi().await.map_err(|e| describe(addr, &e, &verifier))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
-            Ok(conn::spawn(
-                conn,
-                send,
-                recv,
-                Some(endpoint),
-                self.classify,
-                &self.options,
-                self.registry.clone(),
-            ))
+            Ok(conn::spawn(conn, send, recv, Some(endpoint), &self.options, self.registry.clone()))
         })
     }
 }
@@ -318,7 +296,6 @@ impl Listener for QuicListener {
 async fn accept_loop(
     endpoint: Endpoint,
     tx: mpsc::Sender<Connection>,
-    classify: Classifier,
     opts: QuicOptions,
     registry: Arc<stats::Registry>,
 ) {
@@ -330,7 +307,7 @@ async fn accept_loop(
             let remote = incoming.remote_address();
             match tokio::time::timeout(opts.handshake_timeout, establish(incoming)).await {
                 Ok(Ok((conn, send, recv))) => {
-                    let c = conn::spawn(conn, send, recv, None, classify, &opts, registry);
+                    let c = conn::spawn(conn, send, recv, None, &opts, registry);
                     // If nobody accepts any more, dropping `c` closes it.
                     let _ = tx.send(c).await;
                 }

@@ -5,12 +5,12 @@
 //! the stream is TLS 1.3 ([`TcpTransport::server`] / [`TcpTransport::client`]):
 //! the master presents its self-signed [`tls::Identity`], the slave pins the
 //! certificate's SHA-256 from the join ticket (no "accept any certificate"),
-//! exactly as over QUIC — the [`tls`] module is shared by both transports
-//! (`isin-transport-quic` depends on this crate for it, so the actors crate
-//! stays free of cryptography and neither transport pulls in the other's
-//! network stack). Plaintext is [`TcpTransport::insecure`], a separate
-//! transport with its own name (`tcp-insecure`), so a ticket says which one a
-//! master speaks and a slave never falls back from one to the other.
+//! exactly as over QUIC — both use the `isin-transport-tls` crate (re-exported
+//! here as [`tls`]), so neither transport pulls in the other's network stack.
+//! Plaintext is [`TcpTransport::insecure`], a separate transport with its own
+//! kind ([`TransportKind::TcpInsecure`](isin_transport::TransportKind)), so a
+//! ticket says which one a master speaks and a slave never falls back from one
+//! to the other.
 //!
 //! Each connection sets `TCP_NODELAY` (tiles are latency-sensitive and the codec
 //! already batches writes), starts with the small handshake frame limit (raised
@@ -26,7 +26,8 @@
 //! the same thing.
 
 pub mod counted;
-pub mod tls;
+/// The TLS identity and pinning shared with QUIC (the `isin-transport-tls` crate).
+pub use isin_transport_tls as tls;
 
 use counted::Counted;
 use isin_transport::stream::{self, Counting};

@@ -13,7 +13,9 @@
 //! maximum frame length that can be raised once the peer has authenticated.
 //!
 //! [`stream`] holds the length-delimited codec over any byte stream (used by
-//! TCP and by the in-memory [`mem`] transport the tests use).
+//! TCP and by the in-memory [`mem`] transport the tests use). [`ticket`] holds
+//! the join ticket: which [`TransportKind`] a master speaks, and the
+//! [`Fingerprint`] of the certificate it presents.
 
 use std::future::Future;
 use std::pin::Pin;
@@ -23,6 +25,9 @@ use tokio::sync::{Notify, mpsc};
 
 pub mod mem;
 pub mod stream;
+pub mod ticket;
+
+pub use ticket::{Fingerprint, Ticket, TicketError, TransportKind};
 
 /// The largest frame every new connection accepts until the application
 /// raises it ([`FrameSender::set_max_frame`]) — once the peer has proved who
