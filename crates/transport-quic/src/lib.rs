@@ -69,16 +69,20 @@ pub mod stats;
 pub mod wire;
 
 pub use config::QuicOptions;
-pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
+pub use conn::{CLOSE_DONE, CLOSE_FRAME_TIMEOUT, CLOSE_OVER_BUDGET, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
 /// The TLS identity and pinning shared with TCP (the `isin-transport-tls` crate).
 pub use isin_transport_tls as tls;
 pub use stats::WireStats;
 
-use isin_transport::{BoxFuture, Connection, Listener, Transport, TransportError};
+use isin_transport::{
+    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, ListenerLimits, MemoryBudget, Transport,
+    TransportError,
+};
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use quinn::{Endpoint, EndpointConfig, TokioRuntime, VarInt};
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::time::Duration;
 use tls::{Fingerprint, Identity, TlsError};
 use tokio::sync::mpsc;
 
@@ -234,10 +238,16 @@ impl Transport for QuicTransport {
             let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
             let local = endpoint.local_addr().map_err(|e| err(e.to_string()))?.to_string();
             let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
-            let task =
-                tokio::spawn(accept_loop(endpoint.clone(), tx, self.options.clone(), self.registry.clone()));
+            let limits = ListenerLimits::new();
+            let task = tokio::spawn(accept_loop(
+                endpoint.clone(),
+                tx,
+                self.options.clone(),
+                self.registry.clone(),
+                limits.clone(),
+            ));
             tracing::debug!(addr = %local, "QUIC listening");
-            Ok(Box::new(QuicListener { endpoint, addr: local, rx, task }) as Box<dyn Listener>)
+            Ok(Box::new(QuicListener { endpoint, addr: local, rx, task, limits }) as Box<dyn Listener>)
         })
     }
 
@@ -261,7 +271,8 @@ impl Transport for QuicTransport {
                 .map_err(|e| describe(addr, &e, &verifier))?;
             let (mut send, recv) = conn.open_bi().await.map_err(|e| describe(addr, &e, &verifier))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
-            Ok(conn::spawn(conn, send, recv, Some(endpoint), &self.options, self.registry.clone()))
+            let shared = ConnShared::new(INITIAL_MAX_FRAME);
+            Ok(conn::spawn(conn, send, recv, Some(endpoint), shared, &self.options, self.registry.clone()))
         })
     }
 }
@@ -273,6 +284,7 @@ struct QuicListener {
     addr: String,
     rx: mpsc::Receiver<Connection>,
     task: tokio::task::JoinHandle<()>,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Drop for QuicListener {
@@ -291,6 +303,14 @@ impl Listener for QuicListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move { self.rx.recv().await.ok_or(TransportError::Closed) })
     }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
+    }
 }
 
 async fn accept_loop(
@@ -298,16 +318,18 @@ async fn accept_loop(
     tx: mpsc::Sender<Connection>,
     opts: QuicOptions,
     registry: Arc<stats::Registry>,
+    limits: Arc<ListenerLimits>,
 ) {
     while let Some(incoming) = endpoint.accept().await {
         let tx = tx.clone();
+        let limits = limits.clone();
         let opts = opts.clone();
         let registry = registry.clone();
         tokio::spawn(async move {
             let remote = incoming.remote_address();
             match tokio::time::timeout(opts.handshake_timeout, establish(incoming)).await {
                 Ok(Ok((conn, send, recv))) => {
-                    let c = conn::spawn(conn, send, recv, None, &opts, registry);
+                    let c = conn::spawn(conn, send, recv, None, limits.conn_shared(), &opts, registry);
                     // If nobody accepts any more, dropping `c` closes it.
                     let _ = tx.send(c).await;
                 }

@@ -32,7 +32,8 @@ pub use isin_transport_tls as tls;
 use counted::Counted;
 use isin_transport::stream::{self, Counting};
 use isin_transport::{
-    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, Transport, TransportError,
+    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, ListenerLimits, MemoryBudget, Transport,
+    TransportError,
 };
 use std::sync::Arc;
 use std::time::Duration;
@@ -150,16 +151,17 @@ fn nodelay(sock: &TcpStream, peer: &str) {
     }
 }
 
-fn wrap_plain(sock: TcpStream, peer: String) -> Connection {
+fn wrap_plain(sock: TcpStream, peer: String, shared: Arc<ConnShared>) -> Connection {
     nodelay(&sock, &peer);
     let (r, w) = sock.into_split();
-    stream::spawn(r, w, peer, INITIAL_MAX_FRAME)
+    stream::spawn_with(r, w, peer, shared, Counting::Frames)
 }
 
 /// Plaintext listener: connections are ready as soon as accepted.
 struct PlainListener {
     inner: TcpListener,
     addr: String,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Listener for PlainListener {
@@ -170,8 +172,16 @@ impl Listener for PlainListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move {
             let (sock, peer) = self.inner.accept().await?;
-            Ok(wrap_plain(sock, peer.to_string()))
+            Ok(wrap_plain(sock, peer.to_string(), self.limits.conn_shared()))
         })
+    }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
     }
 }
 
@@ -181,6 +191,7 @@ struct TlsListener {
     addr: String,
     rx: mpsc::Receiver<Connection>,
     task: tokio::task::JoinHandle<()>,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Drop for TlsListener {
@@ -199,9 +210,22 @@ impl Listener for TlsListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move { self.rx.recv().await.ok_or(TransportError::Closed) })
     }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
+    }
 }
 
-async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc::Sender<Connection>) {
+async fn tls_accept_loop(
+    listener: TcpListener,
+    acceptor: TlsAcceptor,
+    tx: mpsc::Sender<Connection>,
+    limits: Arc<ListenerLimits>,
+) {
     loop {
         let (sock, peer) = match listener.accept().await {
             Ok(s) => s,
@@ -213,9 +237,12 @@ async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc:
             }
         };
         let (acceptor, tx) = (acceptor.clone(), tx.clone());
+        let shared = limits.conn_shared();
         tokio::spawn(async move {
             let peer = peer.to_string();
-            match tokio::time::timeout(TLS_HANDSHAKE_TIMEOUT, tls_accept(sock, &peer, &acceptor)).await {
+            match tokio::time::timeout(TLS_HANDSHAKE_TIMEOUT, tls_accept(sock, &peer, &acceptor, shared))
+                .await
+            {
                 Ok(Ok(conn)) => {
                     // If nobody accepts any more, dropping `conn` closes it.
                     let _ = tx.send(conn).await;
@@ -227,9 +254,13 @@ async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc:
     }
 }
 
-async fn tls_accept(sock: TcpStream, peer: &str, acceptor: &TlsAcceptor) -> Result<Connection, String> {
+async fn tls_accept(
+    sock: TcpStream,
+    peer: &str,
+    acceptor: &TlsAcceptor,
+    shared: Arc<ConnShared>,
+) -> Result<Connection, String> {
     nodelay(&sock, peer);
-    let shared = ConnShared::new(INITIAL_MAX_FRAME);
     let tls = acceptor
         .accept(Counted::new(sock, shared.clone()))
         .await
@@ -280,12 +311,13 @@ impl Transport for TcpTransport {
             };
             let inner = TcpListener::bind(addr).await.map_err(err)?;
             let local = inner.local_addr().map_err(err)?.to_string();
+            let limits = ListenerLimits::new();
             Ok(match acceptor {
-                None => Box::new(PlainListener { inner, addr: local }) as Box<dyn Listener>,
+                None => Box::new(PlainListener { inner, addr: local, limits }) as Box<dyn Listener>,
                 Some(acceptor) => {
                     let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
-                    let task = tokio::spawn(tls_accept_loop(inner, acceptor, tx));
-                    Box::new(TlsListener { addr: local, rx, task })
+                    let task = tokio::spawn(tls_accept_loop(inner, acceptor, tx, limits.clone()));
+                    Box::new(TlsListener { addr: local, rx, task, limits })
                 }
             })
         })
@@ -305,7 +337,7 @@ impl Transport for TcpTransport {
             };
             let sock = TcpStream::connect(addr).await.map_err(|e| err(e.to_string()))?;
             let Some(pinned) = pinned else {
-                return Ok(wrap_plain(sock, addr.to_string()));
+                return Ok(wrap_plain(sock, addr.to_string(), ConnShared::new(INITIAL_MAX_FRAME)));
             };
             nodelay(&sock, addr);
             let verifier = Arc::new(PinnedServerVerifier::new(pinned, &tls::provider()));
