@@ -41,6 +41,14 @@
 //! for a peer to make this side buffer without limit), and a 5 ms ACK delay
 //! requested from the peer so a lost last packet is probed quickly.
 //!
+//! ## Limits
+//! As on every transport, an announced frame is checked against the maximum
+//! frame and reserved from the listener's memory budget before its bytes are
+//! read, and must arrive within the frame timeout; refusals close the
+//! connection with [`CLOSE_TOO_LARGE`], [`CLOSE_OVER_BUDGET`] or
+//! [`CLOSE_FRAME_TIMEOUT`]. Reservations are held while a frame waits in the
+//! sequencer, so frames held back for ordering count against the budget too.
+//!
 //! ## Counting
 //! Each connection counts frames and their framing like every transport
 //! (`ConnStats`); [`QuicTransport::wire_stats`] adds what QUIC itself put on

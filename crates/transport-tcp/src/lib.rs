@@ -14,8 +14,11 @@
 //!
 //! Each connection sets `TCP_NODELAY` (tiles are latency-sensitive and the codec
 //! already batches writes), starts with the small handshake frame limit (raised
-//! by the master once the peer has authenticated), and reports the peer closing
-//! as the end of its frame stream. A TLS listener runs each handshake in its
+//! by the master once the peer has authenticated), reserves every announced
+//! frame from the listener's memory budget before allocating it and reads it
+//! under the frame timeout ([`Listener::set_budget`],
+//! [`Listener::set_frame_timeout`]), and reports the peer closing as the end of
+//! its frame stream. A TLS listener runs each handshake in its
 //! own task under a timeout, so a peer that stalls it holds up no one.
 //!
 //! ## Counting

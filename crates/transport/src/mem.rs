@@ -50,6 +50,24 @@ impl Listener for MemListener {
     }
 }
 
+impl MemTransport {
+    /// Connects to the listener at `addr` like [`Transport::connect`], but
+    /// returns this side's raw byte pipe instead of a [`Connection`]: for tests
+    /// that must write what no [`FrameSender`](crate::FrameSender) would (a
+    /// bad length prefix, a frame trickled byte by byte). The listener's side
+    /// is an ordinary connection under its limits.
+    pub async fn connect_raw(&self, addr: &str) -> Result<tokio::io::DuplexStream, TransportError> {
+        let listener = self.listeners.lock().map_err(|_| TransportError::Closed)?.get(addr).cloned();
+        let refused = || TransportError::Connect { addr: addr.to_string(), reason: "no listener".into() };
+        let (listener, limits) = listener.ok_or_else(refused)?;
+        let (ours, theirs) = tokio::io::duplex(256 << 10);
+        let (r, w) = tokio::io::split(theirs);
+        let conn = stream::spawn_with(r, w, "mem-peer".to_string(), limits.conn_shared(), Counting::Frames);
+        listener.send(conn).map_err(|_| refused())?;
+        Ok(ours)
+    }
+}
+
 impl Transport for MemTransport {
     fn name(&self) -> &'static str {
         "mem"
