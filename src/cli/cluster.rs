@@ -8,50 +8,44 @@ use anyhow::Context;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, SlaveOptions, Tracer};
 use isin_actors::viewer;
-use isin_cluster::auth::{self, Ticket};
-use isin_cluster::auth::{ENCRYPTED_TCP, PLAINTEXT_TCP};
+use isin_cluster::auth;
 use isin_tracer::{Camera, RenderSettings};
-use isin_transport::Transport;
+use isin_transport::{Fingerprint, Ticket, Transport, TransportKind};
 use isin_transport_quic::QuicTransport;
 use isin_transport_tcp::TcpTransport;
-use isin_transport_tcp::tls::{Fingerprint, Identity};
+use isin_transport_tls::Identity;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// The transport a master listens with (`name`: `tcp` — TLS —, `quic`, or
-/// `tcp-insecure` for plaintext, which `isin master` only picks with
-/// `--insecure`), and the certificate fingerprint its ticket must carry (the
-/// encrypted ones). The master keeps its TLS identity in `identity_dir` when
-/// given (created on first use), so tickets stay valid across restarts;
-/// otherwise it generates a fresh one. The transport's `name()` is the
-/// ticket's transport.
+/// The transport a master of `kind` listens with (`isin master` picks
+/// plaintext only with `--insecure`), and the certificate fingerprint its
+/// ticket must carry (the encrypted ones). The master keeps its TLS identity
+/// in `identity_dir` when given (created on first use), so tickets stay valid
+/// across restarts; otherwise it generates a fresh one.
 pub fn server_transport(
-    name: &str,
+    kind: TransportKind,
     identity_dir: Option<&Path>,
-) -> anyhow::Result<(Arc<dyn Transport>, Option<String>)> {
+) -> anyhow::Result<(Arc<dyn Transport>, Option<Fingerprint>)> {
     let identity = || match identity_dir {
         Some(dir) => load_or_create_identity(dir),
         None => Ok(Identity::generate()?),
     };
-    match name {
-        ENCRYPTED_TCP => {
+    match kind {
+        TransportKind::Tcp => {
             let identity = identity()?;
-            let fingerprint = identity.fingerprint().to_string();
-            Ok((Arc::new(TcpTransport::server(&identity)?), Some(fingerprint)))
+            Ok((Arc::new(TcpTransport::server(&identity)?), Some(identity.fingerprint())))
         }
-        PLAINTEXT_TCP => {
+        TransportKind::TcpInsecure => {
             if identity_dir.is_some() {
                 tracing::warn!("--identity is not used by plaintext TCP (--insecure)");
             }
             Ok((Arc::new(TcpTransport::insecure()), None))
         }
-        "quic" => {
+        TransportKind::Quic => {
             let identity = identity()?;
-            let fingerprint = identity.fingerprint().to_string();
-            Ok((Arc::new(QuicTransport::server(&identity)?), Some(fingerprint)))
+            Ok((Arc::new(QuicTransport::server(&identity)?), Some(identity.fingerprint())))
         }
-        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic)"),
     }
 }
 
@@ -59,22 +53,11 @@ pub fn server_transport(
 /// pinning the ticket's fingerprint for `tcp` and `quic`, plaintext only for
 /// a `tcp-insecure` ticket (never as a fallback).
 pub fn client_transport(ticket: &Ticket) -> anyhow::Result<Arc<dyn Transport>> {
-    let pinned = || -> anyhow::Result<Fingerprint> {
-        let fp = ticket.fingerprint.as_deref().with_context(|| {
-            format!(
-                "a {} ticket must carry the master's certificate fingerprint (`?fp=…`): \
-                 pass the whole ticket the master printed",
-                ticket.transport
-            )
-        })?;
-        Ok(fp.parse()?)
-    };
-    match ticket.transport.as_str() {
-        ENCRYPTED_TCP => Ok(Arc::new(TcpTransport::client(pinned()?)?)),
-        PLAINTEXT_TCP => Ok(Arc::new(TcpTransport::insecure())),
-        "quic" => Ok(Arc::new(QuicTransport::client(pinned()?)?)),
-        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic, tcp-insecure)"),
-    }
+    Ok(match ticket.transport {
+        TransportKind::Tcp => Arc::new(TcpTransport::client(ticket.pinned()?)?),
+        TransportKind::TcpInsecure => Arc::new(TcpTransport::insecure()),
+        TransportKind::Quic => Arc::new(QuicTransport::client(ticket.pinned()?)?),
+    })
 }
 
 /// Reads `cert.der` and `key.der` from `dir`, or generates them there.
@@ -110,7 +93,7 @@ fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
 /// A ticket from `--connect`: a full `isin://…` ticket, or `HOST:PORT` with
 /// `--token` for a plaintext master (`transport` `tcp-insecure`; the encrypted
 /// transports need the whole ticket, for its fingerprint).
-pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Result<Ticket> {
+pub fn ticket(connect: &str, token: Option<&str>, transport: TransportKind) -> anyhow::Result<Ticket> {
     if connect.contains("://") {
         let mut t: Ticket = connect.parse()?;
         if let Some(tok) = token {
@@ -120,17 +103,12 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Re
     } else {
         let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
         anyhow::ensure!(
-            transport == PLAINTEXT_TCP,
+            transport == TransportKind::TcpInsecure,
             "--transport {transport} needs the whole ticket the master printed (it carries the \
              certificate fingerprint); a bare HOST:PORT only reaches a plaintext master \
              (--transport tcp-insecure)"
         );
-        Ok(Ticket {
-            transport: transport.to_string(),
-            token: token.to_string(),
-            addr: connect.to_string(),
-            fingerprint: None,
-        })
+        Ok(Ticket { transport, token: token.to_string(), addr: connect.to_string(), fingerprint: None })
     }
 }
 
@@ -175,10 +153,10 @@ async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Add
     let tcp: Arc<dyn Transport> = Arc::new(TcpTransport::both(&identity, identity.fingerprint())?);
     let listener = tcp.listen("127.0.0.1:0").await?;
     let ticket = Ticket {
-        transport: ENCRYPTED_TCP.into(),
+        transport: TransportKind::Tcp,
         token: cfg.cluster.token.clone(),
         addr: listener.local_addr(),
-        fingerprint: Some(identity.fingerprint().to_string()),
+        fingerprint: Some(identity.fingerprint()),
     };
     println!("embedded cluster: master on {} with {slaves} local slaves × {threads} threads", ticket.addr);
     println!("join more slaves with: isin slave --connect {ticket}");

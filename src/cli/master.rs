@@ -4,9 +4,10 @@ use super::cluster;
 use crate::assets::load_scene_file;
 use clap::Args;
 use isin_actors::master::{Master, MasterConfig};
-use isin_cluster::auth::{self, Ticket};
+use isin_cluster::auth;
 use isin_cluster::codec::Compression;
 use isin_cluster::scheduler::SchedulerConfig;
+use isin_transport::{Ticket, TransportKind};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -22,7 +23,7 @@ pub struct MasterArgs {
     /// Transport: `tcp` or `quic`, both TLS 1.3 with a self-signed certificate
     /// whose fingerprint the ticket carries and slaves pin.
     #[arg(long, default_value = "tcp")]
-    pub transport: String,
+    pub transport: TransportKind,
     /// Plaintext TCP instead of TLS (trusted networks only: the token still
     /// authenticates, but frames can be read and altered). The ticket then
     /// starts with `isin+tcp-insecure://`.
@@ -70,17 +71,16 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
     cfg.cluster.scheduler.duplicate_stragglers = !args.no_duplicates;
     cfg.cluster.scheduler.queue_depth = args.queue_depth;
     cfg.cluster.compression = args.compression;
-    let name = match (args.transport.as_str(), args.insecure) {
-        (_, false) => args.transport.as_str(),
-        ("tcp", true) => isin_cluster::auth::PLAINTEXT_TCP,
+    let kind = match (args.transport, args.insecure) {
+        (kind, false) => kind,
+        (TransportKind::Tcp | TransportKind::TcpInsecure, true) => TransportKind::TcpInsecure,
         (other, true) => anyhow::bail!("--insecure is for TCP only; --transport {other} is always encrypted"),
     };
-    let (transport, fingerprint) = cluster::server_transport(name, args.identity.as_deref())?;
+    let (transport, fingerprint) = cluster::server_transport(kind, args.identity.as_deref())?;
     actix::System::new().block_on(async move {
         let listener = transport.listen(&args.listen).await?;
         let addr = listener.local_addr();
-        let ticket =
-            Ticket { transport: transport.name().to_string(), token, addr: addr.clone(), fingerprint };
+        let ticket = Ticket { transport: kind, token, addr: addr.clone(), fingerprint };
         let mut out = std::io::stdout().lock();
         writeln!(out, "listening {addr}")?;
         writeln!(out, "ticket {ticket}")?;

@@ -23,8 +23,8 @@ use isin_actors::client::HANDSHAKE_TIMEOUT;
 use isin_actors::viewer::{
     self, Disconnect, GetSlaves, GetWireStats, RequestFrameAs, SlaveList, ViewerActor, ViewerEvent,
 };
-use isin_cluster::auth::Ticket;
 use isin_cluster::protocol::SceneInfo;
+use isin_transport::Ticket;
 use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate, Worker};
 use std::collections::BTreeMap;
 use std::thread::JoinHandle;
@@ -77,7 +77,7 @@ impl Remote {
                     let link = Link {
                         viewer,
                         feed: thread_feed,
-                        transport: ticket.transport.clone(),
+                        transport: ticket.transport.to_string(),
                         current: None,
                         tiles: BTreeMap::new(),
                     };

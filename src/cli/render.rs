@@ -106,7 +106,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
 
 /// `isin render --cluster TICKET`: one frame through a running cluster.
 fn run_cluster(args: &RenderArgs, ticket: &str) -> anyhow::Result<()> {
-    let ticket = super::cluster::ticket(ticket, None, "tcp")?;
+    let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let t0 = Instant::now();
     let (frame, stats, scene, wire) =
         super::cluster::render_frame(&ticket, args.width, args.height, args.spp)?;

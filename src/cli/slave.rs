@@ -20,7 +20,7 @@ pub struct SlaveArgs {
     pub token: Option<String>,
     /// Transport, when `--connect` is a bare address.
     #[arg(long, default_value = "tcp")]
-    pub transport: String,
+    pub transport: isin_transport::TransportKind,
     /// Render threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -36,7 +36,7 @@ pub struct SlaveArgs {
 
 /// Runs `isin slave` until refused or killed.
 pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
-    let ticket = cluster::ticket(&args.connect, args.token.as_deref(), &args.transport)?;
+    let ticket = cluster::ticket(&args.connect, args.token.as_deref(), args.transport)?;
     let transport = cluster::client_transport(&ticket)?;
     let mut opts = SlaveOptions::default();
     if let Some(n) = args.threads {

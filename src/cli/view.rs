@@ -11,8 +11,8 @@ use super::remote::Remote;
 use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
-use isin_cluster::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings};
+use isin_transport::Ticket;
 use isin_viewer::stats::Summary;
 use isin_viewer::{CameraPath, Divisor, FrameReport, MovingResolution};
 use isin_viewer::{
@@ -147,7 +147,7 @@ pub struct ViewArgs {
     pub token: Option<String>,
     /// Transport, when `--connect` is a bare address.
     #[arg(long, default_value = "tcp")]
-    pub transport: String,
+    pub transport: isin_transport::TransportKind,
     #[command(flatten)]
     pub window: WindowArgs,
     /// Render threads (default: all cores; without --connect).
@@ -164,7 +164,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // Fail before the (possibly slow) scene load or connection when no window can open.
     isin_viewer::check_display()?;
     if let Some(connect) = &args.connect {
-        let ticket = cluster::ticket(connect, args.token.as_deref(), &args.transport)?;
+        let ticket = cluster::ticket(connect, args.token.as_deref(), args.transport)?;
         if let Some(scene) = &args.scene {
             tracing::warn!("showing the master's scene; {} is not loaded", scene.display());
         }

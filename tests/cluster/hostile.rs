@@ -13,11 +13,11 @@
 use super::SMALL;
 use super::util::{Cluster, Stream, Transport, assert_same_pixels, client_transport, render_local};
 use isin_actors::client::{self, JoinError};
-use isin_cluster::auth::{self, Ticket};
+use isin_cluster::auth;
 use isin_cluster::codec::Codec;
 use isin_cluster::protocol::{self, DEFAULT_MAX_FRAME, Hello, Message, Role, TileResult};
 use isin_tracer::Tile;
-use isin_transport::Connection;
+use isin_transport::{Connection, Ticket};
 use std::collections::BTreeSet;
 use std::io::{Read, Write};
 use std::net::TcpStream;

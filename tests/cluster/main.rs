@@ -237,10 +237,11 @@ fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
 
 cluster_test!(wrong_fingerprint, |t: Transport| {
     let c = Cluster::start(t, 1, &[]);
-    let mut ticket: isin_cluster::auth::Ticket = c.ticket.parse().expect("ticket");
-    let real = ticket.fingerprint.clone().expect("encrypted tickets carry a fingerprint");
-    let other = isin_transport_quic::tls::Identity::generate().expect("identity").fingerprint().to_string();
-    ticket.fingerprint = Some(other.clone());
+    let mut ticket: isin_transport::Ticket = c.ticket.parse().expect("ticket");
+    let real = ticket.fingerprint.expect("encrypted tickets carry a fingerprint").to_string();
+    let other = isin_transport_tls::Identity::generate().expect("identity").fingerprint();
+    ticket.fingerprint = Some(other);
+    let other = other.to_string();
     let mut s = Proc::spawn(
         "impostor-fp slave",
         &["slave", "--connect", &ticket.to_string(), "--threads", "1"],
@@ -261,8 +262,8 @@ fn tls_ticket_never_falls_back_to_plaintext() {
     let c = Cluster::start(Transport::TcpInsecure, 1, &[]);
     // The plaintext master's address in a TLS ticket: the slave must fail the
     // TLS handshake (and keep retrying it), never speak plaintext.
-    let ticket: isin_cluster::auth::Ticket = c.ticket.parse().expect("ticket");
-    let fp = isin_transport_quic::tls::Identity::generate().expect("identity").fingerprint();
+    let ticket: isin_transport::Ticket = c.ticket.parse().expect("ticket");
+    let fp = isin_transport_tls::Identity::generate().expect("identity").fingerprint();
     let tls_ticket = format!("isin://{}@{}?fp={fp}", ticket.token, ticket.addr);
     let s = Proc::spawn("tls slave", &["slave", "--connect", &tls_ticket, "--threads", "1"], "info");
     let line = s.wait_for(Stream::Err, "retrying");

@@ -60,7 +60,7 @@ impl Transport {
         if self == Transport::TcpInsecure {
             return (Vec::new(), format!("{scheme}{token}@{addr}"));
         }
-        let id = isin_transport_quic::tls::Identity::generate().expect("identity");
+        let id = isin_transport_tls::Identity::generate().expect("identity");
         std::fs::write(dir.join("cert.der"), id.cert_der().as_ref()).expect("cert");
         std::fs::write(dir.join("key.der"), id.key_der().secret_pkcs8_der()).expect("key");
         let args = vec!["--identity".to_string(), dir.display().to_string()];
@@ -98,9 +98,8 @@ pub fn client_transport(c: &Cluster) -> Box<dyn isin_transport::Transport> {
     if c.transport == Transport::TcpInsecure {
         return Box::new(isin_transport_tcp::TcpTransport::insecure());
     }
-    let ticket: isin_cluster::auth::Ticket = c.ticket.parse().expect("ticket");
+    let ticket: isin_transport::Ticket = c.ticket.parse().expect("ticket");
     let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
-    let fp: isin_transport_quic::tls::Fingerprint = fp.parse().expect("fingerprint");
     match c.transport {
         Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
         _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
@@ -412,7 +411,7 @@ impl Cluster {
 
     /// The master's ticket with its token replaced by `token`.
     pub fn ticket_with_token(&self, token: &str) -> String {
-        let mut t: isin_cluster::auth::Ticket = self.ticket.parse().expect("ticket");
+        let mut t: isin_transport::Ticket = self.ticket.parse().expect("ticket");
         t.token = token.to_string();
         t.to_string()
     }

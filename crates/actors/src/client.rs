@@ -1,13 +1,13 @@
 //! The peer side of the handshake, shared by slaves and viewers: connect,
 //! answer the master's challenge, check the master's own proof.
 
-use isin_cluster::auth::{self, Ticket};
+use isin_cluster::auth;
 use isin_cluster::codec::Codec;
 use isin_cluster::protocol::{
     self, DEFAULT_MAX_FRAME, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, Welcome,
 };
 use isin_cluster::scheduler::Work;
-use isin_transport::{Connection, Transport, TransportError};
+use isin_transport::{Connection, Ticket, Transport, TransportError};
 use std::time::Duration;
 
 /// How long each handshake step may take.

@@ -16,11 +16,10 @@
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use isin_cluster::auth::Ticket;
 use isin_cluster::codec::{self, Codec};
 use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId, TileResult};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
-use isin_transport::{FrameSender, Transport, TransportError};
+use isin_transport::{Delivery, FrameSender, Ticket, Transport, TransportError};
 use serde_bytes::ByteBuf;
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -497,7 +496,10 @@ impl<R: Renderer> SlaveActor<R> {
                 });
                 match protocol::encode(&msg) {
                     Ok(bytes) => {
-                        let _ = sender.send(bytes);
+                        // Tiles may overtake each other (over QUIC a lost
+                        // packet then delays only its own tile), never the
+                        // ordered messages around them.
+                        let _ = sender.send_as(bytes, Delivery::Independent);
                         counters.tiles.fetch_add(1, Ordering::Relaxed);
                     }
                     Err(e) => tracing::error!("cannot encode tile: {e}"),

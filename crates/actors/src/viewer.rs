@@ -4,11 +4,10 @@
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use isin_cluster::auth::Ticket;
 use isin_cluster::protocol::{self, FrameStats, Message, SceneInfo, SlaveEntry};
 use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, Frame, RenderSettings, Tile};
-use isin_transport::{ConnStats, FrameSender, Transport, TransportError};
+use isin_transport::{ConnStats, FrameSender, Ticket, Transport, TransportError};
 use std::time::Duration;
 use tokio::sync::mpsc;
 

@@ -6,9 +6,9 @@ use isin_actors::client::JoinError;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, SlaveOptions};
 use isin_actors::viewer;
-use isin_cluster::auth::Ticket;
 use isin_cluster::codec::{Codec, Compression};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Ticket;
 use isin_transport::Transport;
 use isin_transport::mem::MemTransport;
 use std::collections::BTreeMap;
@@ -45,7 +45,16 @@ async fn start_master_with(
     cfg.cluster.compression = compression;
     let listener = t.listen("master").await.unwrap();
     let addr = Master::new(cfg).unwrap().serve(listener);
-    (addr, Ticket { transport: "mem".into(), token: token.into(), addr: "master".into(), fingerprint: None })
+    // The kind is not read: the test hands the in-memory transport to the peer itself.
+    (
+        addr,
+        Ticket {
+            transport: isin_transport::TransportKind::TcpInsecure,
+            token: token.into(),
+            addr: "master".into(),
+            fingerprint: None,
+        },
+    )
 }
 
 fn spawn_slave(t: &MemTransport, ticket: &Ticket, name: &str, fake: Arc<Fake>) {

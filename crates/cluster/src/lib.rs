@@ -8,8 +8,8 @@
 //!
 //! Modules:
 //! - [`protocol`]: every message, the versioned wire encoding, scene hashes.
-//! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never sent),
-//!   join tickets (`isin://TOKEN@HOST:PORT?fp=CERT-SHA256`).
+//! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never
+//!   sent); the join tickets carrying the token are `isin_transport::ticket`.
 //! - [`codec`]: tile compression (QOI, LZ4, raw), negotiated at join; bounded,
 //!   panic-free decoding of untrusted tiles.
 //! - [`scheduler`]: which tile goes to which slave, who is dead.

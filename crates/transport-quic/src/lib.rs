@@ -16,8 +16,10 @@
 //! it: an ordered frame is delivered after everything sent before it, an
 //! independent frame after the ordered frames sent before it, and independent
 //! frames overtake only each other (details in [`wire`]). Which frames are
-//! independent is a [`wire::Classifier`]; the default,
-//! [`wire::protocol_classifier`], picks isin's two tile messages.
+//! independent is the sender's choice ([`Delivery`](isin_transport::Delivery),
+//! given to [`FrameSender::send_as`](isin_transport::FrameSender::send_as)):
+//! the transport never looks inside a frame. [`QuicOptions::single_stream`]
+//! puts everything on the control stream instead, for comparison.
 //!
 //! ## Why pinning
 //! The master has no certificate from an authority: it generates a
@@ -38,6 +40,14 @@
 //! 32 MiB connection window (room for many 12–100 KB tiles in flight, but not
 //! for a peer to make this side buffer without limit), and a 5 ms ACK delay
 //! requested from the peer so a lost last packet is probed quickly.
+//!
+//! ## Limits
+//! As on every transport, an announced frame is checked against the maximum
+//! frame and reserved from the listener's memory budget before its bytes are
+//! read, and must arrive within the frame timeout; refusals close the
+//! connection with [`CLOSE_TOO_LARGE`], [`CLOSE_OVER_BUDGET`] or
+//! [`CLOSE_FRAME_TIMEOUT`]. Reservations are held while a frame waits in the
+//! sequencer, so frames held back for ordering count against the budget too.
 //!
 //! ## Counting
 //! Each connection counts frames and their framing like every transport
@@ -67,19 +77,22 @@ pub mod stats;
 pub mod wire;
 
 pub use config::QuicOptions;
-pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
-/// The TLS identity and pinning shared with TCP (it lives in `isin-transport-tcp`).
-pub use isin_transport_tcp::tls;
+pub use conn::{CLOSE_DONE, CLOSE_FRAME_TIMEOUT, CLOSE_OVER_BUDGET, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
+/// The TLS identity and pinning shared with TCP (the `isin-transport-tls` crate).
+pub use isin_transport_tls as tls;
 pub use stats::WireStats;
 
-use isin_transport::{BoxFuture, Connection, Listener, Transport, TransportError};
+use isin_transport::{
+    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, ListenerLimits, MemoryBudget, Transport,
+    TransportError,
+};
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use quinn::{Endpoint, EndpointConfig, TokioRuntime, VarInt};
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::time::Duration;
 use tls::{Fingerprint, Identity, TlsError};
 use tokio::sync::mpsc;
-use wire::Classifier;
 
 /// Connections accepted but not yet taken by [`Listener::accept`].
 const ACCEPT_QUEUE: usize = 64;
@@ -92,7 +105,6 @@ pub struct QuicTransport {
     pinned: Option<Fingerprint>,
     identity: Option<Fingerprint>,
     options: QuicOptions,
-    classify: Classifier,
     registry: Arc<stats::Registry>,
 }
 
@@ -130,7 +142,6 @@ impl QuicTransport {
             pinned: None,
             identity: Some(identity.fingerprint()),
             options: QuicOptions::default(),
-            classify: wire::protocol_classifier,
             registry: Arc::default(),
         })
     }
@@ -145,7 +156,6 @@ impl QuicTransport {
             pinned: Some(pinned),
             identity: None,
             options: QuicOptions::default(),
-            classify: wire::protocol_classifier,
             registry: Arc::default(),
         })
     }
@@ -160,13 +170,6 @@ impl QuicTransport {
     /// Replaces the tuning.
     pub fn with_options(mut self, options: QuicOptions) -> Self {
         self.options = options;
-        self
-    }
-
-    /// Replaces the rule deciding which frames may overtake each other
-    /// (default: [`wire::protocol_classifier`]).
-    pub fn with_classifier(mut self, classify: Classifier) -> Self {
-        self.classify = classify;
         self
     }
 
@@ -243,15 +246,16 @@ impl Transport for QuicTransport {
             let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
             let local = endpoint.local_addr().map_err(|e| err(e.to_string()))?.to_string();
             let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
+            let limits = ListenerLimits::new();
             let task = tokio::spawn(accept_loop(
                 endpoint.clone(),
                 tx,
-                self.classify,
                 self.options.clone(),
                 self.registry.clone(),
+                limits.clone(),
             ));
             tracing::debug!(addr = %local, "QUIC listening");
-            Ok(Box::new(QuicListener { endpoint, addr: local, rx, task }) as Box<dyn Listener>)
+            Ok(Box::new(QuicListener { endpoint, addr: local, rx, task, limits }) as Box<dyn Listener>)
         })
     }
 
@@ -275,15 +279,8 @@ impl Transport for QuicTransport {
                 .map_err(|e| describe(addr, &e, &verifier))?;
             let (mut send, recv) = conn.open_bi().await.map_err(|e| describe(addr, &e, &verifier))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
-            Ok(conn::spawn(
-                conn,
-                send,
-                recv,
-                Some(endpoint),
-                self.classify,
-                &self.options,
-                self.registry.clone(),
-            ))
+            let shared = ConnShared::new(INITIAL_MAX_FRAME);
+            Ok(conn::spawn(conn, send, recv, Some(endpoint), shared, &self.options, self.registry.clone()))
         })
     }
 }
@@ -295,6 +292,7 @@ struct QuicListener {
     addr: String,
     rx: mpsc::Receiver<Connection>,
     task: tokio::task::JoinHandle<()>,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Drop for QuicListener {
@@ -313,24 +311,33 @@ impl Listener for QuicListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move { self.rx.recv().await.ok_or(TransportError::Closed) })
     }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
+    }
 }
 
 async fn accept_loop(
     endpoint: Endpoint,
     tx: mpsc::Sender<Connection>,
-    classify: Classifier,
     opts: QuicOptions,
     registry: Arc<stats::Registry>,
+    limits: Arc<ListenerLimits>,
 ) {
     while let Some(incoming) = endpoint.accept().await {
         let tx = tx.clone();
+        let limits = limits.clone();
         let opts = opts.clone();
         let registry = registry.clone();
         tokio::spawn(async move {
             let remote = incoming.remote_address();
             match tokio::time::timeout(opts.handshake_timeout, establish(incoming)).await {
                 Ok(Ok((conn, send, recv))) => {
-                    let c = conn::spawn(conn, send, recv, None, classify, &opts, registry);
+                    let c = conn::spawn(conn, send, recv, None, limits.conn_shared(), &opts, registry);
                     // If nobody accepts any more, dropping `c` closes it.
                     let _ = tx.send(c).await;
                 }

@@ -12,23 +12,51 @@
 //! same to the actors. Every connection has byte and frame counters and a
 //! maximum frame length that can be raised once the peer has authenticated.
 //!
+//! ## What a peer can make this side hold
+//! Every transport's reader, on learning a frame's announced length, checks
+//! it against the connection's maximum frame, then reserves that many bytes
+//! from the connection's [`MemoryBudget`] — both *before* allocating
+//! ([`ConnShared::admit`]). A frame over the maximum
+//! ([`TransportError::FrameTooLarge`]) or over budget
+//! ([`TransportError::OverBudget`]) fails the connection at once, never
+//! waiting for memory to free up. A frame must also arrive whole within the
+//! connection's frame timeout ([`DEFAULT_FRAME_TIMEOUT`];
+//! [`TransportError::FrameTimeout`]), so a peer that announces a large frame
+//! and trickles its bytes cannot pin the reservation for long. A listener
+//! gives every connection it accepts the same budget and timeout
+//! ([`Listener::set_budget`], [`Listener::set_frame_timeout`]).
+//!
 //! [`stream`] holds the length-delimited codec over any byte stream (used by
-//! TCP and by the in-memory [`mem`] transport the tests use).
+//! TCP and by the in-memory [`mem`] transport the tests use). [`ticket`] holds
+//! the join ticket: which [`TransportKind`] a master speaks, and the
+//! [`Fingerprint`] of the certificate it presents.
 
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 use tokio::sync::{Notify, mpsc};
 
+pub mod budget;
 pub mod mem;
 pub mod stream;
+pub mod ticket;
+
+pub use budget::{MemoryBudget, Reservation};
+pub use ticket::{Fingerprint, Ticket, TicketError, TransportKind};
 
 /// The largest frame every new connection accepts until the application
 /// raises it ([`FrameSender::set_max_frame`]) — once the peer has proved who
 /// it is. An unauthenticated peer cannot make anyone allocate more than this.
 /// It must hold the protocol's largest handshake message.
 pub const INITIAL_MAX_FRAME: usize = 16 << 10;
+
+/// How long a frame may take to arrive once its length was read, unless the
+/// connection says otherwise ([`ConnShared::set_frame_timeout`]). It must
+/// cover the largest frame the application raises the limit to at the slowest
+/// link it supports.
+pub const DEFAULT_FRAME_TIMEOUT: Duration = Duration::from_secs(30);
 
 /// A boxed, sendable future (the trait methods are object-safe this way).
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
@@ -59,6 +87,26 @@ pub enum TransportError {
         len: u64,
         /// Maximum.
         max: usize,
+    },
+    /// Reserving the announced frame's bytes would take the connection's
+    /// [`MemoryBudget`] over its limit; the connection is closed.
+    #[error("a frame of {len} bytes would exceed the memory budget ({in_use} of {limit} bytes in use)")]
+    OverBudget {
+        /// Announced length.
+        len: u64,
+        /// Bytes reserved when it was refused.
+        in_use: usize,
+        /// The budget's limit.
+        limit: usize,
+    },
+    /// The peer did not complete an announced frame in time; the connection is
+    /// closed.
+    #[error("the peer did not complete a frame of {len} bytes within {timeout:?}")]
+    FrameTimeout {
+        /// Announced length.
+        len: u64,
+        /// The connection's frame timeout.
+        timeout: Duration,
     },
     /// The byte stream failed or ended inside a frame.
     #[error("connection error: {0}")]
@@ -91,6 +139,53 @@ pub trait Listener: Send + 'static {
     fn local_addr(&self) -> String;
     /// The next incoming connection.
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>>;
+    /// Every connection accepted from now on reserves its incoming frames
+    /// from `budget` (shared by all of them; see [`budget`]). Without one,
+    /// connections are bounded by their maximum frame only.
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>);
+    /// Every connection accepted from now on fails a frame not complete
+    /// within `timeout` of its length ([`DEFAULT_FRAME_TIMEOUT`] otherwise).
+    fn set_frame_timeout(&mut self, timeout: Duration);
+}
+
+/// What a listener applies to the connections it accepts: for transport
+/// implementations, which share it between the [`Listener`] and the tasks
+/// that create connections.
+#[derive(Debug)]
+pub struct ListenerLimits {
+    budget: Mutex<Option<Arc<MemoryBudget>>>,
+    frame_timeout: Mutex<Duration>,
+}
+
+impl ListenerLimits {
+    /// No budget, the default frame timeout.
+    pub fn new() -> Arc<Self> {
+        Arc::new(Self { budget: Mutex::new(None), frame_timeout: Mutex::new(DEFAULT_FRAME_TIMEOUT) })
+    }
+
+    /// See [`Listener::set_budget`].
+    pub fn set_budget(&self, budget: Arc<MemoryBudget>) {
+        if let Ok(mut b) = self.budget.lock() {
+            *b = Some(budget);
+        }
+    }
+
+    /// See [`Listener::set_frame_timeout`].
+    pub fn set_frame_timeout(&self, timeout: Duration) {
+        if let Ok(mut t) = self.frame_timeout.lock() {
+            *t = timeout;
+        }
+    }
+
+    /// Fresh connection state at [`INITIAL_MAX_FRAME`], under these limits.
+    pub fn conn_shared(&self) -> Arc<ConnShared> {
+        let shared = ConnShared::new(INITIAL_MAX_FRAME);
+        shared.set_budget(self.budget.lock().ok().and_then(|b| b.clone()));
+        if let Ok(t) = self.frame_timeout.lock() {
+            shared.set_frame_timeout(*t);
+        }
+        shared
+    }
 }
 
 /// State shared by a connection's two halves and its transport tasks.
@@ -101,13 +196,16 @@ pub struct ConnShared {
     frames_sent: AtomicU64,
     frames_received: AtomicU64,
     max_frame: AtomicUsize,
+    budget: Mutex<Option<Arc<MemoryBudget>>>,
+    frame_timeout_micros: AtomicU64,
     closed: AtomicBool,
     /// Woken when the connection is closed locally.
     pub close_notify: Notify,
 }
 
 impl ConnShared {
-    /// Fresh counters with a maximum frame length.
+    /// Fresh counters with a maximum frame length, no budget and the default
+    /// frame timeout.
     pub fn new(max_frame: usize) -> Arc<Self> {
         Arc::new(Self {
             bytes_sent: AtomicU64::new(0),
@@ -115,6 +213,8 @@ impl ConnShared {
             frames_sent: AtomicU64::new(0),
             frames_received: AtomicU64::new(0),
             max_frame: AtomicUsize::new(max_frame),
+            budget: Mutex::new(None),
+            frame_timeout_micros: AtomicU64::new(DEFAULT_FRAME_TIMEOUT.as_micros() as u64),
             closed: AtomicBool::new(false),
             close_notify: Notify::new(),
         })
@@ -123,6 +223,47 @@ impl ConnShared {
     /// The largest frame currently accepted.
     pub fn max_frame(&self) -> usize {
         self.max_frame.load(Ordering::Relaxed)
+    }
+
+    /// Reserves incoming frames from `budget` from now on (`None`: no budget).
+    pub fn set_budget(&self, budget: Option<Arc<MemoryBudget>>) {
+        if let Ok(mut b) = self.budget.lock() {
+            *b = budget;
+        }
+    }
+
+    /// The budget incoming frames reserve from, if any.
+    pub fn budget(&self) -> Option<Arc<MemoryBudget>> {
+        self.budget.lock().ok().and_then(|b| b.clone())
+    }
+
+    /// How long a frame may take to arrive once its length was read.
+    pub fn set_frame_timeout(&self, timeout: Duration) {
+        let micros = u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX);
+        self.frame_timeout_micros.store(micros, Ordering::Relaxed);
+    }
+
+    /// See [`set_frame_timeout`](Self::set_frame_timeout).
+    pub fn frame_timeout(&self) -> Duration {
+        Duration::from_micros(self.frame_timeout_micros.load(Ordering::Relaxed))
+    }
+
+    /// What a reader calls on learning that the peer announces a frame of
+    /// `len` bytes, before allocating anything for it: refuses a frame over
+    /// the maximum ([`TransportError::FrameTooLarge`]) or over the budget
+    /// ([`TransportError::OverBudget`]); otherwise the reservation to keep
+    /// with the frame until the application takes it.
+    pub fn admit(&self, len: u64) -> Result<Reservation, TransportError> {
+        let max = self.max_frame();
+        if len > max as u64 {
+            return Err(TransportError::FrameTooLarge { len, max });
+        }
+        // len <= max, which is a usize.
+        let len = len as usize;
+        match self.budget() {
+            Some(b) => b.try_reserve(len),
+            None => Ok(Reservation::unbudgeted(len)),
+        }
     }
 
     /// Whether the connection was closed locally.
@@ -259,6 +400,12 @@ impl FrameSender {
         self.shared.max_frame.store(max, Ordering::Relaxed);
     }
 
+    /// Changes how long a frame from the peer may take once its length was
+    /// read (e.g. longer once the peer may send a whole scene).
+    pub fn set_frame_timeout(&self, timeout: Duration) {
+        self.shared.set_frame_timeout(timeout);
+    }
+
     /// The connection's counters.
     pub fn stats(&self) -> ConnStats {
         self.shared.stats()
@@ -270,22 +417,28 @@ impl FrameSender {
     }
 }
 
+/// What a transport's reader hands its [`FrameReceiver`]: a frame with the
+/// budget it holds until the application takes it, or the error that ended
+/// the connection.
+pub type Incoming = Result<(Vec<u8>, Reservation), TransportError>;
+
 /// Receives whole frames until the peer closes (`None`) or the connection
 /// fails (one `Err`, then `None`).
 #[derive(Debug)]
 pub struct FrameReceiver {
-    rx: mpsc::Receiver<Result<Vec<u8>, TransportError>>,
+    rx: mpsc::Receiver<Incoming>,
 }
 
 impl FrameReceiver {
     /// A receiver fed by a transport's reader task.
-    pub fn new(rx: mpsc::Receiver<Result<Vec<u8>, TransportError>>) -> Self {
+    pub fn new(rx: mpsc::Receiver<Incoming>) -> Self {
         Self { rx }
     }
 
-    /// The next frame.
+    /// The next frame; its bytes leave the connection's budget as it is
+    /// returned.
     pub async fn recv(&mut self) -> Option<Result<Vec<u8>, TransportError>> {
-        self.rx.recv().await
+        self.rx.recv().await.map(|r| r.map(|(frame, _reservation)| frame))
     }
 }
 
