@@ -10,6 +10,10 @@ use isin_cluster::scheduler::Work;
 use isin_transport::{Connection, Ticket, Transport, TransportError};
 use std::time::Duration;
 
+/// How long one frame from the master may take to arrive once begun: a
+/// 512 MiB scene over 10 Mbit/s, with room to spare.
+pub const SCENE_FRAME_TIMEOUT: Duration = Duration::from_secs(600);
+
 /// How long each handshake step may take.
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -123,8 +127,10 @@ pub async fn handshake(
     let hello =
         Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene, codecs, work };
     send_message(&conn, &Message::Hello(hello))?;
-    // The master's welcome is small, but what follows (the scene) is not.
+    // The master's welcome is small, but what follows (the scene) is not,
+    // and may take minutes on a slow link.
     conn.sender.set_max_frame(DEFAULT_MAX_FRAME);
+    conn.sender.set_frame_timeout(SCENE_FRAME_TIMEOUT);
     let welcome = match recv_message(&mut conn, DEFAULT_MAX_FRAME, HANDSHAKE_TIMEOUT).await? {
         Message::Welcome(w) => w,
         Message::Reject { reason } => return Err(JoinError::Rejected(reason)),

@@ -12,7 +12,7 @@ use isin_cluster::protocol::{self, FrameStats};
 use isin_cluster::scheduler::SlaveInfo;
 use isin_cluster::{Class, Cluster, ClusterConfig, PeerId, Transmit};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
-use isin_transport::{ConnStats, Connection, Delivery, FrameSender, Listener, TransportError};
+use isin_transport::{ConnStats, Connection, Delivery, FrameSender, Listener, MemoryBudget, TransportError};
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
@@ -87,8 +87,12 @@ impl Master {
         })
     }
 
-    /// Starts the master and an accept loop on `listener`.
+    /// Starts the master and an accept loop on `listener`, whose connections
+    /// together may hold the core's [`buffered_bytes`] in frames being read.
+    ///
+    /// [`buffered_bytes`]: isin_cluster::limits::Budgets::buffered_bytes
     pub fn serve(self, mut listener: Box<dyn Listener>) -> Addr<Master> {
+        listener.set_budget(MemoryBudget::new(self.core.budgets().buffered_bytes));
         let addr = self.start();
         let target = addr.clone();
         tokio::spawn(async move {
