@@ -200,6 +200,11 @@ impl Link {
                 self.feed.send(SourceEvent::FrameComplete { frame_id: request, elapsed })
             }
             ViewerEvent::Error(message) => self.feed.send(SourceEvent::Failed(message)),
+            // The status line shows the slave count; the terminal says why frames wait.
+            ViewerEvent::Notice(message) => {
+                tracing::warn!("master: {message}");
+                true
+            }
             ViewerEvent::Closed(message) => {
                 self.feed.send(SourceEvent::Failed(message));
                 false

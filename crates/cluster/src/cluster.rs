@@ -29,7 +29,8 @@
 //!   people flying through the scene each keep half the cluster. A viewer
 //!   that leaves takes its frames.
 //! - **What viewers hear**: tiles as they arrive (in a codec they decode),
-//!   `FrameDone`, the slave list whenever it changes.
+//!   `FrameDone`, the slave list whenever it changes, and once, a `Notice`
+//!   when their frames wait because no slave is connected.
 //!
 //! # What it trusts
 //!
@@ -240,8 +241,9 @@ enum PeerState {
     Syncing { threads: u32, since: Duration },
     /// A slave in the scheduler.
     Slave,
-    /// A viewer (a client of its own), with its kind of work and its open frames.
-    Viewer { work: Work, frames: BTreeSet<FrameId> },
+    /// A viewer (a client of its own), with its kind of work, its open
+    /// frames, and whether it was told that they wait for slaves.
+    Viewer { work: Work, frames: BTreeSet<FrameId>, told_waiting: bool },
 }
 
 #[derive(Debug)]
@@ -532,6 +534,11 @@ impl Cluster {
                 tracing::info!(slave = %name, threads, "slave {name} joined with {threads} threads");
                 self.roster.join(peer, &name, &addr, threads);
                 self.send_roster();
+                for p in self.peers.values_mut() {
+                    if let PeerState::Viewer { told_waiting, .. } = &mut p.state {
+                        *told_waiting = false;
+                    }
+                }
                 self.sched.handle_join(now, peer, name, threads);
                 self.drain(now);
             }
@@ -598,7 +605,8 @@ impl Cluster {
         let max_frame = peer.max_frame;
         match hello.role {
             Role::Viewer => {
-                peer.state = PeerState::Viewer { work: hello.work, frames: BTreeSet::new() };
+                peer.state =
+                    PeerState::Viewer { work: hello.work, frames: BTreeSet::new(), told_waiting: false };
                 tracing::info!(viewer = %peer.name, addr = %peer.addr, "viewer {} connected", peer.name);
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
@@ -717,11 +725,36 @@ impl Cluster {
             }
             frames.insert(frame);
         }
+        self.tell_if_waiting();
         self.status.frames_requested += 1;
         let spec = FrameSpec { camera, settings, viewer, request, bytes_at_start: self.bytes_received };
         self.frames.insert(frame, spec);
         tracing::debug!(frame, request, queue, "frame requested {w}x{h}");
         self.drain(now);
+    }
+
+    /// With no slave in the cluster, tells each viewer whose frames now wait
+    /// — once, until a slave joins.
+    fn tell_if_waiting(&mut self) {
+        if self.sched.slave_count() > 0 {
+            return;
+        }
+        let mut told = Vec::new();
+        for (&id, p) in self.peers.iter_mut() {
+            if let PeerState::Viewer { frames, told_waiting, .. } = &mut p.state
+                && !frames.is_empty()
+                && !*told_waiting
+            {
+                *told_waiting = true;
+                told.push(id);
+            }
+        }
+        for id in told {
+            let message = "no slaves connected: the frame waits, and starts as soon as one joins \
+                           (start one with: isin slave --connect TICKET)"
+                .to_string();
+            self.send(id, Message::Notice { message });
+        }
     }
 
     /// Refuses `peer`: tells it why, then drops it.
@@ -782,6 +815,7 @@ impl Cluster {
                     if self.roster.death(slave) {
                         self.send_roster();
                     }
+                    self.tell_if_waiting();
                     tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
                     if cause == DeathCause::Timeout && self.peers.remove(&slave).is_some() {
                         let reason = format!("silent for {:?}", self.sched.config().heartbeat_timeout);

@@ -372,6 +372,13 @@ pub enum Message {
         /// Resolution, samples and the rest.
         settings: RenderSettings,
     },
+    /// Master → viewer: something worth telling the user that is not an
+    /// error — its frames wait because no slave is connected, say. Said
+    /// once, not per frame.
+    Notice {
+        /// Human-readable text.
+        message: String,
+    },
 }
 
 impl Message {
@@ -394,6 +401,7 @@ impl Message {
             Message::Heartbeat => "Heartbeat",
             Message::Error { .. } => "Error",
             Message::QueueFrame { .. } => "QueueFrame",
+            Message::Notice { .. } => "Notice",
         }
     }
 }

@@ -439,6 +439,11 @@ impl Scheduler {
         self.slaves.contains_key(&slave)
     }
 
+    /// How many slaves are alive.
+    pub fn slave_count(&self) -> usize {
+        self.slaves.len()
+    }
+
     /// The live slaves, by id.
     pub fn slaves(&self) -> Vec<SlaveInfo> {
         self.slaves

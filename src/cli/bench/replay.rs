@@ -148,6 +148,7 @@ pub async fn replay(
                     next += 1;
                 }
             }
+            ViewerEvent::Notice(m) => tracing::warn!("master: {m}"),
             ViewerEvent::Error(e) | ViewerEvent::Closed(e) => anyhow::bail!("master: {e}"),
         }
     }

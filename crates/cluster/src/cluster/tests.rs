@@ -322,6 +322,27 @@ fn a_slave_that_dies_mid_frame_has_its_tiles_rendered_by_the_others() {
 }
 
 #[test]
+fn a_viewer_whose_frames_wait_for_slaves_is_told_once_and_served_when_one_joins() {
+    let mut net = Net::new(sim::config());
+    let v = net.viewer();
+    net.run_until(|n| n.limit(v).is_some());
+    let first = net.request(v, settings(32, 32, 1), false);
+    let second = net.request(v, settings(32, 32, 2), true);
+    net.run_for(3000 * MS);
+    let told = net.notices(v);
+    assert_eq!(told.len(), 1, "{told:?}");
+    assert!(told[0].contains("no slaves connected") && told[0].contains("isin slave --connect"), "{told:?}");
+    let s = net.slave(SlaveSpec::default());
+    net.run_until(|n| n.viewer_done(v, first) && n.viewer_done(v, second));
+    net.assert_exact(v, second);
+    assert_eq!(net.notices(v).len(), 1, "nothing more to say while slaves work");
+    // The only slave goes: the next frame waits, and the viewer is told again.
+    net.disconnect(s);
+    net.request(v, settings(32, 32, 3), false);
+    assert_eq!(net.notices(v).len(), 2);
+}
+
+#[test]
 fn absurd_requests_get_an_error_and_the_viewer_stays() {
     let mut net = Net::new(sim::config());
     let v = net.viewer();

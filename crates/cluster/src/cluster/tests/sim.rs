@@ -134,6 +134,7 @@ struct ViewerSim {
     next_request: u64,
     frames: BTreeMap<u64, ViewFrame>,
     errors: Vec<String>,
+    notices: Vec<String>,
 }
 
 #[derive(Debug)]
@@ -473,6 +474,7 @@ impl Net {
                 f.took = Some(now - f.requested);
             }
             (Kind::Viewer(v), Message::Error { message }) => v.errors.push(message),
+            (Kind::Viewer(v), Message::Notice { message }) => v.notices.push(message),
             _ => {}
         }
         let p = self.peers.get_mut(&id).expect("still here");
@@ -626,6 +628,11 @@ impl Net {
     /// The `Error` messages viewer `v` got.
     pub fn errors(&self, v: PeerId) -> Vec<String> {
         self.viewer_sim(v).errors.clone()
+    }
+
+    /// The `Notice` messages viewer `v` got.
+    pub fn notices(&self, v: PeerId) -> Vec<String> {
+        self.viewer_sim(v).notices.clone()
     }
 
     /// How many times slave `s` was sent the scene.
