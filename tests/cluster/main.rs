@@ -25,6 +25,7 @@
 //!   both fingerprints named; the master never sees it authenticate.
 //! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
 //! - [`hostile`]: peers that know the token and lie in the protocol.
+//! - [`clients`]: several viewers on one cluster at once.
 
 mod util;
 
@@ -64,6 +65,7 @@ macro_rules! cluster_test {
     };
 }
 
+mod clients;
 mod hostile;
 
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
