@@ -164,7 +164,7 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
     ));
     // An honest slave finishes the frame, the liar's tiles included.
     spawn_slave(&t, &ticket, "honest", Arc::new(Fake::default()));
-    let mut covered = 0;
+    let (mut covered, mut told) = (0, false);
     while let Some(ev) = events.recv().await {
         match ev {
             viewer::ViewerEvent::Tile { tile, pixels, .. } => {
@@ -172,10 +172,13 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
                 covered += tile.pixel_count();
             }
             viewer::ViewerEvent::FrameDone { .. } => break,
+            // The liar was the only slave: the frame waited for the next.
+            viewer::ViewerEvent::Notice(m) => told |= m.contains("no slaves connected"),
             other => panic!("unexpected {other:?}"),
         }
     }
     assert_eq!(covered, 64 * 64);
+    assert!(told, "the viewer was not told its frame waited");
     assert_eq!(master.send(GetStatus).await.unwrap().deaths, 1);
 }
 

@@ -328,14 +328,10 @@ conformance_test!(frames_cross_both_ways_in_a_legal_order_and_are_counted, |k: K
     }
     tokio::join!(receive_checked(&mut s, &up), receive_checked(&mut c, &down));
     sender.join().expect("sender thread");
-    // Closing ends the other side's stream cleanly, both ways.
-    c.sender.close();
-    assert!(timeout(BOUND, s.receiver.recv()).await.expect("in time").is_none(), "clean end");
-    s.sender.close();
-    assert!(timeout(BOUND, c.receiver.recv()).await.expect("in time").is_none(), "clean end");
-    // A writer counts bytes once its socket took them, and the peer may read
-    // them first (TLS's close_notify, say): wait, within the bound, for the
-    // counts of both sides to agree.
+    // Every frame is in. A writer counts bytes once its socket took them, and
+    // the peer may read them first: wait, within the bound, for the counts of
+    // both sides to agree. (Compared before closing: what a side writes while
+    // closing — TLS's close_notify — its peer may never read.)
     let deadline = std::time::Instant::now() + BOUND;
     let agree = || {
         let (a, b) = (c.sender.stats(), s.sender.stats());
@@ -354,6 +350,11 @@ conformance_test!(frames_cross_both_ways_in_a_legal_order_and_are_counted, |k: K
     let framed = |p: &[(Vec<u8>, Delivery)]| p.iter().map(|(f, _)| 4 + f.len() as u64).sum::<u64>();
     assert!(cst.bytes_sent >= framed(&up), "{cst:?}");
     assert!(sst.bytes_sent >= framed(&down), "{sst:?}");
+    // Closing ends the other side's stream cleanly, both ways.
+    c.sender.close();
+    assert!(timeout(BOUND, s.receiver.recv()).await.expect("in time").is_none(), "clean end");
+    s.sender.close();
+    assert!(timeout(BOUND, c.receiver.recv()).await.expect("in time").is_none(), "clean end");
 });
 
 conformance_test!(
