@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 /// Arguments of `isin fly`.
 #[derive(Args, Debug)]
 pub struct FlyArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
     /// Camera path file (TOML, as written by `isin view --record`).
     #[arg(long)]

@@ -10,7 +10,7 @@ use std::time::Instant;
 /// Arguments of `isin render`.
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
     /// Output PNG file.
     #[arg(short, long, default_value = "out.png")]

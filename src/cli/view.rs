@@ -134,7 +134,7 @@ impl Default for WindowArgs {
 /// Arguments of `isin view`.
 #[derive(Args, Debug)]
 pub struct ViewArgs {
-    /// Scene file (TOML); not needed with --connect, where the master's scene is shown.
+    /// Scene file (TOML) or mesh file (.gltf, .glb, .obj); not needed with --connect, where the master's scene is shown.
     #[arg(required_unless_present = "connect")]
     pub scene: Option<PathBuf>,
     /// Show what a cluster renders: the join ticket the master printed

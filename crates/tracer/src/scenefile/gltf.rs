@@ -18,6 +18,7 @@
 
 use super::SceneError;
 use super::build::{Builder, Origin, Placement, decode_image, join};
+use super::mesh_scene::{FileCamera, FileLight};
 use crate::materials::{Albedo, Material};
 use crate::math;
 use crate::meshes::{Mesh, Transform};
@@ -39,8 +40,7 @@ pub(crate) fn load(
 ) -> Result<(), SceneError> {
     let bytes = b.read_asset(path, origin)?;
     let bad = |m: String| origin.bad_asset(path, m);
-    check_glb_header(&bytes).map_err(bad)?;
-    let file = gltf::Gltf::from_slice(&bytes).map_err(|e| bad(format!("glTF: {e}")))?;
+    let file = parse(&bytes, path).map_err(bad)?;
     let doc = &file.document;
 
     let mut buffers: Vec<Vec<u8>> = Vec::new();
@@ -103,6 +103,123 @@ pub(crate) fn load(
         }
     }
     Ok(())
+}
+
+/// Extensions this loader understands; files that require others are refused.
+pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_transmission",
+    "KHR_mesh_quantization",
+    "KHR_texture_transform",
+];
+
+/// Parses and validates a glTF or GLB file. Unsupported extensions in
+/// `extensionsRequired` are an error naming them all; unsupported ones in
+/// `extensionsUsed` are a warning each (the file still renders, without them).
+fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
+    check_glb_header(bytes)?;
+    let file = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| format!("glTF: {e}"))?;
+    let root = file.document.as_json();
+    let unsupported: Vec<&str> = root
+        .extensions_required
+        .iter()
+        .map(String::as_str)
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(e))
+        .collect();
+    if !unsupported.is_empty() {
+        return Err(format!(
+            "the file requires glTF extensions isin does not support: {} (supported: {})",
+            unsupported.join(", "),
+            SUPPORTED_EXTENSIONS.join(", ")
+        ));
+    }
+    for ext in root.extensions_used.iter().filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str())) {
+        tracing::warn!(file = path, extension = %ext, "glTF extension not supported; rendering without it");
+    }
+    let mut errors = Vec::new();
+    use gltf::json::validation::Validate;
+    root.validate(root, gltf::json::Path::new, &mut |at: &dyn Fn() -> gltf::json::Path, e| {
+        let at = at().to_string();
+        // Required extensions were checked above, against what isin supports.
+        if !at.starts_with("extensionsRequired") {
+            errors.push(format!("{at}: {e}"));
+        }
+    });
+    if !errors.is_empty() {
+        return Err(format!("glTF: invalid file: {}", errors.join("; ")));
+    }
+    Ok(file)
+}
+
+/// The first perspective camera and every punctual light of the default
+/// scene of a glTF or GLB file, in world space.
+pub(crate) fn cameras_and_lights(bytes: &[u8]) -> Result<(Option<FileCamera>, Vec<FileLight>), String> {
+    let file = parse(bytes, "")?;
+    let doc = &file.document;
+    let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
+        return Ok((None, Vec::new()));
+    };
+    let mut camera = None;
+    let mut lights = Vec::new();
+    let mut stack: Vec<(gltf::Node, Mat4, usize)> = scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    let mut visited = 0;
+    while let Some((node, parent, depth)) = stack.pop() {
+        visited += 1;
+        if depth > MAX_DEPTH || visited > MAX_INSTANCES {
+            return Err("node hierarchy is too deep or cyclic".into());
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        for child in node.children() {
+            stack.push((child, world, depth + 1));
+        }
+        let origin = world.transform_point3(Vec3::ZERO);
+        let forward = world.transform_vector3(-Vec3::Z).normalize_or_zero();
+        if let Some(cam) = node.camera() {
+            match cam.projection() {
+                gltf::camera::Projection::Perspective(p) if camera.is_none() => {
+                    let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
+                    let ok = origin.is_finite() && forward != Vec3::ZERO && forward.cross(up).length() > 1e-3;
+                    if ok && p.yfov() > 0.0 && p.yfov() < 3.1 {
+                        camera = Some(FileCamera {
+                            eye: origin,
+                            forward,
+                            up,
+                            yfov: p.yfov(),
+                            aspect: p.aspect_ratio(),
+                        });
+                    }
+                }
+                gltf::camera::Projection::Orthographic(_) => {
+                    tracing::warn!(
+                        camera = cam.index(),
+                        "orthographic glTF cameras are not supported; framing the model instead"
+                    );
+                }
+                _ => {}
+            }
+        }
+        if let Some(light) = node.light() {
+            let colour = Vec3::from(light.color()).max(Vec3::ZERO) * light.intensity().max(0.0);
+            if !colour.is_finite() || !origin.is_finite() {
+                continue;
+            }
+            use gltf::khr_lights_punctual::Kind;
+            lights.push(match light.kind() {
+                Kind::Directional => FileLight::Directional { direction: forward, illuminance: colour },
+                Kind::Point => FileLight::Point { position: origin, intensity: colour },
+                Kind::Spot { .. } => {
+                    tracing::warn!(
+                        light = light.index(),
+                        "spot light cones are not supported: a point light"
+                    );
+                    FileLight::Point { position: origin, intensity: colour }
+                }
+            });
+        }
+    }
+    Ok((camera, lights))
 }
 
 /// Rejects GLB headers whose declared length would make the `gltf` crate's
