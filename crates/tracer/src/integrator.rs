@@ -72,7 +72,7 @@
 use crate::bvh::PACKET_LANES;
 use crate::geometry::Ray;
 use crate::lights::{AreaSampler, LightSample, LightSamples4};
-use crate::materials::{Albedo, Material, reflect, refract, schlick};
+use crate::materials::{Albedo, Material, Pbr, PbrShading, TextureMap, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
 use crate::sampling::{Divisor, Sampler, Strata, ceil_sqrt};
@@ -577,8 +577,42 @@ impl<'a> Integrator<'a> {
                 }
             }
             Material::Emissive { .. } => {}
+            Material::Pbr(p) => {
+                let shading = self.pbr_shading(p, ray, hit, sp, cone);
+                let r = shading.reflection((-ray.dir.dot(sp.ns)).max(0.0));
+                if r.max_element() > 0.0 {
+                    let (refl, mirrored) = mirror();
+                    bounce.branches[0] = branch(refl, mirrored, r);
+                }
+                bounce.pbr = Some(shading);
+            }
         }
         bounce
+    }
+
+    /// A glTF material at `hit`: its textures looked up over the hit's ray
+    /// cone footprint, the vertex colour interpolated, mapped to Phong terms.
+    #[inline]
+    fn pbr_shading(&self, p: &Pbr, ray: &Ray, hit: &Hit, sp: &SurfacePoint, cone: RayCone) -> PbrShading {
+        let scene = self.scene;
+        let fp = if p.textures().next().is_some() {
+            let v = &scene.triangles[hit.prim as usize].v;
+            sp.uv_footprint_from(scene.uv_gradients(hit.prim), v, ray.dir, cone.width_at(hit.t))
+        } else {
+            Vec2::ZERO
+        };
+        let look = |map: &Option<TextureMap>| match map
+            .as_ref()
+            .and_then(|m| Some((m, scene.textures.get(m.texture as usize)?)))
+        {
+            Some((m, t)) => {
+                let (uv, fp) = m.apply(sp.uv, fp);
+                t.eval_rect_clamped(uv, fp, m.clamped())
+            }
+            None => Vec3::ONE,
+        };
+        let colour = scene.vertex_colour(hit.prim, hit.u, hit.v);
+        p.shade(look(&p.base_texture), look(&p.metallic_roughness), look(&p.emissive_texture), colour)
     }
 
     /// Radiance leaving `hit` towards the ray's origin, given the radiance
@@ -636,6 +670,25 @@ impl<'a> Integrator<'a> {
                 true => returned(0) + returned(1),
             },
             Material::Emissive { radiance } => *radiance,
+            Material::Pbr(p) => {
+                let s = match bounce.pbr {
+                    Some(s) => s,
+                    None => self.pbr_shading(p, ray, hit, sp, cone),
+                };
+                let mut c = scene.ambient * s.albedo + s.emission;
+                c += self.direct(
+                    sp,
+                    ray.dir,
+                    s.albedo,
+                    s.specular,
+                    s.shininess,
+                    depth,
+                    weight,
+                    sample,
+                    counts,
+                );
+                c + returned(0)
+            }
         }
     }
 
@@ -1169,6 +1222,8 @@ struct Bounce {
     branches: [Option<Branch>; 2],
     /// A dielectric's reflection and refraction both (its radiance is their sum).
     two: bool,
+    /// A glTF material's terms at the hit, worked out once for both halves.
+    pbr: Option<PbrShading>,
 }
 
 /// One secondary ray of a [`Bounce`].

@@ -50,6 +50,10 @@ pub struct SceneParts {
     pub camera: Camera,
     /// The render settings the scene file defines.
     pub settings: RenderSettings,
+    /// Vertex colours (linear RGB, glTF `COLOR_0`) per triangle, multiplying
+    /// the base colour of [`Material::Pbr`] surfaces: empty when no mesh has
+    /// any, else parallel to `triangles` (white where a mesh has none).
+    pub colours: Vec<[Vec3; 3]>,
 }
 
 /// A renderable scene.
@@ -73,6 +77,8 @@ pub struct Scene {
     pub camera: Camera,
     /// The scene file's render settings.
     pub settings: RenderSettings,
+    /// Vertex colours, see [`SceneParts::colours`].
+    pub colours: Vec<[Vec3; 3]>,
     /// Bounds of all triangles.
     pub bounds: Aabb,
     /// Acceleration structure over `triangles`.
@@ -107,6 +113,10 @@ impl Scene {
     /// to `parts.triangles`.
     pub fn new(parts: SceneParts) -> Self {
         assert_eq!(parts.triangles.len(), parts.shading.len(), "one shading record per triangle");
+        assert!(
+            parts.colours.is_empty() || parts.colours.len() == parts.triangles.len(),
+            "vertex colours for every triangle or none"
+        );
         let bvh = Bvh::build(&parts.triangles);
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
@@ -144,9 +154,20 @@ impl Scene {
             background: parts.background,
             camera: parts.camera,
             settings: parts.settings,
+            colours: parts.colours,
             bounds,
             bvh,
             shadow_cells,
+        }
+    }
+
+    /// The vertex colour of triangle `prim` at barycentric `(u, v)`; white
+    /// when the scene has none.
+    #[inline]
+    pub fn vertex_colour(&self, prim: u32, u: f32, v: f32) -> Vec3 {
+        match self.colours.get(prim as usize) {
+            Some(c) => c[0] * (1.0 - u - v) + c[1] * u + c[2] * v,
+            None => Vec3::ONE,
         }
     }
 

@@ -237,8 +237,11 @@ fn mesh_scene_loads_its_obj_and_gltf() {
         assert!(read.contains_key(f), "{f} read through the AssetSource: {:?}", read.keys());
     }
     assert!(p.triangles.len() > 5000);
-    // The gem's gold is metallic and smooth: a mirror.
-    assert!(has_material(&p, |m| matches!(m, Material::Mirror { tint } if tint.x > tint.z)));
+    // The gem's gold is metallic and smooth: a glTF material, gold-coloured.
+    assert!(has_material(
+        &p,
+        |m| matches!(m, Material::Pbr(g) if g.base_color.x > g.base_color.z && g.metallic == 1.0)
+    ));
 }
 
 /// The shipped scenes' geometry, lights and cameras.
@@ -822,11 +825,9 @@ fn gltf_node_hierarchy_places_the_mesh_in_world_space() {
     let mut assets = Mem::default().with("models/quad.gltf", quad_gltf(PLAIN, &buffer, ""));
     let p = load(GLTF_SCENE, &mut assets).unwrap();
     check_quad_world_positions(&p);
-    let Material::Phong { albedo: Albedo::Constant(c), shininess, .. } = &p.materials[0] else {
-        panic!("{:?}", p.materials[0])
-    };
-    assert!(close(*c, Vec3::new(0.8, 0.2, 0.1)));
-    assert!(*shininess > 1.0 && *shininess < 100.0, "a mid-rough surface: {shininess}");
+    let Material::Pbr(m) = &p.materials[0] else { panic!("{:?}", p.materials[0]) };
+    assert!(close(m.base_color, Vec3::new(0.8, 0.2, 0.1)));
+    assert_eq!((m.metallic, m.roughness), (0.0, 0.5));
 }
 
 #[test]
@@ -863,21 +864,25 @@ fn gltf_materials_map_to_whitted_materials() {
         b64(&data)
     );
     type Check = fn(&Material) -> bool;
-    let cases: [(&str, Check); 4] = [
+    let cases: [(&str, Check); 5] = [
         (
             r#"{"pbrMetallicRoughness": {"baseColorFactor": [1, 0.8, 0.4, 1], "metallicFactor": 1, "roughnessFactor": 0.05}}"#,
-            |m| matches!(m, Material::Mirror { tint } if *tint == Vec3::new(1.0, 0.8, 0.4)),
+            |m| matches!(m, Material::Pbr(p) if p.base_color == Vec3::new(1.0, 0.8, 0.4) && p.roughness == 0.05),
         ),
         (
-            r#"{"emissiveFactor": [2, 2, 1]}"#,
-            |m| matches!(m, Material::Emissive { radiance } if radiance.z == 1.0),
+            r#"{"emissiveFactor": [2, 2, 1], "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 3}}}"#,
+            |m| matches!(m, Material::Pbr(p) if p.emissive == Vec3::new(6.0, 6.0, 3.0)),
         ),
         (r#"{"alphaMode": "BLEND", "pbrMetallicRoughness": {"baseColorFactor": [0.9, 1, 0.9, 0.2]}}"#, |m| {
             matches!(m, Material::Dielectric { .. })
         }),
         (
-            r#"{"pbrMetallicRoughness": {"metallicFactor": 0, "roughnessFactor": 1}}"#,
-            |m| matches!(m, Material::Phong { reflectivity, .. } if *reflectivity == 0.0),
+            r#"{"extensions": {"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_ior": {"ior": 1.33}}}"#,
+            |m| matches!(m, Material::Dielectric { ior, .. } if *ior == 1.33),
+        ),
+        (
+            r#"{}"#,
+            |m| matches!(m, Material::Pbr(p) if p.metallic == 1.0 && p.roughness == 1.0 && p.base_color == Vec3::ONE),
         ),
     ];
     for (json, check) in cases {
@@ -961,7 +966,7 @@ fn gltf_base_colour_textures_load() {
     assert_eq!(p.textures.len(), 1);
     assert!(matches!(p.textures[0], Texture::Image(_)));
     assert!(
-        matches!(p.materials[0], Material::Phong { albedo: Albedo::Texture { texture: 0, tint }, .. } if tint.y == 0.5)
+        matches!(&p.materials[0], Material::Pbr(m) if m.base_texture.is_some_and(|t| t.texture == 0) && m.base_color.y == 0.5)
     );
 }
 

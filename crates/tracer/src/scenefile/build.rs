@@ -104,6 +104,13 @@ pub(crate) fn join(base: &str, rel: &str) -> String {
 
 /// Decodes a PNG or JPEG image into a mip-mapped texture.
 pub(crate) fn decode_image(bytes: &[u8]) -> Result<MipMap, String> {
+    let img = decode_rgba8(bytes)?;
+    let (w, h) = img.dimensions();
+    Ok(MipMap::from_srgb8(w, h, img.as_raw()))
+}
+
+/// Decodes a PNG or JPEG image to 8-bit RGBA, within [`MAX_IMAGE_SIDE`].
+fn decode_rgba8(bytes: &[u8]) -> Result<image::RgbaImage, String> {
     let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())?;
@@ -119,7 +126,16 @@ pub(crate) fn decode_image(bytes: &[u8]) -> Result<MipMap, String> {
     if w == 0 || h == 0 {
         return Err("image has no pixels".into());
     }
-    Ok(MipMap::from_srgb8(w, h, img.as_raw()))
+    Ok(img)
+}
+
+/// Decodes a PNG or JPEG image holding data rather than colour (a glTF
+/// metallic-roughness map): channels scaled to 0..1, no sRGB decoding.
+pub(crate) fn decode_image_linear(bytes: &[u8]) -> Result<MipMap, String> {
+    let img = decode_rgba8(bytes)?;
+    let (w, h) = img.dimensions();
+    let texels = img.pixels().map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0).collect();
+    Ok(MipMap::from_linear(w, h, texels))
 }
 
 /// Checks that each `(field, is_set)` is among `allowed` for the kind.
@@ -687,6 +703,12 @@ impl<'a> Builder<'a> {
         let flip = t.flips_winding();
         let has_normals = mesh.normals.len() == n;
         let has_uvs = mesh.uvs.len() == n;
+        let has_colours = mesh.colours.len() == n;
+        if has_colours && self.parts.colours.is_empty() {
+            // The first mesh with vertex colours: the triangles before it are white.
+            self.parts.colours = vec![[Vec3::ONE; 3]; self.parts.triangles.len()];
+        }
+        let colours = has_colours || !self.parts.colours.is_empty();
         for &idx in &mesh.indices {
             if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
                 return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
@@ -723,6 +745,10 @@ impl<'a> Builder<'a> {
             };
             self.parts.triangles.push(tri);
             self.parts.shading.push(TriangleShading { normals, uvs, material });
+            if colours {
+                let c = if has_colours { idx.map(|i| mesh.colours[i as usize]) } else { [Vec3::ONE; 3] };
+                self.parts.colours.push(c);
+            }
         }
         Ok(())
     }
