@@ -669,6 +669,38 @@ fn a_missing_mtl_library_falls_back_to_the_default_material() {
     assert_mentions(&err(src, &mut assets), &["test.toml:3", "MTL"]);
 }
 
+/// A pyramid without normals: four slanted faces over a square (no base).
+const PYRAMID: &str =
+    "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nv 0 1 0\nSMOOTH\nf 1 5 2\nf 2 5 3\nf 3 5 4\nf 4 5 1\n";
+
+/// Whether any triangle's vertex normals differ from its face normal.
+fn smooth_shaded(p: &SceneParts) -> bool {
+    p.triangles
+        .iter()
+        .zip(&p.shading)
+        .any(|(t, s)| s.normals.iter().any(|n| !close(*n, t.normal().normalize())))
+}
+
+#[test]
+fn obj_smoothing_groups_and_the_smooth_keys_smooth_meshes_without_normals() {
+    let obj = |s: &str| Mem::default().with("p.obj", PYRAMID.replace("SMOOTH", s));
+    let src = |keys: &str| format!("[[objects]]\nkind = \"obj\"\npath = \"p.obj\"\n{keys}");
+    assert!(!smooth_shaded(&load(&src(""), &mut obj("s off")).unwrap()), "s off: flat");
+    let grouped = load(&src(""), &mut obj("s 1")).unwrap();
+    assert!(smooth_shaded(&grouped), "s 1: smooth");
+    // The apex normal of a smooth pyramid averages the four faces: straight up.
+    let apex = grouped.triangles[0].v.iter().position(|v| v.y == 1.0).unwrap();
+    assert!(close(grouped.shading[0].normals[apex], Vec3::Y), "{:?}", grouped.shading[0].normals);
+    assert!(!smooth_shaded(&load(&src("smooth = false\n"), &mut obj("s 1")).unwrap()), "smooth = false wins");
+    // Neighbouring faces bend by 60°: under a 30° crease angle they stay flat, under 90° they round.
+    assert!(!smooth_shaded(&load(&src("smooth = true\n"), &mut obj("s off")).unwrap()), "30° default");
+    assert!(smooth_shaded(&load(&src("smooth_angle = 90\n"), &mut obj("s off")).unwrap()));
+    let e = err(&src("\nsmooth_angle = 200\n"), &mut obj(""));
+    assert_mentions(&e, &["test.toml:5", "smooth_angle", "200"]);
+    let e = err("[[objects]]\nkind = \"box\"\nsmooth = true\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml:3", "smooth", "does not apply"]);
+}
+
 #[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\

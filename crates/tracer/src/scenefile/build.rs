@@ -3,6 +3,7 @@
 
 use super::errors::{Location, SceneError, SourceMap};
 use super::format::*;
+use super::smooth::{DEFAULT_SMOOTH_ANGLE, smooth_normals};
 use super::subdivide::{self, MAX_SUBDIVIDE};
 use super::{AssetSource, gltf, obj};
 use crate::cameras::Camera;
@@ -61,6 +62,19 @@ pub(crate) struct Placement {
     pub material: Option<u32>,
     /// Midpoint subdivision levels applied to every mesh (see [`super::subdivide`]).
     pub subdivide: u32,
+    /// Whether meshes without normals get smooth ones.
+    pub smooth: Smoothing,
+}
+
+/// What an object says about smoothing meshes that have no normals.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Smoothing {
+    /// Nothing: OBJ smoothing groups (`s`) are followed, other meshes are flat.
+    Default,
+    /// `smooth = false`: flat, whatever the file says.
+    Off,
+    /// `smooth = true` / `smooth_angle`: smooth, with this crease angle (degrees).
+    On(f32),
 }
 
 /// Accumulates the scene while entries are processed.
@@ -559,6 +573,7 @@ impl<'a> Builder<'a> {
                         uv_scale: Vec2::ONE,
                         material: None,
                         subdivide: 0,
+                        smooth: Smoothing::Default,
                     };
                     self.emit(&mesh, &placement, material, &origin)?;
                 }
@@ -581,12 +596,14 @@ impl<'a> Builder<'a> {
             ("rings", d.rings.is_some()),
             ("caps", d.caps.is_some()),
             ("path", d.path.is_some()),
+            ("smooth", d.smooth.is_some()),
+            ("smooth_angle", d.smooth_angle.is_some()),
         ];
         let allowed: &[&str] = match d.kind {
             ObjectKind::Quad | ObjectKind::Plane | ObjectKind::Box => &[],
             ObjectKind::Sphere => &["segments", "rings"],
             ObjectKind::Cylinder => &["segments", "caps"],
-            ObjectKind::Obj | ObjectKind::Gltf => &["path"],
+            ObjectKind::Obj | ObjectKind::Gltf => &["path", "smooth", "smooth_angle"],
         };
         check_fields(&self.map, &span, &what, kind, &set, allowed)?;
 
@@ -623,8 +640,37 @@ impl<'a> Builder<'a> {
                 format!("must be between 0 and {MAX_SUBDIVIDE}, got {subdivide}"),
             ));
         }
-        let placement =
-            Placement { transform, uv_scale: d.uv_scale.map_or(Vec2::ONE, Splat::vec2), material, subdivide };
+        let smooth = match (d.smooth, d.smooth_angle) {
+            (Some(false), Some(_)) => {
+                return Err(self.invalid_field(
+                    &span,
+                    &what,
+                    "smooth_angle",
+                    "`smooth_angle` needs smoothing, but `smooth = false`".into(),
+                ));
+            }
+            (Some(false), None) => Smoothing::Off,
+            (None, None) => Smoothing::Default,
+            (_, angle) => {
+                let angle = angle.map_or(DEFAULT_SMOOTH_ANGLE, |n| n.0);
+                if !(0.0..=180.0).contains(&angle) {
+                    return Err(self.invalid_field(
+                        &span,
+                        &what,
+                        "smooth_angle",
+                        format!("must be between 0 and 180 degrees, got {angle}"),
+                    ));
+                }
+                Smoothing::On(angle)
+            }
+        };
+        let placement = Placement {
+            transform,
+            uv_scale: d.uv_scale.map_or(Vec2::ONE, Splat::vec2),
+            material,
+            subdivide,
+            smooth,
+        };
         let origin = self.origin(&span, what.clone());
         let count = |key: &str, value: Option<u32>, default: u32, min: u32| -> Result<u32, SceneError> {
             let n = value.unwrap_or(default);
@@ -690,6 +736,14 @@ impl<'a> Builder<'a> {
         if let Some(&bad) = mesh.indices.iter().flatten().find(|&&i| i as usize >= n) {
             return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
         }
+        let smoothed;
+        let mesh = match placement.smooth {
+            Smoothing::On(angle) if mesh.normals.len() != n => {
+                smoothed = smooth_normals(mesh, None, angle);
+                &smoothed
+            }
+            _ => mesh,
+        };
         let subdivided;
         let mesh = if placement.subdivide > 0 {
             subdivided = subdivide::subdivide(mesh, placement.subdivide);

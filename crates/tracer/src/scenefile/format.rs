@@ -408,6 +408,14 @@ pub struct ObjectDef {
     pub caps: Option<bool>,
     /// OBJ and glTF: file path relative to the scene file.
     pub path: Option<String>,
+    /// OBJ and glTF: give a mesh without vertex normals smooth ones
+    /// ([`super::smooth`]), across edges whose faces bend by at most
+    /// `smooth_angle`; `false` also turns off an OBJ's `s` smoothing groups.
+    /// Meshes with normals keep theirs.
+    pub smooth: Option<bool>,
+    /// OBJ and glTF: the crease angle of `smooth`, in degrees (0 to 180,
+    /// default 30); setting it implies `smooth = true`.
+    pub smooth_angle: Option<Num>,
     /// Midpoint subdivision levels (each splits every triangle 1 → 4, the
     /// shape unchanged); default 0, at most
     /// [`MAX_SUBDIVIDE`](super::subdivide::MAX_SUBDIVIDE).

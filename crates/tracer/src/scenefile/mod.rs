@@ -16,6 +16,7 @@ pub mod format;
 mod gltf;
 pub mod mesh_scene;
 mod obj;
+pub mod smooth;
 pub mod subdivide;
 
 pub use build::{MAX_IMAGE_SIDE, MAX_TRIANGLES};
