@@ -459,7 +459,7 @@ impl<'a> Integrator<'a> {
         counts.primary += 1;
         match hit {
             Some(hit) => self.shade(ray, &hit, cone, 0, Vec3::ONE, sample, counts),
-            None => self.scene.background,
+            None => self.scene.background(ray.dir),
         }
     }
 
@@ -495,7 +495,7 @@ impl<'a> Integrator<'a> {
     ) -> Vec3 {
         match self.scene.intersect(ray, 0.0, f32::INFINITY) {
             Some(hit) => self.shade(ray, &hit, cone, depth, weight, sample, counts),
-            None => self.scene.background,
+            None => self.scene.background(ray.dir),
         }
     }
 
@@ -712,7 +712,7 @@ impl<'a> Integrator<'a> {
         counts: &mut RayCounts,
     ) -> [Vec3; PACKET_LANES] {
         let lanes = |mask: u8| (0..PACKET_LANES).filter(move |&l| mask & (1 << l) != 0);
-        let mut out = [self.scene.background; PACKET_LANES];
+        let mut out: [Vec3; PACKET_LANES] = std::array::from_fn(|l| self.scene.background(rays[l].dir));
         let mut sps = [None; PACKET_LANES];
         let mut bounces = [Bounce::default(); PACKET_LANES];
         for hit in lanes(active).filter_map(|l| hits[l].as_ref()) {

@@ -44,8 +44,12 @@ pub struct SceneParts {
     pub lights: Vec<Light>,
     /// Ambient light added to every diffuse surface (linear RGB).
     pub ambient: Vec3,
-    /// Colour of rays that leave the scene (linear RGB).
+    /// Colour of rays that leave the scene (linear RGB); with a sky
+    /// (`zenith`), its colour at and below the horizon.
     pub background: Vec3,
+    /// A sky's colour straight up (+Y): rays that leave the scene see
+    /// `background` blended towards it by the height of their direction.
+    pub zenith: Option<Vec3>,
     /// The camera the scene file defines.
     pub camera: Camera,
     /// The render settings the scene file defines.
@@ -71,8 +75,10 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Ambient term (linear RGB).
     pub ambient: Vec3,
-    /// Background colour (linear RGB).
+    /// Background colour (linear RGB); a sky's horizon.
     pub background: Vec3,
+    /// A sky's zenith colour, see [`SceneParts::zenith`].
+    pub zenith: Option<Vec3>,
     /// The scene file's camera.
     pub camera: Camera,
     /// The scene file's render settings.
@@ -152,12 +158,25 @@ impl Scene {
             lights: parts.lights,
             ambient: parts.ambient,
             background: parts.background,
+            zenith: parts.zenith,
             camera: parts.camera,
             settings: parts.settings,
             colours: parts.colours,
             bounds,
             bvh,
             shadow_cells,
+        }
+    }
+
+    /// What a ray leaving the scene along unit `dir` sees.
+    #[inline]
+    pub fn background(&self, dir: Vec3) -> Vec3 {
+        match self.zenith {
+            None => self.background,
+            Some(zenith) => {
+                let t = if dir.y > 0.0 { dir.y.min(1.0) } else { 0.0 };
+                self.background + (zenith - self.background) * t
+            }
         }
     }
 

@@ -296,6 +296,20 @@ fn a_metallic_roughness_texture_scales_the_factors_blue_metal_green_rough() {
 }
 
 #[test]
+fn a_smooth_metal_mirrors_its_surroundings_tinted_by_its_base_colour() {
+    let red_metal =
+        r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.1, 0.05, 1], "roughnessFactor": 0}}"#;
+    let f = render(&cube_gltf(red_metal, "", None));
+    let tinted: Vec<[u8; 3]> = pixels(&f).filter(|&p| dominant(p, 0)).collect();
+    assert!(tinted.len() > 150, "{} red pixels", tinted.len());
+    // What the faces mirror (sky, ground, the cube's shadow) varies: not one flat patch.
+    let mut distinct = tinted.clone();
+    distinct.sort();
+    distinct.dedup();
+    assert!(distinct.len() > 20, "{} distinct reds", distinct.len());
+}
+
+#[test]
 fn emissive_factor_and_strength_light_up_a_surface() {
     let dark = r#"{"pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0}}"#;
     let glowing = r#"{"pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0}, "emissiveFactor": [0, 0.2, 0], "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 4}}}"#;

@@ -702,6 +702,25 @@ fn obj_smoothing_groups_and_the_smooth_keys_smooth_meshes_without_normals() {
 }
 
 #[test]
+fn a_sky_background_blends_from_the_horizon_to_the_zenith() {
+    let src = "background = { zenith = [0, 0, 1], horizon = [1, 1, 0] }\n\n[camera]\neye = [0, 0, 0]\n\
+               target = [0, 0, -1]\nfov = 90\n\n[[objects]]\nkind = \"quad\"\ntranslate = [0, -100, 0]\n";
+    let scene = isin_tracer::load_scene("sky.toml", src, &mut Mem::default()).unwrap();
+    assert_eq!(scene.background(Vec3::new(1.0, 0.0, 0.0)), Vec3::new(1.0, 1.0, 0.0), "horizon");
+    assert_eq!(scene.background(Vec3::new(0.0, -1.0, 0.0)), Vec3::new(1.0, 1.0, 0.0), "below: horizon");
+    assert_eq!(scene.background(Vec3::Y), Vec3::new(0.0, 0.0, 1.0), "zenith");
+    let s = isin_tracer::RenderSettings { width: 8, height: 8, ..scene.settings };
+    let rgb =
+        isin_tracer::render_tile(&scene, &scene.camera, &s, isin_tracer::Tile { x: 0, y: 0, w: 8, h: 8 });
+    let (top, middle) = (&rgb[3 * 4..3 * 4 + 3], &rgb[3 * (8 * 4 + 4)..3 * (8 * 4 + 4) + 3]);
+    assert!(top[2] > middle[2] && top[0] < middle[0], "bluer up, yellower level: {top:?} {middle:?}");
+    let e = err("background = { zenith = [0, 0, 1] }\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml:1", "a sky { zenith"]);
+    let e = err("background = { zenith = [0, 0, 1], horizon = [-1, 0, 0] }\n", &mut Mem::default());
+    assert_mentions(&e, &["background", "negative"]);
+}
+
+#[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\
                path = \"meshes/sub/thing.obj\"\nmaterial = \"gold\"\n";

@@ -196,8 +196,19 @@ impl<'a> Builder<'a> {
         let file: SceneFile = toml::from_str(self.map.text).map_err(|e| self.map.syntax(&e))?;
         let whole = 0..self.map.text.len();
         self.parts.ambient = self.colour(file.ambient, Vec3::ZERO, &whole, "ambient", "ambient")?;
-        self.parts.background =
-            self.colour(file.background, Vec3::ZERO, &whole, "background", "background")?;
+        match file.background {
+            None => {}
+            Some(BackgroundDef::Colour(c)) => {
+                self.parts.background =
+                    self.colour(Some(c), Vec3::ZERO, &whole, "background", "background")?;
+            }
+            Some(BackgroundDef::Sky(sky)) => {
+                let zenith = self.colour(Some(sky.zenith), Vec3::ZERO, &whole, "background", "background")?;
+                self.parts.background =
+                    self.colour(Some(sky.horizon), Vec3::ZERO, &whole, "background", "background")?;
+                self.parts.zenith = Some(zenith);
+            }
+        }
         if let Some(settings) = &file.settings {
             self.settings(settings)?;
         }

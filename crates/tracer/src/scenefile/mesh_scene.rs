@@ -20,6 +20,8 @@
 //!   and a dim point fill light just above the camera, whose shadows the
 //!   camera does not see; the key gives an irradiance of 2 at the model's
 //!   centre, the fill 0.6;
+//! - **a sky**: a blue zenith over a pale horizon, for metals and glass to
+//!   reflect;
 //! - **a ground plane**, light grey, just under the bounding box, unless the
 //!   file brings its own camera or lights (then it is a composed scene).
 //!
@@ -167,8 +169,8 @@ fn write_scene(
     let mut s = String::new();
     let _ = writeln!(s, "# isin scene made around {path} (`isin scene {path}`); edit freely.");
     let _ = writeln!(s, "# Format: see scenes/paper.toml in the isin repository.");
-    let _ = writeln!(s, "ambient = 0.03");
-    let _ = writeln!(s, "background = [0.05, 0.055, 0.065]");
+    let _ = writeln!(s, "ambient = 0.04");
+    let _ = writeln!(s, "background = {{ zenith = [0.16, 0.27, 0.5], horizon = [0.62, 0.66, 0.72] }}");
     let _ = writeln!(s);
     let _ = writeln!(s, "[settings]\nwidth = {WIDTH}\nheight = {height}\nspp = 4\nlight_samples = 16");
     let _ = writeln!(s);
