@@ -54,6 +54,9 @@ pub struct SceneParts {
     pub camera: Camera,
     /// The render settings the scene file defines.
     pub settings: RenderSettings,
+    /// What the loader found worth telling the user (each was also logged
+    /// with `tracing::warn!`): no light at all, huge textures, huge meshes.
+    pub warnings: Vec<String>,
     /// Vertex colours (linear RGB, glTF `COLOR_0`) per triangle, multiplying
     /// the base colour of [`Material::Pbr`] surfaces: empty when no mesh has
     /// any, else parallel to `triangles` (white where a mesh has none).

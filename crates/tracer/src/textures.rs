@@ -123,6 +123,11 @@ impl MipMap {
         self.levels.len()
     }
 
+    /// Bytes the texels of every level take.
+    pub fn memory_bytes(&self) -> usize {
+        self.levels.iter().map(|l| l.texels.len() * std::mem::size_of::<Vec3A>()).sum()
+    }
+
     /// Size of level `level`.
     pub fn level_size(&self, level: usize) -> (u32, u32) {
         self.levels.get(level).map_or((0, 0), |l| (l.width, l.height))

@@ -721,6 +721,24 @@ fn a_sky_background_blends_from_the_horizon_to_the_zenith() {
 }
 
 #[test]
+fn a_scene_without_any_light_is_warned_about() {
+    let dark = load_ok(QUAD);
+    assert!(
+        dark.warnings.iter().any(|w| w.contains("no lights") && w.contains("black")),
+        "{:?}",
+        dark.warnings
+    );
+    let ambient = load_ok(&format!("ambient = 0.1\n{QUAD}"));
+    assert!(ambient.warnings.iter().any(|w| w.contains("only by the ambient")), "{:?}", ambient.warnings);
+    let lit = load_ok(&format!("[[lights]]\nkind = \"point\"\nposition = [0, 1, 0]\n\n{QUAD}"));
+    assert_eq!(lit.warnings, Vec::<String>::new());
+    let glowing = load_ok(&format!(
+        "[materials.lamp]\nkind = \"emissive\"\nradiance = 2\n\n{QUAD}material = \"lamp\"\n"
+    ));
+    assert_eq!(glowing.warnings, Vec::<String>::new(), "an emissive surface lights the scene");
+}
+
+#[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\
                path = \"meshes/sub/thing.obj\"\nmaterial = \"gold\"\n";

@@ -22,6 +22,13 @@ use toml::Spanned;
 pub const MAX_TRIANGLES: usize = 20_000_000;
 /// Largest image texture side accepted.
 pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Scenes with more triangles than this get a warning with their memory estimate.
+pub const LARGE_TRIANGLES: usize = 10_000_000;
+/// Bytes a triangle takes once the scene is built, roughly: the triangle (36),
+/// its shading record (64), its unit normal (16) and its share of the BVH (~68).
+pub const BYTES_PER_TRIANGLE: usize = 184;
+/// Textures with more texels than this (8192²) get a warning.
+pub const LARGE_TEXTURE_TEXELS: u64 = 8192 * 8192;
 /// Largest image resolution a scene may ask to render.
 const MAX_RESOLUTION: u32 = 65_536;
 
@@ -152,6 +159,21 @@ pub(crate) fn decode_image_linear(bytes: &[u8]) -> Result<MipMap, String> {
     Ok(MipMap::from_linear(w, h, texels))
 }
 
+/// The warning for a scene of `triangles` triangles, when it is large.
+fn large_scene_warning(triangles: usize) -> Option<String> {
+    (triangles > LARGE_TRIANGLES).then(|| {
+        let gb = (triangles * BYTES_PER_TRIANGLE) as f64 / 1e9;
+        format!("{triangles} triangles: the built scene needs about {gb:.1} GB of memory")
+    })
+}
+
+/// The warning for a `w × h` texture taking `bytes`, when it is large.
+fn large_texture_warning(name: &str, w: u32, h: u32, bytes: usize) -> Option<String> {
+    (w as u64 * h as u64 > LARGE_TEXTURE_TEXELS).then(|| {
+        format!("texture {name} is {w}×{h}, larger than 8192²: it takes {:.0} MB", bytes as f64 / 1e6)
+    })
+}
+
 /// Checks that each `(field, is_set)` is among `allowed` for the kind.
 fn check_fields(
     map: &SourceMap,
@@ -237,6 +259,7 @@ impl<'a> Builder<'a> {
         if self.parts.triangles.is_empty() {
             return Err(SceneError::Empty { file: self.map.file.to_owned() });
         }
+        self.warn_about_the_whole();
         tracing::debug!(
             file = self.map.file,
             triangles = self.parts.triangles.len(),
@@ -246,6 +269,32 @@ impl<'a> Builder<'a> {
             "scene parsed"
         );
         Ok(self.parts)
+    }
+
+    /// Records (and logs) a warning for the user.
+    pub fn warn(&mut self, message: String) {
+        tracing::warn!(file = self.map.file, "{message}");
+        self.parts.warnings.push(message);
+    }
+
+    /// Warnings about the finished scene: nothing to light it, its size.
+    fn warn_about_the_whole(&mut self) {
+        let materials = &self.parts.materials;
+        let emissive = self
+            .parts
+            .shading
+            .iter()
+            .any(|s| materials.get(s.material as usize).is_some_and(Material::emits));
+        if self.parts.lights.is_empty() && !emissive {
+            let lit =
+                if self.parts.ambient.max_element() > 0.0 { "only by the ambient term" } else { "black" };
+            self.warn(format!(
+                "the scene has no lights and no emissive surface: it will render {lit} (add [[lights]])"
+            ));
+        }
+        if let Some(w) = large_scene_warning(self.parts.triangles.len()) {
+            self.warn(w);
+        }
     }
 
     fn origin(&self, span: &Range<usize>, what: String) -> Origin {
@@ -299,6 +348,11 @@ impl<'a> Builder<'a> {
 
     /// Adds a decoded image texture under a cache key, returning its index.
     pub fn add_image(&mut self, key: String, mip: MipMap) -> Result<u32, SceneError> {
+        let (w, h) = mip.level_size(0);
+        let name = key.split('#').next().unwrap_or(&key);
+        if let Some(warning) = large_texture_warning(name, w, h, mip.memory_bytes()) {
+            self.warn(warning);
+        }
         let i = self.parts.textures.len() as u32;
         self.parts.textures.push(Texture::Image(mip));
         self.images.insert(key, i);
@@ -930,6 +984,16 @@ mod tests {
         assert_eq!(join("../../shared/m/c.obj", "c.mtl"), "../../shared/m/c.mtl");
         assert_eq!(join("m/c.obj", "tex\\wood.png"), "m/tex/wood.png");
         assert_eq!(join("m/c.obj", "/abs/wood.png"), "/abs/wood.png");
+    }
+
+    #[test]
+    fn size_warnings_start_past_their_limits_and_give_the_memory() {
+        assert_eq!(large_scene_warning(LARGE_TRIANGLES), None);
+        let w = large_scene_warning(12_000_000).unwrap();
+        assert!(w.contains("12000000 triangles") && w.contains("2.2 GB"), "{w}");
+        assert_eq!(large_texture_warning("a.png", 8192, 8192, 1), None);
+        let w = large_texture_warning("a.png", 16384, 8192, 3_000_000_000).unwrap();
+        assert!(w.contains("a.png") && w.contains("16384×8192") && w.contains("3000 MB"), "{w}");
     }
 
     #[test]
