@@ -328,7 +328,11 @@ fn materials_gltf(segments: usize, rings: usize) -> Result<String, image::ImageE
         }
     }
     let checker = image::RgbaImage::from_fn(64, 64, |x, y| {
-        if (x / 8 + y / 8) % 2 == 0 { image::Rgba([235, 225, 200, 255]) } else { image::Rgba([40, 90, 60, 255]) }
+        if (x / 8 + y / 8) % 2 == 0 {
+            image::Rgba([235, 225, 200, 255])
+        } else {
+            image::Rgba([40, 90, 60, 255])
+        }
     });
     let mut png = Vec::new();
     checker.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
@@ -339,7 +343,11 @@ fn materials_gltf(segments: usize, rings: usize) -> Result<String, image::ImageE
         while data.len() % 4 != 0 {
             data.push(0);
         }
-        views.push(format!(r#"{{ "buffer": 0, "byteOffset": {}, "byteLength": {} }}"#, data.len(), bytes.len()));
+        views.push(format!(
+            r#"{{ "buffer": 0, "byteOffset": {}, "byteLength": {} }}"#,
+            data.len(),
+            bytes.len()
+        ));
         data.extend(bytes);
     };
     let floats = |v: &[f32]| v.iter().flat_map(|c| c.to_le_bytes()).collect::<Vec<u8>>();

@@ -441,7 +441,7 @@ impl<'a> Integrator<'a> {
     /// and random numbers are given.
     #[inline]
     pub fn trace(&self, ray: &Ray, cone: RayCone, sample: &SampleId, counts: &mut RayCounts) -> Vec3 {
-        self.trace_hit(ray, self.scene.intersect(ray, 0.0, f32::INFINITY), cone, sample, counts)
+        self.trace_hit(ray, self.scene.intersect_visible(ray, 0.0, f32::INFINITY), cone, sample, counts)
     }
 
     /// [`Integrator::trace`] for a camera ray whose nearest hit the caller
@@ -457,7 +457,7 @@ impl<'a> Integrator<'a> {
         counts: &mut RayCounts,
     ) -> Vec3 {
         counts.primary += 1;
-        match hit {
+        match self.scene.beyond_cutouts(ray, hit, f32::INFINITY) {
             Some(hit) => self.shade(ray, &hit, cone, 0, Vec3::ONE, sample, counts),
             None => self.scene.background(ray.dir),
         }
@@ -493,7 +493,7 @@ impl<'a> Integrator<'a> {
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
-        match self.scene.intersect(ray, 0.0, f32::INFINITY) {
+        match self.scene.intersect_visible(ray, 0.0, f32::INFINITY) {
             Some(hit) => self.shade(ray, &hit, cone, depth, weight, sample, counts),
             None => self.scene.background(ray.dir),
         }
@@ -712,6 +712,14 @@ impl<'a> Integrator<'a> {
         counts: &mut RayCounts,
     ) -> [Vec3; PACKET_LANES] {
         let lanes = |mask: u8| (0..PACKET_LANES).filter(move |&l| mask & (1 << l) != 0);
+        let looked_through;
+        let hits = if self.scene.cutouts {
+            looked_through =
+                std::array::from_fn(|l| self.scene.beyond_cutouts(&rays[l], hits[l], f32::INFINITY));
+            &looked_through
+        } else {
+            hits
+        };
         let mut out: [Vec3; PACKET_LANES] = std::array::from_fn(|l| self.scene.background(rays[l].dir));
         let mut sps = [None; PACKET_LANES];
         let mut bounces = [Bounce::default(); PACKET_LANES];
@@ -1378,6 +1386,10 @@ impl ShadowRay {
     /// know about rays from its origin to its light.
     #[inline(always)]
     fn blocked(&self, scene: &Scene, cell: &CellAnswer) -> bool {
+        if scene.cutouts {
+            // Cut-out surfaces let light through: the nearest hit that is not.
+            return scene.occluded_visible(&self.ray, 0.0, self.t_max);
+        }
         cell.occluded(&scene.bvh, &self.ray, 0.0, self.t_max)
     }
 }

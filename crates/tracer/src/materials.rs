@@ -139,6 +139,14 @@ pub struct Pbr {
     pub emissive: Vec3,
     /// `emissiveTexture` (sRGB), multiplied by `emissive`.
     pub emissive_texture: Option<TextureMap>,
+    /// `alphaMode` `MASK`: the `alphaCutoff` below which the surface is cut
+    /// out — camera, reflected and shadow rays pass through it. `None` for
+    /// opaque surfaces.
+    pub alpha_cutoff: Option<f32>,
+    /// The base colour's alpha (`baseColorFactor[3]`).
+    pub alpha: f32,
+    /// The base-colour texture's alpha channel (linear, in red), for `MASK`.
+    pub alpha_texture: Option<TextureMap>,
 }
 
 impl Default for Pbr {
@@ -152,6 +160,9 @@ impl Default for Pbr {
             metallic_roughness: None,
             emissive: Vec3::ZERO,
             emissive_texture: None,
+            alpha_cutoff: None,
+            alpha: 1.0,
+            alpha_texture: None,
         }
     }
 }

@@ -88,6 +88,9 @@ pub struct Scene {
     pub settings: RenderSettings,
     /// Vertex colours, see [`SceneParts::colours`].
     pub colours: Vec<[Vec3; 3]>,
+    /// True when some material is alpha-masked ([`crate::materials::Pbr::alpha_cutoff`]):
+    /// ray queries then look through its cut-out parts.
+    pub(crate) cutouts: bool,
     /// Bounds of all triangles.
     pub bounds: Aabb,
     /// Acceleration structure over `triangles`.
@@ -109,6 +112,9 @@ pub struct Scene {
     uv_gradient_slots: Vec<u32>,
 }
 
+/// Most cut-out surfaces a ray looks through before it counts as lost.
+const MAX_CUTOUT_LAYERS: usize = 64;
+
 /// The unit geometric normal `(v1 − v0) × (v2 − v0) / |…|` of `tri`, `None`
 /// when that length is not positive.
 fn unit_normal(tri: &Triangle) -> Option<Vec3> {
@@ -126,6 +132,8 @@ impl Scene {
             parts.colours.is_empty() || parts.colours.len() == parts.triangles.len(),
             "vertex colours for every triangle or none"
         );
+        let cutouts =
+            parts.materials.iter().any(|m| matches!(m, Material::Pbr(p) if p.alpha_cutoff.is_some()));
         let bvh = Bvh::build(&parts.triangles);
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
@@ -165,6 +173,7 @@ impl Scene {
             camera: parts.camera,
             settings: parts.settings,
             colours: parts.colours,
+            cutouts,
             bounds,
             bvh,
             shadow_cells,
@@ -231,6 +240,63 @@ impl Scene {
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         self.bvh.intersect(ray, t_min, t_max)
+    }
+
+    /// True when `hit` lies on a cut-out part of an alpha-masked surface:
+    /// its alpha (factor × the base texture's alpha, looked up unfiltered)
+    /// is below the material's cutoff.
+    pub fn is_cut_out(&self, hit: &Hit) -> bool {
+        let Some(sh) = self.shading.get(hit.prim as usize) else { return false };
+        let Some(Material::Pbr(p)) = self.materials.get(sh.material as usize) else { return false };
+        let Some(cutoff) = p.alpha_cutoff else { return false };
+        let mut alpha = p.alpha;
+        if let Some(m) = &p.alpha_texture
+            && let Some(t) = self.textures.get(m.texture as usize)
+        {
+            let w = 1.0 - hit.u - hit.v;
+            let uv = sh.uvs[0] * w + sh.uvs[1] * hit.u + sh.uvs[2] * hit.v;
+            let (uv, _) = m.apply(uv, Vec2::ZERO);
+            alpha *= t.eval_rect_clamped(uv, Vec2::ZERO, m.clamped()).x;
+        }
+        alpha < cutoff
+    }
+
+    /// [`Scene::intersect`], looking through cut-out surfaces
+    /// ([`Scene::is_cut_out`]): the nearest hit that is not cut out.
+    #[inline]
+    pub fn intersect_visible(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        let hit = self.intersect(ray, t_min, t_max);
+        if self.cutouts { self.beyond_cutouts(ray, hit, t_max) } else { hit }
+    }
+
+    /// `hit`, the nearest hit of `ray` before `t_max`, or when it is cut out
+    /// the nearest one beyond it that is not.
+    #[inline]
+    pub fn beyond_cutouts(&self, ray: &Ray, mut hit: Option<Hit>, t_max: f32) -> Option<Hit> {
+        if !self.cutouts {
+            return hit;
+        }
+        for _ in 0..MAX_CUTOUT_LAYERS {
+            match hit {
+                Some(h) if self.is_cut_out(&h) => {
+                    // Just past this hit: the same triangle is not found again.
+                    let t = f32::from_bits(h.t.max(0.0).to_bits() + 1);
+                    hit = self.intersect(ray, t, t_max);
+                }
+                _ => return hit,
+            }
+        }
+        None
+    }
+
+    /// Whether something that is not cut out blocks the ray between `t_min`
+    /// and `t_max`.
+    pub fn occluded_visible(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        if self.cutouts {
+            self.intersect_visible(ray, t_min, t_max).is_some()
+        } else {
+            self.occluded(ray, t_min, t_max)
+        }
     }
 
     /// True when something blocks the ray between `t_min` and `t_max`.

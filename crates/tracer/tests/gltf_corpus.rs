@@ -319,6 +319,55 @@ fn emissive_factor_and_strength_light_up_a_surface() {
     assert!(dominant(b, 1) && b[1] > 200, "0.2 × 4 green emission: {b:?}");
 }
 
+/// A unit square in the XY plane centred on the origin, facing +Z, `u`
+/// along +X, with `material` and the top-level members `extra`.
+fn square_gltf(material: &str, extra: &str) -> String {
+    let mut b = Builder::default();
+    let pos = b.floats(&[-0.5, -0.5, 0.0, 0.5, -0.5, 0.0, 0.5, 0.5, 0.0, -0.5, 0.5, 0.0], 3);
+    let nor = b.floats(&[0.0, 0.0, 1.0].repeat(4), 3);
+    let uv = b.floats(&[0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], 2);
+    let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()).collect();
+    let idx = b.accessor(&idx, 5123, 6, "SCALAR", "");
+    b.json(&format!(
+        r#""scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0, "translation": [0, 0.6, 0]}}],
+  "meshes": [{{"primitives": [{{"attributes": {{"POSITION": {pos}, "NORMAL": {nor}, "TEXCOORD_0": {uv}}}, "indices": {idx}, "material": 0}}]}}],
+  "materials": [{material}], {extra}"#
+    ))
+}
+
+#[test]
+fn an_alpha_mask_cuts_out_what_camera_and_shadow_rays_pass_through() {
+    // Red; transparent on the left half (u < ½), opaque on the right.
+    let uri = png_uri(8, 8, |x, _| [230, 20, 20, if x < 4 { 0 } else { 255 }]);
+    let extra = format!(r#""textures": [{{"source": 0}}], "images": [{{"uri": "{uri}"}}],"#);
+    let material = |mode: &str| {
+        format!(
+            r#"{{"alphaMode": "{mode}", "pbrMetallicRoughness": {{"metallicFactor": 0, "baseColorTexture": {{"index": 0}}}}}}"#
+        )
+    };
+    let red = |f: &Frame| pixels(f).filter(|&p| dominant(p, 0)).count();
+    let opaque = red(&render(&square_gltf(&material("OPAQUE"), &extra)));
+    let masked = red(&render(&square_gltf(&material("MASK"), &extra)));
+    assert!(opaque > 200, "{opaque}");
+    assert!(
+        masked * 10 > opaque * 3 && masked * 10 < opaque * 7,
+        "about half is cut out: {masked} of {opaque}"
+    );
+    // Rays through the left half pass; through the right half they stop, shadow rays too.
+    let scene = scene_of(&square_gltf(&material("MASK"), &extra));
+    let towards = |x: f32| isin_tracer::geometry::Ray::new(Vec3::new(x, 0.6, 2.0), -Vec3::Z);
+    assert!(!scene.occluded_visible(&towards(-0.25), 0.0, 3.0), "the cut-out lets light through");
+    assert!(scene.occluded_visible(&towards(0.25), 0.0, 3.0));
+    assert!(scene.intersect_visible(&towards(-0.25), 0.0, 3.0).is_none(), "nothing else on that line");
+    let hit = scene.intersect_visible(&towards(0.25), 0.0, 3.0).unwrap();
+    assert!((hit.t - 2.0).abs() < 1e-4);
+    let opaque_scene = scene_of(&square_gltf(&material("OPAQUE"), &extra));
+    assert!(opaque_scene.occluded_visible(&towards(-0.25), 0.0, 3.0), "OPAQUE ignores alpha");
+    // A constant alpha below the cutoff cuts out everything, textures or not.
+    let gone = r#"{"alphaMode": "MASK", "alphaCutoff": 0.6, "pbrMetallicRoughness": {"baseColorFactor": [1, 0, 0, 0.5]}}"#;
+    assert_eq!(red(&render(&square_gltf(gone, ""))), 0);
+}
+
 #[test]
 fn unsupported_required_extensions_are_refused_by_name() {
     let json = cube_gltf(
@@ -497,26 +546,34 @@ fn corpus_renders_are_identical_across_tilings_and_threads() {
     let colours: Vec<f32> = face.iter().flat_map(|c| [c[0], c[1], c[2], 1.0].repeat(4)).collect();
     let extra = format!(r#"{} "extensionsUsed": ["KHR_texture_transform"],"#, halves_texture());
     let material = r#"{"pbrMetallicRoughness": {"metallicFactor": 0.5, "roughnessFactor": 0.3, "baseColorTexture": {"index": 0, "extensions": {"KHR_texture_transform": {"rotation": 0.3, "scale": [2, 2]}}}}, "emissiveFactor": [0.02, 0, 0]}"#;
-    let scene = scene_of(&cube_gltf(material, &extra, Some(&colours)));
-    let s = RenderSettings { spp: 2, ..settings(&scene) };
-    let (w, h) = (s.width, s.height);
-    let whole = render_tile(&scene, &scene.camera, &s, Tile { x: 0, y: 0, w, h });
-    let mut tiled = Frame::new(w, h);
-    for y in (0..h).step_by(5) {
-        for x in (0..w).step_by(7) {
-            let tile = Tile { x, y, w: 7.min(w - x), h: 5.min(h - y) };
-            tiled.blit(tile, &render_tile(&scene, &scene.camera, &s, tile));
+    let textured = scene_of(&cube_gltf(material, &extra, Some(&colours)));
+    let uri = png_uri(8, 8, |x, y| [230, 20, 20, if (x + y) % 3 == 0 { 0 } else { 255 }]);
+    let extra = format!(
+        r#""textures": [{{"source": 0, "sampler": 0}}], "images": [{{"uri": "{uri}"}}], "samplers": [{{"wrapS": 33648}}],"#
+    );
+    let masked = r#"{"alphaMode": "MASK", "pbrMetallicRoughness": {"roughnessFactor": 0.2, "baseColorTexture": {"index": 0}}}"#;
+    let masked = scene_of(&square_gltf(masked, &extra));
+    for (name, scene) in [("textured cube", textured), ("cut-out square", masked)] {
+        let s = RenderSettings { spp: 2, ..settings(&scene) };
+        let (w, h) = (s.width, s.height);
+        let whole = render_tile(&scene, &scene.camera, &s, Tile { x: 0, y: 0, w, h });
+        let mut tiled = Frame::new(w, h);
+        for y in (0..h).step_by(5) {
+            for x in (0..w).step_by(7) {
+                let tile = Tile { x, y, w: 7.min(w - x), h: 5.min(h - y) };
+                tiled.blit(tile, &render_tile(&scene, &scene.camera, &s, tile));
+            }
         }
+        assert_eq!(tiled.rgb, whole, "{name}: 7×5 tiles");
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let f = pool.install(|| isin_tracer::render_frame(&scene, &scene.camera, &s, 16, &|_| {}));
+            assert_eq!(f.rgb, whole, "{name}: {threads} threads");
+        }
+        let options = isin_tracer::render::TraceOptions { packets: false, ..Default::default() };
+        let (single, _) =
+            isin_tracer::render::render_frame_with(&scene, &scene.camera, &s, 16, &options, &|_| {});
+        assert_eq!(single.rgb, whole, "{name}: single rays as packets");
+        assert!(whole.iter().any(|&b| b != whole[0]));
     }
-    assert_eq!(tiled.rgb, whole, "7×5 tiles");
-    for threads in [1, 2] {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        let f = pool.install(|| isin_tracer::render_frame(&scene, &scene.camera, &s, 16, &|_| {}));
-        assert_eq!(f.rgb, whole, "{threads} threads");
-    }
-    let options = isin_tracer::render::TraceOptions { packets: false, ..Default::default() };
-    let (single, _) =
-        isin_tracer::render::render_frame_with(&scene, &scene.camera, &s, 16, &options, &|_| {});
-    assert_eq!(single.rgb, whole, "single rays as packets");
-    assert!(whole.iter().any(|&b| b != whole[0]));
 }

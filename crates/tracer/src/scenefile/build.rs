@@ -174,6 +174,14 @@ fn large_texture_warning(name: &str, w: u32, h: u32, bytes: usize) -> Option<Str
     })
 }
 
+/// Decodes the alpha channel of a PNG or JPEG image (0..1, in every
+/// channel), for alpha-masked glTF materials.
+pub(crate) fn decode_image_alpha(bytes: &[u8]) -> Result<MipMap, String> {
+    let img = decode_rgba8(bytes)?;
+    let (w, h) = img.dimensions();
+    Ok(MipMap::from_linear(w, h, img.pixels().map(|p| Vec3::splat(p[3] as f32 / 255.0)).collect()))
+}
+
 /// Checks that each `(field, is_set)` is among `allowed` for the kind.
 fn check_fields(
     map: &SourceMap,

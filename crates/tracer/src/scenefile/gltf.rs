@@ -50,11 +50,14 @@
 //! 1.5; tinted by the base colour). Textures honour `KHR_texture_transform`
 //! and their sampler's wrap modes (repeat, clamp, mirrored repeat); filtering
 //! is always isin's mip-mapped one, and only `TEXCOORD_0` is read (a
-//! texture on another set warns and uses it). Not supported: `normalTexture`,
-//! `occlusionTexture`, `alphaMode` `MASK` (treated as opaque).
+//! texture on another set warns and uses it). `alphaMode` `MASK` cuts the
+//! surface out where alpha (`baseColorFactor`'s × the base texture's,
+//! unfiltered) is below `alphaCutoff` (default ½): camera, reflected,
+//! refracted and shadow rays pass through there. Not supported:
+//! `normalTexture`, `occlusionTexture`, `COLOR_0`'s alpha.
 
 use super::SceneError;
-use super::build::{Builder, Origin, Placement, decode_image, decode_image_linear, join};
+use super::build::{Builder, Origin, Placement, decode_image, decode_image_alpha, decode_image_linear, join};
 use super::mesh_scene::{FileCamera, FileLight};
 use crate::materials::{Material, Pbr, TextureMap, Wrap};
 use crate::math;
@@ -583,14 +586,21 @@ fn convert(
         let ior = m.ior().filter(|i| i.is_finite() && *i > 0.0).unwrap_or(1.5);
         return Ok(Material::Dielectric { ior, tint: colour });
     }
-    let mut map = |info: Option<gltf::texture::Info>, linear: bool, slot: &str| -> Result<_, SceneError> {
+    let mut map = |info: Option<gltf::texture::Info>, decode: Decode, slot: &str| -> Result<_, SceneError> {
         let Some(info) = info else { return Ok(None) };
         let what = format!("{name}.{slot}");
-        texture_map(b, &info, linear, path, buffers, origin, &what).map(Some)
+        texture_map(b, &info, decode, path, buffers, origin, &what).map(Some)
     };
-    let base_texture = map(pbr.base_color_texture(), false, "baseColorTexture")?;
-    let metallic_roughness = map(pbr.metallic_roughness_texture(), true, "metallicRoughnessTexture")?;
-    let emissive_texture = map(m.emissive_texture(), false, "emissiveTexture")?;
+    let base_texture = map(pbr.base_color_texture(), Decode::Srgb, "baseColorTexture")?;
+    let metallic_roughness =
+        map(pbr.metallic_roughness_texture(), Decode::Linear, "metallicRoughnessTexture")?;
+    let emissive_texture = map(m.emissive_texture(), Decode::Srgb, "emissiveTexture")?;
+    let masked = m.alpha_mode() == gltf::material::AlphaMode::Mask;
+    let alpha_texture = match masked {
+        true => map(pbr.base_color_texture(), Decode::Alpha, "baseColorTexture")?,
+        false => None,
+    };
+    let alpha_cutoff = masked.then(|| m.alpha_cutoff().unwrap_or(0.5)).filter(|c| c.is_finite());
     Ok(Material::Pbr(Pbr {
         base_color: colour,
         base_texture,
@@ -599,22 +609,36 @@ fn convert(
         metallic_roughness,
         emissive,
         emissive_texture,
+        alpha_cutoff,
+        alpha: base[3],
+        alpha_texture,
     }))
 }
 
-/// A material's texture reference: the image (decoded as sRGB colour, or as
-/// `linear` data), its `KHR_texture_transform` and its sampler's wrap modes.
+/// How an image becomes a texture.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Decode {
+    /// Colour, sRGB-encoded.
+    Srgb,
+    /// Data (metallic-roughness), its bytes scaled to 0..1.
+    Linear,
+    /// Its alpha channel, scaled to 0..1.
+    Alpha,
+}
+
+/// A material's texture reference: the image (decoded as `decode` says),
+/// its `KHR_texture_transform` and its sampler's wrap modes.
 fn texture_map(
     b: &mut Builder,
     info: &gltf::texture::Info,
-    linear: bool,
+    decode: Decode,
     path: &str,
     buffers: &[Vec<u8>],
     origin: &Origin,
     what: &str,
 ) -> Result<TextureMap, SceneError> {
     let texture = info.texture();
-    let index = image_texture(b, &texture.source(), linear, path, buffers, origin)?;
+    let index = image_texture(b, &texture.source(), decode, path, buffers, origin)?;
     let mut map = TextureMap::plain(index);
     let mut set = info.tex_coord();
     if let Some(t) = info.texture_transform() {
@@ -646,17 +670,22 @@ fn texture_map(
 fn image_texture(
     b: &mut Builder,
     image: &gltf::Image,
-    linear: bool,
+    decode: Decode,
     path: &str,
     buffers: &[Vec<u8>],
     origin: &Origin,
 ) -> Result<u32, SceneError> {
-    let key = format!("{path}#image{}{}", image.index(), if linear { "#linear" } else { "" });
+    let suffix = match decode {
+        Decode::Srgb => "",
+        Decode::Linear => "#linear",
+        Decode::Alpha => "#alpha",
+    };
+    let key = format!("{path}#image{}{suffix}", image.index());
     if let Some(i) = b.cached_image(&key) {
         return Ok(i);
     }
     let bytes = match image.source() {
-        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") && !linear => {
+        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") && decode == Decode::Srgb => {
             let rel = join(path, &percent_decode(uri));
             let what = Origin { at: origin.at.clone(), what: format!("{} (image in {path})", origin.what) };
             return b.image_texture(&rel, &what);
@@ -676,7 +705,11 @@ fn image_texture(
                 .to_vec()
         }
     };
-    let decoded = if linear { decode_image_linear(&bytes) } else { decode_image(&bytes) };
+    let decoded = match decode {
+        Decode::Srgb => decode_image(&bytes),
+        Decode::Linear => decode_image_linear(&bytes),
+        Decode::Alpha => decode_image_alpha(&bytes),
+    };
     let mip = decoded.map_err(|e| origin.bad_asset(path, format!("images[{}]: {e}", image.index())))?;
     b.add_image(key, mip)
 }
