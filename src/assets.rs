@@ -48,17 +48,49 @@ pub struct LoadTimes {
 }
 
 /// [`load_scene_file`], also reporting how long parsing and the BVH build took.
+///
+/// `path` is a scene file (`.toml`) or a mesh file (`.gltf`, `.glb`, `.obj`);
+/// around a mesh file a scene is made ([`isin_tracer::scenefile::mesh_scene`])
+/// whose text refers to the mesh by its file name, so the bundle is a scene
+/// like any other.
 pub fn load_scene_file_timed(path: &Path) -> anyhow::Result<(Scene, SceneBundle, LoadTimes)> {
     let t0 = Instant::now();
-    let source = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read scene file {}", path.display()))?;
     let base = path.parent().unwrap_or(Path::new("."));
     let mut assets = DiskAssets::new(base);
-    let name = path.display().to_string();
+    let (name, source) = match mesh_file_name(path) {
+        Some(file) => {
+            let source = isin_tracer::scenefile::mesh_scene(&file, &mut assets)?;
+            (format!("{} (scene made around it)", path.display()), source)
+        }
+        None => {
+            let source = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read scene file {}", path.display()))?;
+            (path.display().to_string(), source)
+        }
+    };
     let parts = isin_tracer::parse_scene(&name, &source, &mut assets)?;
     let t1 = Instant::now();
     let scene = Scene::new(parts);
     let times = LoadTimes { parse: t1 - t0, bvh: t1.elapsed() };
     let bundle = SceneBundle { name, source, assets: assets.read };
     Ok((scene, bundle, times))
+}
+
+/// The file name of `path` when it names a mesh file rather than a scene.
+fn mesh_file_name(path: &Path) -> Option<String> {
+    let file = path.file_name()?.to_str()?;
+    isin_tracer::scenefile::MeshFormat::from_path(file).map(|_| file.to_owned())
+}
+
+/// The scene text `isin scene PATH` prints: a mesh file's made scene, with
+/// the mesh referred to by `path` as given (so the text works from the
+/// current directory), or a scene file's own text.
+pub fn scene_text(path: &Path) -> anyhow::Result<String> {
+    if mesh_file_name(path).is_none() {
+        return std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read scene file {}", path.display()));
+    }
+    let rel = path.to_str().with_context(|| format!("{} is not valid UTF-8", path.display()))?;
+    let mut assets = DiskAssets::new(".");
+    Ok(isin_tracer::scenefile::mesh_scene(rel, &mut assets)?)
 }

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 /// Arguments of `isin fly`.
 #[derive(Args, Debug)]
 pub struct FlyArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
     /// Camera path file (TOML, as written by `isin view --record`).
     #[arg(long)]
@@ -46,9 +46,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let path = CameraPath::load(&args.path)?;
     anyhow::ensure!(!path.frames.is_empty(), "{} holds no frames", args.path.display());
     let (scene, _bundle) = load_scene_file(&args.scene)?;
-    let mut settings = scene.settings;
-    settings.width = args.width.or(path.width).unwrap_or(settings.width);
-    settings.height = args.height.or(path.height).unwrap_or(settings.height);
+    let mut settings = scene.settings.resized(args.width.or(path.width), args.height.or(path.height));
     if let Some(spp) = args.spp {
         settings.spp = spp;
     }
@@ -78,7 +76,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let mut times = Vec::with_capacity(path.frames.len());
     let total = Instant::now();
     for (i, f) in path.frames.iter().enumerate() {
-        let camera = f.camera();
+        let camera = f.camera().fit_aspect(settings.width as f32 / settings.height as f32);
         let t0 = Instant::now();
         let frame =
             pool.install(|| isin_tracer::render_frame(&scene, &camera, &settings, args.tile, &|_| {}));

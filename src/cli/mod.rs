@@ -6,6 +6,7 @@ mod fly;
 mod master;
 mod remote;
 mod render;
+mod scene;
 mod slave;
 mod view;
 
@@ -36,6 +37,8 @@ enum Command {
     View(view::ViewArgs),
     /// Replay a camera path headless: one PNG per camera, with frame times.
     Fly(fly::FlyArgs),
+    /// Print the scene isin makes around a mesh file (.gltf, .glb, .obj) as editable TOML.
+    Scene(scene::SceneArgs),
     /// Serve a scene to slaves and viewers; prints a join ticket.
     Master(master::MasterArgs),
     /// Render tiles for a master.
@@ -52,6 +55,7 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Render(args)) => render::run(args),
         Some(Command::View(args)) => view::run(args),
         Some(Command::Fly(args)) => fly::run(args),
+        Some(Command::Scene(args)) => scene::run(args),
         Some(Command::Master(args)) => master::run(args),
         Some(Command::Slave(args)) => slave::run(args),
         Some(Command::Bench(args)) => bench::run(args),

@@ -10,15 +10,17 @@ use std::time::Instant;
 /// Arguments of `isin render`.
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
     /// Output PNG file.
     #[arg(short, long, default_value = "out.png")]
     pub output: PathBuf,
-    /// Image width in pixels (default: the scene's).
+    /// Image width in pixels (default: the scene's; alone, the height follows
+    /// at the scene's aspect ratio). An image of another shape than the
+    /// scene's widens the view (or heightens it) about the centre: never stretched.
     #[arg(long)]
     pub width: Option<u32>,
-    /// Image height in pixels (default: the scene's).
+    /// Image height in pixels (default: the scene's; alone, the width follows).
     #[arg(long)]
     pub height: Option<u32>,
     /// Samples per pixel (default: the scene's).
@@ -46,18 +48,13 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     }
     let (scene, _bundle, load) = load_scene_file_timed(&args.scene)?;
 
-    let mut settings = scene.settings;
-    if let Some(w) = args.width {
-        settings.width = w;
-    }
-    if let Some(h) = args.height {
-        settings.height = h;
-    }
+    let mut settings = scene.settings.resized(args.width, args.height);
     if let Some(spp) = args.spp {
         settings.spp = spp;
     }
     anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
     anyhow::ensure!(settings.spp > 0, "--spp must be at least 1");
+    let camera = scene.camera.fit_aspect(settings.width as f32 / settings.height as f32);
 
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.unwrap_or(0))
@@ -71,7 +68,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     );
     let t1 = Instant::now();
     let (frame, rays) = pool.install(|| {
-        isin_tracer::render::render_frame_stats(&scene, &scene.camera, &settings, args.tile, &|n| bar.inc(n))
+        isin_tracer::render::render_frame_stats(&scene, &camera, &settings, args.tile, &|n| bar.inc(n))
     });
     let render_time = t1.elapsed();
     bar.finish_and_clear();

@@ -48,10 +48,12 @@ view is redrawn at full resolution, then refined until --max-spp samples per pix
 /// Options of the window itself, shared by every way of starting a viewer.
 #[derive(Args, Debug, Clone, PartialEq)]
 pub struct WindowArgs {
-    /// Render width in pixels (default: the scene's). The window scales the image.
+    /// Render width in pixels (default: the scene's; alone, the height follows
+    /// at the scene's aspect). Another shape than the scene's widens the view
+    /// about its centre; the window scales the image, letterboxed, never stretched.
     #[arg(long)]
     pub width: Option<u32>,
-    /// Render height in pixels (default: the scene's).
+    /// Render height in pixels (default: the scene's; alone, the width follows).
     #[arg(long)]
     pub height: Option<u32>,
     /// Record the navigation (one camera per move) to this camera-path file (TOML).
@@ -134,7 +136,7 @@ impl Default for WindowArgs {
 /// Arguments of `isin view`.
 #[derive(Args, Debug)]
 pub struct ViewArgs {
-    /// Scene file (TOML); not needed with --connect, where the master's scene is shown.
+    /// Scene file (TOML) or mesh file (.gltf, .glb, .obj); not needed with --connect, where the master's scene is shown.
     #[arg(required_unless_present = "connect")]
     pub scene: Option<PathBuf>,
     /// Show what a cluster renders: the join ticket the master printed
@@ -227,13 +229,10 @@ pub fn run_with_source(
     title: String,
     status: Option<StatusFn>,
 ) -> anyhow::Result<()> {
-    if let Some(w) = window.width {
-        settings.width = w;
-    }
-    if let Some(h) = window.height {
-        settings.height = h;
-    }
+    settings = settings.resized(window.width, window.height);
     anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
+    // Another shape than the scene's widens the view; never stretched.
+    let camera = camera.fit_aspect(settings.width as f32 / settings.height as f32);
     let mut quality = Quality::for_settings(&settings);
     quality.max_spp = window.max_spp.max(1);
     quality.moving = match window.moving_scale {

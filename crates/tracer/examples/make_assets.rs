@@ -4,7 +4,12 @@
 //! - `scenes/meshes/knot.obj` + `knot.mtl`: a (2, 3) torus knot tube with smooth
 //!   normals and texture coordinates,
 //! - `scenes/meshes/gem.gltf`: a subdivided icosahedron under a two-level node
-//!   hierarchy, its buffer embedded as a base64 `data:` URI.
+//!   hierarchy, its buffer embedded as a base64 `data:` URI;
+//! - `scenes/meshes/materials.gltf`: five spheres in a row, one per kind of glTF
+//!   material — a base colour alone (by the specification's defaults a rough
+//!   metal), polished gold, blue plastic, vertex colours (`COLOR_0`) and a
+//!   checker texture (a PNG in the buffer) under a `KHR_texture_transform` —
+//!   for `isin render scenes/meshes/materials.gltf` (README, "Bring your own scene").
 //!
 //! Run from the repository root: `cargo run -p isin-tracer --example make_assets`.
 //! The output is deterministic; the files are committed.
@@ -23,6 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     std::fs::write(root.join("meshes/knot.obj"), obj)?;
     std::fs::write(root.join("meshes/knot.mtl"), mtl)?;
     std::fs::write(root.join("meshes/gem.gltf"), gem_gltf(2))?;
+    std::fs::write(root.join("meshes/materials.gltf"), materials_gltf(48, 24)?)?;
     println!("wrote assets under {}", root.display());
     Ok(())
 }
@@ -290,4 +296,122 @@ fn gem_gltf(levels: usize) -> String {
         data.len(),
         base64(&data)
     )
+}
+
+/// Five UV spheres (diameter 1, `segments` × `rings`) in a row along X, each
+/// its own mesh over the same accessors, with one glTF material each; the
+/// fourth adds vertex colours, the fifth a checker texture stored in the buffer.
+fn materials_gltf(segments: usize, rings: usize) -> Result<String, image::ImageError> {
+    let (mut pos, mut nor, mut uv, mut col) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for r in 0..=rings {
+        let theta = PI * r as f32 / rings as f32;
+        for s in 0..=segments {
+            let phi = 2.0 * PI * s as f32 / segments as f32;
+            let n = [theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin()];
+            pos.extend(n.map(|c| c * 0.5));
+            nor.extend(n);
+            uv.extend([s as f32 / segments as f32, r as f32 / rings as f32]);
+            // A hue wheel around the sphere, paler towards the poles.
+            let h = s as f32 / segments as f32 * 6.0;
+            let rgb = [0.0f32, 4.0, 2.0].map(|o| ((h + o) % 6.0 - 3.0).abs().clamp(1.0, 2.0) - 1.0);
+            let pale = theta.sin();
+            col.extend(rgb.map(|c| 1.0 - pale + pale * c));
+            col.push(1.0);
+        }
+    }
+    let mut idx: Vec<u16> = Vec::new();
+    let row = segments as u16 + 1;
+    for r in 0..rings as u16 {
+        for s in 0..segments as u16 {
+            let (a, b) = (r * row + s, (r + 1) * row + s);
+            idx.extend([a, b, a + 1, a + 1, b, b + 1]);
+        }
+    }
+    let checker = image::RgbaImage::from_fn(64, 64, |x, y| {
+        if (x / 8 + y / 8) % 2 == 0 {
+            image::Rgba([235, 225, 200, 255])
+        } else {
+            image::Rgba([40, 90, 60, 255])
+        }
+    });
+    let mut png = Vec::new();
+    checker.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+
+    let mut data: Vec<u8> = Vec::new();
+    let mut views = Vec::new();
+    let mut push = |bytes: Vec<u8>, data: &mut Vec<u8>| {
+        while data.len() % 4 != 0 {
+            data.push(0);
+        }
+        views.push(format!(
+            r#"{{ "buffer": 0, "byteOffset": {}, "byteLength": {} }}"#,
+            data.len(),
+            bytes.len()
+        ));
+        data.extend(bytes);
+    };
+    let floats = |v: &[f32]| v.iter().flat_map(|c| c.to_le_bytes()).collect::<Vec<u8>>();
+    push(floats(&pos), &mut data);
+    push(floats(&nor), &mut data);
+    push(floats(&uv), &mut data);
+    push(floats(&col), &mut data);
+    push(idx.iter().flat_map(|i| i.to_le_bytes()).collect(), &mut data);
+    push(png, &mut data);
+    let n = pos.len() / 3;
+    let materials = [
+        r#"{ "name": "base colour alone: a rough metal", "pbrMetallicRoughness": { "baseColorFactor": [0.8, 0.12, 0.1, 1.0] } }"#,
+        r#"{ "name": "polished gold", "pbrMetallicRoughness": { "baseColorFactor": [1.0, 0.76, 0.33, 1.0], "metallicFactor": 1.0, "roughnessFactor": 0.05 } }"#,
+        r#"{ "name": "blue plastic", "pbrMetallicRoughness": { "baseColorFactor": [0.1, 0.25, 0.8, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.25 } }"#,
+        r#"{ "name": "vertex colours", "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 0.6 } }"#,
+        r#"{ "name": "checker", "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 0.5, "baseColorTexture": { "index": 0, "extensions": { "KHR_texture_transform": { "scale": [2.0, 1.0] } } } } }"#,
+    ];
+    let meshes: Vec<String> = (0..materials.len())
+        .map(|m| {
+            let colour = if m == 3 { r#", "COLOR_0": 3"# } else { "" };
+            format!(
+                r#"{{ "primitives": [ {{ "attributes": {{ "POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2{colour} }}, "indices": 4, "material": {m} }} ] }}"#
+            )
+        })
+        .collect();
+    let nodes: Vec<String> = (0..materials.len())
+        .map(|m| format!(r#"{{ "mesh": {m}, "translation": [{:.1}, 0.5, 0.0] }}"#, 1.25 * (m as f32 - 2.0)))
+        .collect();
+    Ok(format!(
+        r#"{{
+  "asset": {{ "version": "2.0", "generator": "isin make_assets" }},
+  "extensionsUsed": [ "KHR_texture_transform" ],
+  "scene": 0,
+  "scenes": [ {{ "nodes": [0, 1, 2, 3, 4] }} ],
+  "nodes": [
+    {}
+  ],
+  "meshes": [
+    {}
+  ],
+  "materials": [
+    {}
+  ],
+  "textures": [ {{ "source": 0 }} ],
+  "images": [ {{ "bufferView": 5, "mimeType": "image/png" }} ],
+  "accessors": [
+    {{ "bufferView": 0, "componentType": 5126, "count": {n}, "type": "VEC3", "min": [-0.5, -0.5, -0.5], "max": [0.5, 0.5, 0.5] }},
+    {{ "bufferView": 1, "componentType": 5126, "count": {n}, "type": "VEC3" }},
+    {{ "bufferView": 2, "componentType": 5126, "count": {n}, "type": "VEC2" }},
+    {{ "bufferView": 3, "componentType": 5126, "count": {n}, "type": "VEC4" }},
+    {{ "bufferView": 4, "componentType": 5123, "count": {}, "type": "SCALAR" }}
+  ],
+  "bufferViews": [
+    {}
+  ],
+  "buffers": [ {{ "byteLength": {}, "uri": "data:application/octet-stream;base64,{}" }} ]
+}}
+"#,
+        nodes.join(",\n    "),
+        meshes.join(",\n    "),
+        materials.join(",\n    "),
+        idx.len(),
+        views.join(",\n    "),
+        data.len(),
+        base64(&data)
+    ))
 }

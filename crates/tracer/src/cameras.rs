@@ -82,6 +82,35 @@ impl Camera {
         Self::from_corners(eye, [c - r + u, c + r + u, c + r - u, c - r - u])
     }
 
+    /// Width / height of the image plane.
+    pub fn aspect(&self) -> f32 {
+        self.plane_x().length() / self.plane_y().length()
+    }
+
+    /// The camera for an image of aspect ratio `aspect` (width / height):
+    /// the image plane is widened — or heightened, for a narrower image —
+    /// about its centre until it has that aspect, the eye where it was. So
+    /// an image of another shape than the scene's shows everything the
+    /// scene's framing does, plus more at two sides, and nothing is
+    /// stretched. Aspects within 10⁻⁵ of the plane's return the camera as it is.
+    pub fn fit_aspect(&self, aspect: f32) -> Camera {
+        let current = self.aspect();
+        if !(aspect > 0.0 && aspect.is_finite() && current.is_finite())
+            || (aspect / current - 1.0).abs() <= 1e-5
+        {
+            return *self;
+        }
+        let (mut x, mut y) = (self.plane_x(), self.plane_y());
+        if aspect > current {
+            x *= aspect / current;
+        } else {
+            y *= current / aspect;
+        }
+        let c = self.center();
+        let (hx, hy) = (x * 0.5, y * 0.5);
+        Camera::from_corners(self.eye, [c - hx - hy, c + hx - hy, c + hx + hy, c - hx + hy])
+    }
+
     /// Checks that the camera can produce rays.
     pub fn validate(&self) -> Result<(), CameraError> {
         if !self.eye.is_finite() || self.corners.iter().any(|c| !c.is_finite()) {
@@ -246,6 +275,23 @@ fn rotate_vector(v: Vec3, axis: Vec3, s: f32, c: f32) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fitting_an_aspect_widens_or_heightens_the_plane_about_its_centre() {
+        let cam = Camera::look_at(Vec3::new(1.0, 2.0, 3.0), Vec3::ZERO, Vec3::Y, 40.0, 4.0 / 3.0);
+        assert_eq!(cam.fit_aspect(4.0 / 3.0), cam, "the same aspect changes nothing");
+        for aspect in [2.0f32, 1.0, 0.5] {
+            let fitted = cam.fit_aspect(aspect);
+            assert!((fitted.aspect() - aspect).abs() < 1e-5, "{aspect}");
+            assert!((fitted.center() - cam.center()).length() < 1e-5);
+            assert_eq!(fitted.eye, cam.eye);
+            assert!((fitted.eye_distance() - cam.eye_distance()).abs() < 1e-4);
+            assert!((fitted.forward() - cam.forward()).length() < 1e-5);
+            // Never cropped: each side at least as long as before.
+            assert!(fitted.plane_x().length() >= cam.plane_x().length() * 0.99999);
+            assert!(fitted.plane_y().length() >= cam.plane_y().length() * 0.99999);
+        }
+    }
     use std::f32::consts::FRAC_PI_2;
 
     fn close(a: Vec3, b: Vec3) -> bool {

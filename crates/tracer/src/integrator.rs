@@ -72,7 +72,7 @@
 use crate::bvh::PACKET_LANES;
 use crate::geometry::Ray;
 use crate::lights::{AreaSampler, LightSample, LightSamples4};
-use crate::materials::{Albedo, Material, reflect, refract, schlick};
+use crate::materials::{Albedo, Material, Pbr, PbrShading, TextureMap, reflect, refract, schlick};
 use crate::math;
 use crate::render::RenderSettings;
 use crate::sampling::{Divisor, Sampler, Strata, ceil_sqrt};
@@ -441,7 +441,7 @@ impl<'a> Integrator<'a> {
     /// and random numbers are given.
     #[inline]
     pub fn trace(&self, ray: &Ray, cone: RayCone, sample: &SampleId, counts: &mut RayCounts) -> Vec3 {
-        self.trace_hit(ray, self.scene.intersect(ray, 0.0, f32::INFINITY), cone, sample, counts)
+        self.trace_hit(ray, self.scene.intersect_visible(ray, 0.0, f32::INFINITY), cone, sample, counts)
     }
 
     /// [`Integrator::trace`] for a camera ray whose nearest hit the caller
@@ -457,9 +457,9 @@ impl<'a> Integrator<'a> {
         counts: &mut RayCounts,
     ) -> Vec3 {
         counts.primary += 1;
-        match hit {
+        match self.scene.beyond_cutouts(ray, hit, f32::INFINITY) {
             Some(hit) => self.shade(ray, &hit, cone, 0, Vec3::ONE, sample, counts),
-            None => self.scene.background,
+            None => self.scene.background(ray.dir),
         }
     }
 
@@ -493,9 +493,9 @@ impl<'a> Integrator<'a> {
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
-        match self.scene.intersect(ray, 0.0, f32::INFINITY) {
+        match self.scene.intersect_visible(ray, 0.0, f32::INFINITY) {
             Some(hit) => self.shade(ray, &hit, cone, depth, weight, sample, counts),
-            None => self.scene.background,
+            None => self.scene.background(ray.dir),
         }
     }
 
@@ -577,8 +577,42 @@ impl<'a> Integrator<'a> {
                 }
             }
             Material::Emissive { .. } => {}
+            Material::Pbr(p) => {
+                let shading = self.pbr_shading(p, ray, hit, sp, cone);
+                let r = shading.reflection((-ray.dir.dot(sp.ns)).max(0.0));
+                if r.max_element() > 0.0 {
+                    let (refl, mirrored) = mirror();
+                    bounce.branches[0] = branch(refl, mirrored, r);
+                }
+                bounce.pbr = Some(shading);
+            }
         }
         bounce
+    }
+
+    /// A glTF material at `hit`: its textures looked up over the hit's ray
+    /// cone footprint, the vertex colour interpolated, mapped to Phong terms.
+    #[inline]
+    fn pbr_shading(&self, p: &Pbr, ray: &Ray, hit: &Hit, sp: &SurfacePoint, cone: RayCone) -> PbrShading {
+        let scene = self.scene;
+        let fp = if p.textures().next().is_some() {
+            let v = &scene.triangles[hit.prim as usize].v;
+            sp.uv_footprint_from(scene.uv_gradients(hit.prim), v, ray.dir, cone.width_at(hit.t))
+        } else {
+            Vec2::ZERO
+        };
+        let look = |map: &Option<TextureMap>| match map
+            .as_ref()
+            .and_then(|m| Some((m, scene.textures.get(m.texture as usize)?)))
+        {
+            Some((m, t)) => {
+                let (uv, fp) = m.apply(sp.uv, fp);
+                t.eval_rect_clamped(uv, fp, m.clamped())
+            }
+            None => Vec3::ONE,
+        };
+        let colour = scene.vertex_colour(hit.prim, hit.u, hit.v);
+        p.shade(look(&p.base_texture), look(&p.metallic_roughness), look(&p.emissive_texture), colour)
     }
 
     /// Radiance leaving `hit` towards the ray's origin, given the radiance
@@ -636,6 +670,25 @@ impl<'a> Integrator<'a> {
                 true => returned(0) + returned(1),
             },
             Material::Emissive { radiance } => *radiance,
+            Material::Pbr(p) => {
+                let s = match bounce.pbr {
+                    Some(s) => s,
+                    None => self.pbr_shading(p, ray, hit, sp, cone),
+                };
+                let mut c = scene.ambient * s.albedo + s.emission;
+                c += self.direct(
+                    sp,
+                    ray.dir,
+                    s.albedo,
+                    s.specular,
+                    s.shininess,
+                    depth,
+                    weight,
+                    sample,
+                    counts,
+                );
+                c + returned(0)
+            }
         }
     }
 
@@ -659,7 +712,15 @@ impl<'a> Integrator<'a> {
         counts: &mut RayCounts,
     ) -> [Vec3; PACKET_LANES] {
         let lanes = |mask: u8| (0..PACKET_LANES).filter(move |&l| mask & (1 << l) != 0);
-        let mut out = [self.scene.background; PACKET_LANES];
+        let looked_through;
+        let hits = if self.scene.cutouts {
+            looked_through =
+                std::array::from_fn(|l| self.scene.beyond_cutouts(&rays[l], hits[l], f32::INFINITY));
+            &looked_through
+        } else {
+            hits
+        };
+        let mut out: [Vec3; PACKET_LANES] = std::array::from_fn(|l| self.scene.background(rays[l].dir));
         let mut sps = [None; PACKET_LANES];
         let mut bounces = [Bounce::default(); PACKET_LANES];
         for hit in lanes(active).filter_map(|l| hits[l].as_ref()) {
@@ -1169,6 +1230,8 @@ struct Bounce {
     branches: [Option<Branch>; 2],
     /// A dielectric's reflection and refraction both (its radiance is their sum).
     two: bool,
+    /// A glTF material's terms at the hit, worked out once for both halves.
+    pbr: Option<PbrShading>,
 }
 
 /// One secondary ray of a [`Bounce`].
@@ -1323,6 +1386,10 @@ impl ShadowRay {
     /// know about rays from its origin to its light.
     #[inline(always)]
     fn blocked(&self, scene: &Scene, cell: &CellAnswer) -> bool {
+        if scene.cutouts {
+            // Cut-out surfaces let light through: the nearest hit that is not.
+            return scene.occluded_visible(&self.ray, 0.0, self.t_max);
+        }
         cell.occluded(&scene.bvh, &self.ray, 0.0, self.t_max)
     }
 }

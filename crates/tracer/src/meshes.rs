@@ -23,6 +23,9 @@ pub struct Mesh {
     pub uvs: Vec<Vec2>,
     /// Triangles as vertex indices, counter-clockwise seen from the front.
     pub indices: Vec<[u32; 3]>,
+    /// Vertex colours (linear RGB), parallel to `positions`; empty when the
+    /// mesh has none.
+    pub colours: Vec<Vec3>,
 }
 
 impl Mesh {
@@ -66,6 +69,7 @@ impl Mesh {
             normals: self.normals.iter().map(|&n| (normal_matrix * n).normalize_or_zero()).collect(),
             uvs: self.uvs.clone(),
             indices,
+            colours: self.colours.clone(),
         }
     }
 }

@@ -50,6 +50,22 @@ impl Default for RenderSettings {
     }
 }
 
+impl RenderSettings {
+    /// These settings at `width` × `height`, where either may be `None` to
+    /// follow the other at the settings' aspect ratio (rounded, at least 1
+    /// pixel); both `None` keeps the size.
+    pub fn resized(self, width: Option<u32>, height: Option<u32>) -> RenderSettings {
+        let aspect = self.width.max(1) as f64 / self.height.max(1) as f64;
+        let (width, height) = match (width, height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, ((w as f64 / aspect).round() as u32).max(1)),
+            (None, Some(h)) => (((h as f64 * aspect).round() as u32).max(1), h),
+            (None, None) => (self.width, self.height),
+        };
+        RenderSettings { width, height, ..self }
+    }
+}
+
 /// A rectangle of pixels, `x..x+w` × `y..y+h`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct Tile {
@@ -453,6 +469,18 @@ pub fn render_frame_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_size_given_on_one_side_keeps_the_aspect() {
+        let s = RenderSettings { width: 512, height: 512, ..RenderSettings::default() };
+        assert_eq!(s.resized(Some(100), None).height, 100);
+        let s = RenderSettings::default(); // 640 × 480
+        assert_eq!((s.resized(Some(100), None).width, s.resized(Some(100), None).height), (100, 75));
+        assert_eq!(s.resized(None, Some(30)).width, 40);
+        assert_eq!(s.resized(Some(7), Some(9)).height, 9);
+        assert_eq!(s.resized(None, None), s);
+        assert_eq!(s.resized(Some(1), None).height, 1, "never zero");
+    }
 
     /// A floor, a box and a small stick floating above it, lit by a quad lamp:
     /// umbra, penumbra and fully lit floor, seen from above at an angle.

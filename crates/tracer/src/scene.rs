@@ -44,12 +44,23 @@ pub struct SceneParts {
     pub lights: Vec<Light>,
     /// Ambient light added to every diffuse surface (linear RGB).
     pub ambient: Vec3,
-    /// Colour of rays that leave the scene (linear RGB).
+    /// Colour of rays that leave the scene (linear RGB); with a sky
+    /// (`zenith`), its colour at and below the horizon.
     pub background: Vec3,
+    /// A sky's colour straight up (+Y): rays that leave the scene see
+    /// `background` blended towards it by the height of their direction.
+    pub zenith: Option<Vec3>,
     /// The camera the scene file defines.
     pub camera: Camera,
     /// The render settings the scene file defines.
     pub settings: RenderSettings,
+    /// What the loader found worth telling the user (each was also logged
+    /// with `tracing::warn!`): no light at all, huge textures, huge meshes.
+    pub warnings: Vec<String>,
+    /// Vertex colours (linear RGB, glTF `COLOR_0`) per triangle, multiplying
+    /// the base colour of [`Material::Pbr`] surfaces: empty when no mesh has
+    /// any, else parallel to `triangles` (white where a mesh has none).
+    pub colours: Vec<[Vec3; 3]>,
 }
 
 /// A renderable scene.
@@ -67,12 +78,19 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Ambient term (linear RGB).
     pub ambient: Vec3,
-    /// Background colour (linear RGB).
+    /// Background colour (linear RGB); a sky's horizon.
     pub background: Vec3,
+    /// A sky's zenith colour, see [`SceneParts::zenith`].
+    pub zenith: Option<Vec3>,
     /// The scene file's camera.
     pub camera: Camera,
     /// The scene file's render settings.
     pub settings: RenderSettings,
+    /// Vertex colours, see [`SceneParts::colours`].
+    pub colours: Vec<[Vec3; 3]>,
+    /// True when some material is alpha-masked ([`crate::materials::Pbr::alpha_cutoff`]):
+    /// ray queries then look through its cut-out parts.
+    pub(crate) cutouts: bool,
     /// Bounds of all triangles.
     pub bounds: Aabb,
     /// Acceleration structure over `triangles`.
@@ -94,6 +112,9 @@ pub struct Scene {
     uv_gradient_slots: Vec<u32>,
 }
 
+/// Most cut-out surfaces a ray looks through before it counts as lost.
+const MAX_CUTOUT_LAYERS: usize = 64;
+
 /// The unit geometric normal `(v1 − v0) × (v2 − v0) / |…|` of `tri`, `None`
 /// when that length is not positive.
 fn unit_normal(tri: &Triangle) -> Option<Vec3> {
@@ -107,6 +128,12 @@ impl Scene {
     /// to `parts.triangles`.
     pub fn new(parts: SceneParts) -> Self {
         assert_eq!(parts.triangles.len(), parts.shading.len(), "one shading record per triangle");
+        assert!(
+            parts.colours.is_empty() || parts.colours.len() == parts.triangles.len(),
+            "vertex colours for every triangle or none"
+        );
+        let cutouts =
+            parts.materials.iter().any(|m| matches!(m, Material::Pbr(p) if p.alpha_cutoff.is_some()));
         let bvh = Bvh::build(&parts.triangles);
         let bounds = parts.triangles.iter().fold(Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         let shadow_cells = ShadowCells::new(&bounds, &parts.lights);
@@ -142,11 +169,36 @@ impl Scene {
             lights: parts.lights,
             ambient: parts.ambient,
             background: parts.background,
+            zenith: parts.zenith,
             camera: parts.camera,
             settings: parts.settings,
+            colours: parts.colours,
+            cutouts,
             bounds,
             bvh,
             shadow_cells,
+        }
+    }
+
+    /// What a ray leaving the scene along unit `dir` sees.
+    #[inline]
+    pub fn background(&self, dir: Vec3) -> Vec3 {
+        match self.zenith {
+            None => self.background,
+            Some(zenith) => {
+                let t = if dir.y > 0.0 { dir.y.min(1.0) } else { 0.0 };
+                self.background + (zenith - self.background) * t
+            }
+        }
+    }
+
+    /// The vertex colour of triangle `prim` at barycentric `(u, v)`; white
+    /// when the scene has none.
+    #[inline]
+    pub fn vertex_colour(&self, prim: u32, u: f32, v: f32) -> Vec3 {
+        match self.colours.get(prim as usize) {
+            Some(c) => c[0] * (1.0 - u - v) + c[1] * u + c[2] * v,
+            None => Vec3::ONE,
         }
     }
 
@@ -188,6 +240,63 @@ impl Scene {
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         self.bvh.intersect(ray, t_min, t_max)
+    }
+
+    /// True when `hit` lies on a cut-out part of an alpha-masked surface:
+    /// its alpha (factor × the base texture's alpha, looked up unfiltered)
+    /// is below the material's cutoff.
+    pub fn is_cut_out(&self, hit: &Hit) -> bool {
+        let Some(sh) = self.shading.get(hit.prim as usize) else { return false };
+        let Some(Material::Pbr(p)) = self.materials.get(sh.material as usize) else { return false };
+        let Some(cutoff) = p.alpha_cutoff else { return false };
+        let mut alpha = p.alpha;
+        if let Some(m) = &p.alpha_texture
+            && let Some(t) = self.textures.get(m.texture as usize)
+        {
+            let w = 1.0 - hit.u - hit.v;
+            let uv = sh.uvs[0] * w + sh.uvs[1] * hit.u + sh.uvs[2] * hit.v;
+            let (uv, _) = m.apply(uv, Vec2::ZERO);
+            alpha *= t.eval_rect_clamped(uv, Vec2::ZERO, m.clamped()).x;
+        }
+        alpha < cutoff
+    }
+
+    /// [`Scene::intersect`], looking through cut-out surfaces
+    /// ([`Scene::is_cut_out`]): the nearest hit that is not cut out.
+    #[inline]
+    pub fn intersect_visible(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        let hit = self.intersect(ray, t_min, t_max);
+        if self.cutouts { self.beyond_cutouts(ray, hit, t_max) } else { hit }
+    }
+
+    /// `hit`, the nearest hit of `ray` before `t_max`, or when it is cut out
+    /// the nearest one beyond it that is not.
+    #[inline]
+    pub fn beyond_cutouts(&self, ray: &Ray, mut hit: Option<Hit>, t_max: f32) -> Option<Hit> {
+        if !self.cutouts {
+            return hit;
+        }
+        for _ in 0..MAX_CUTOUT_LAYERS {
+            match hit {
+                Some(h) if self.is_cut_out(&h) => {
+                    // Just past this hit: the same triangle is not found again.
+                    let t = f32::from_bits(h.t.max(0.0).to_bits() + 1);
+                    hit = self.intersect(ray, t, t_max);
+                }
+                _ => return hit,
+            }
+        }
+        None
+    }
+
+    /// Whether something that is not cut out blocks the ray between `t_min`
+    /// and `t_max`.
+    pub fn occluded_visible(&self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        if self.cutouts {
+            self.intersect_visible(ray, t_min, t_max).is_some()
+        } else {
+            self.occluded(ray, t_min, t_max)
+        }
     }
 
     /// True when something blocks the ray between `t_min` and `t_max`.

@@ -123,6 +123,11 @@ impl MipMap {
         self.levels.len()
     }
 
+    /// Bytes the texels of every level take.
+    pub fn memory_bytes(&self) -> usize {
+        self.levels.iter().map(|l| l.texels.len() * std::mem::size_of::<Vec3A>()).sum()
+    }
+
     /// Size of level `level`.
     pub fn level_size(&self, level: usize) -> (u32, u32) {
         self.levels.get(level).map_or((0, 0), |l| (l.width, l.height))
@@ -136,20 +141,32 @@ impl MipMap {
 
     /// Trilinear lookup with a footprint `width` UV units wide.
     pub fn eval(&self, uv: Vec2, width: f32) -> Vec3 {
+        self.eval_with(uv, width, Level::bilinear)
+    }
+
+    /// [`MipMap::eval`] where the axes marked in `clamp` do not wrap: a
+    /// lookup past an edge reads the edge's texels (for glTF's clamp and
+    /// mirrored-repeat samplers, whose coordinates arrive in `0..=1`).
+    pub fn eval_clamped(&self, uv: Vec2, width: f32, clamp: [bool; 2]) -> Vec3 {
+        self.eval_with(uv, width, |level, uv| level.bilinear_clamped(uv, clamp))
+    }
+
+    #[inline]
+    fn eval_with(&self, uv: Vec2, width: f32, bilinear: impl Fn(&Level, Vec2) -> Vec3A) -> Vec3 {
         let Some(base) = self.levels.first() else { return Vec3::ZERO };
         let size = base.width.max(base.height) as f32;
         let texels_wide = width * size;
         if texels_wide.is_nan() || texels_wide <= 1.0 {
-            return base.bilinear(uv).into();
+            return bilinear(base, uv).into();
         }
         let lod = math::log2(texels_wide).min((self.levels.len() - 1) as f32);
         let l0 = lod as usize; // lod > 0 here
         let f = lod - l0 as f32;
-        let a = self.levels[l0].bilinear(uv);
+        let a = bilinear(&self.levels[l0], uv);
         if f <= 0.0 || l0 + 1 >= self.levels.len() {
             return a.into();
         }
-        let b = self.levels[l0 + 1].bilinear(uv);
+        let b = bilinear(&self.levels[l0 + 1], uv);
         (a * (1.0 - f) + b * f).into()
     }
 }
@@ -211,6 +228,29 @@ impl Level {
         let y0 = if yf < 0.0 { h - 1 } else { (yf as u32).min(h - 1) };
         let x1 = if x0 + 1 >= w { 0 } else { x0 + 1 };
         let y1 = if y0 + 1 >= h { 0 } else { y0 + 1 };
+        let top = self.at(x0, y0) * (1.0 - fx) + self.at(x1, y0) * fx;
+        let bottom = self.at(x0, y1) * (1.0 - fx) + self.at(x1, y1) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+
+    /// [`Level::bilinear`] with the axes marked in `clamp` clamped to the
+    /// texel centres at the edges instead of wrapping.
+    fn bilinear_clamped(&self, uv: Vec2, clamp: [bool; 2]) -> Vec3A {
+        let (w, h) = (self.width, self.height);
+        let axis = |c: f32, n: u32, clamped: bool| -> (u32, u32, f32) {
+            if !clamped {
+                let x = wrap(c) * n as f32 - 0.5;
+                let xf = floor_f32(x);
+                let x0 = if xf < 0.0 { n - 1 } else { (xf as u32).min(n - 1) };
+                return (x0, if x0 + 1 >= n { 0 } else { x0 + 1 }, x - xf);
+            }
+            let c = if c.is_finite() { c.clamp(0.0, 1.0) } else { 0.0 };
+            let x = (c * n as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+            let x0 = (floor_f32(x) as u32).min(n - 1);
+            ((x0), (x0 + 1).min(n - 1), x - x0 as f32)
+        };
+        let (x0, x1, fx) = axis(uv.x, w, clamp[0]);
+        let (y0, y1, fy) = axis(uv.y, h, clamp[1]);
         let top = self.at(x0, y0) * (1.0 - fx) + self.at(x1, y0) * fx;
         let bottom = self.at(x0, y1) * (1.0 - fx) + self.at(x1, y1) * fx;
         top * (1.0 - fy) + bottom * fy
@@ -325,6 +365,18 @@ impl Texture {
         match self {
             Texture::Checker { even, odd, scale } => checker(*even, *odd, *scale, uv, footprint),
             Texture::Image(m) => m.eval(uv, footprint.x.max(footprint.y)),
+        }
+    }
+
+    /// [`Texture::eval_rect`] where the axes marked in `clamp` do not wrap
+    /// ([`MipMap::eval_clamped`]); the checker is procedural and unbounded.
+    pub fn eval_rect_clamped(&self, uv: Vec2, footprint: Vec2, clamp: [bool; 2]) -> Vec3 {
+        match self {
+            Texture::Image(m) if clamp != [false; 2] => {
+                let w = footprint.x.max(footprint.y);
+                m.eval_clamped(uv, if w.is_nan() { 0.0 } else { w.max(0.0) }, clamp)
+            }
+            _ => self.eval_rect(uv, footprint),
         }
     }
 }

@@ -237,8 +237,11 @@ fn mesh_scene_loads_its_obj_and_gltf() {
         assert!(read.contains_key(f), "{f} read through the AssetSource: {:?}", read.keys());
     }
     assert!(p.triangles.len() > 5000);
-    // The gem's gold is metallic and smooth: a mirror.
-    assert!(has_material(&p, |m| matches!(m, Material::Mirror { tint } if tint.x > tint.z)));
+    // The gem's gold is metallic and smooth: a glTF material, gold-coloured.
+    assert!(has_material(
+        &p,
+        |m| matches!(m, Material::Pbr(g) if g.base_color.x > g.base_color.z && g.metallic == 1.0)
+    ));
 }
 
 /// The shipped scenes' geometry, lights and cameras.
@@ -666,6 +669,75 @@ fn a_missing_mtl_library_falls_back_to_the_default_material() {
     assert_mentions(&err(src, &mut assets), &["test.toml:3", "MTL"]);
 }
 
+/// A pyramid without normals: four slanted faces over a square (no base).
+const PYRAMID: &str =
+    "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nv 0 1 0\nSMOOTH\nf 1 5 2\nf 2 5 3\nf 3 5 4\nf 4 5 1\n";
+
+/// Whether any triangle's vertex normals differ from its face normal.
+fn smooth_shaded(p: &SceneParts) -> bool {
+    p.triangles
+        .iter()
+        .zip(&p.shading)
+        .any(|(t, s)| s.normals.iter().any(|n| !close(*n, t.normal().normalize())))
+}
+
+#[test]
+fn obj_smoothing_groups_and_the_smooth_keys_smooth_meshes_without_normals() {
+    let obj = |s: &str| Mem::default().with("p.obj", PYRAMID.replace("SMOOTH", s));
+    let src = |keys: &str| format!("[[objects]]\nkind = \"obj\"\npath = \"p.obj\"\n{keys}");
+    assert!(!smooth_shaded(&load(&src(""), &mut obj("s off")).unwrap()), "s off: flat");
+    let grouped = load(&src(""), &mut obj("s 1")).unwrap();
+    assert!(smooth_shaded(&grouped), "s 1: smooth");
+    // The apex normal of a smooth pyramid averages the four faces: straight up.
+    let apex = grouped.triangles[0].v.iter().position(|v| v.y == 1.0).unwrap();
+    assert!(close(grouped.shading[0].normals[apex], Vec3::Y), "{:?}", grouped.shading[0].normals);
+    assert!(!smooth_shaded(&load(&src("smooth = false\n"), &mut obj("s 1")).unwrap()), "smooth = false wins");
+    // Neighbouring faces bend by 60°: under a 30° crease angle they stay flat, under 90° they round.
+    assert!(!smooth_shaded(&load(&src("smooth = true\n"), &mut obj("s off")).unwrap()), "30° default");
+    assert!(smooth_shaded(&load(&src("smooth_angle = 90\n"), &mut obj("s off")).unwrap()));
+    let e = err(&src("\nsmooth_angle = 200\n"), &mut obj(""));
+    assert_mentions(&e, &["test.toml:5", "smooth_angle", "200"]);
+    let e = err("[[objects]]\nkind = \"box\"\nsmooth = true\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml:3", "smooth", "does not apply"]);
+}
+
+#[test]
+fn a_sky_background_blends_from_the_horizon_to_the_zenith() {
+    let src = "background = { zenith = [0, 0, 1], horizon = [1, 1, 0] }\n\n[camera]\neye = [0, 0, 0]\n\
+               target = [0, 0, -1]\nfov = 90\n\n[[objects]]\nkind = \"quad\"\ntranslate = [0, -100, 0]\n";
+    let scene = isin_tracer::load_scene("sky.toml", src, &mut Mem::default()).unwrap();
+    assert_eq!(scene.background(Vec3::new(1.0, 0.0, 0.0)), Vec3::new(1.0, 1.0, 0.0), "horizon");
+    assert_eq!(scene.background(Vec3::new(0.0, -1.0, 0.0)), Vec3::new(1.0, 1.0, 0.0), "below: horizon");
+    assert_eq!(scene.background(Vec3::Y), Vec3::new(0.0, 0.0, 1.0), "zenith");
+    let s = isin_tracer::RenderSettings { width: 8, height: 8, ..scene.settings };
+    let rgb =
+        isin_tracer::render_tile(&scene, &scene.camera, &s, isin_tracer::Tile { x: 0, y: 0, w: 8, h: 8 });
+    let (top, middle) = (&rgb[3 * 4..3 * 4 + 3], &rgb[3 * (8 * 4 + 4)..3 * (8 * 4 + 4) + 3]);
+    assert!(top[2] > middle[2] && top[0] < middle[0], "bluer up, yellower level: {top:?} {middle:?}");
+    let e = err("background = { zenith = [0, 0, 1] }\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml:1", "a sky { zenith"]);
+    let e = err("background = { zenith = [0, 0, 1], horizon = [-1, 0, 0] }\n", &mut Mem::default());
+    assert_mentions(&e, &["background", "negative"]);
+}
+
+#[test]
+fn a_scene_without_any_light_is_warned_about() {
+    let dark = load_ok(QUAD);
+    assert!(
+        dark.warnings.iter().any(|w| w.contains("no lights") && w.contains("black")),
+        "{:?}",
+        dark.warnings
+    );
+    let ambient = load_ok(&format!("ambient = 0.1\n{QUAD}"));
+    assert!(ambient.warnings.iter().any(|w| w.contains("only by the ambient")), "{:?}", ambient.warnings);
+    let lit = load_ok(&format!("[[lights]]\nkind = \"point\"\nposition = [0, 1, 0]\n\n{QUAD}"));
+    assert_eq!(lit.warnings, Vec::<String>::new());
+    let glowing = load_ok(&format!(
+        "[materials.lamp]\nkind = \"emissive\"\nradiance = 2\n\n{QUAD}material = \"lamp\"\n"
+    ));
+    assert_eq!(glowing.warnings, Vec::<String>::new(), "an emissive surface lights the scene");
+}
+
 #[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\
@@ -822,11 +894,9 @@ fn gltf_node_hierarchy_places_the_mesh_in_world_space() {
     let mut assets = Mem::default().with("models/quad.gltf", quad_gltf(PLAIN, &buffer, ""));
     let p = load(GLTF_SCENE, &mut assets).unwrap();
     check_quad_world_positions(&p);
-    let Material::Phong { albedo: Albedo::Constant(c), shininess, .. } = &p.materials[0] else {
-        panic!("{:?}", p.materials[0])
-    };
-    assert!(close(*c, Vec3::new(0.8, 0.2, 0.1)));
-    assert!(*shininess > 1.0 && *shininess < 100.0, "a mid-rough surface: {shininess}");
+    let Material::Pbr(m) = &p.materials[0] else { panic!("{:?}", p.materials[0]) };
+    assert!(close(m.base_color, Vec3::new(0.8, 0.2, 0.1)));
+    assert_eq!((m.metallic, m.roughness), (0.0, 0.5));
 }
 
 #[test]
@@ -863,21 +933,25 @@ fn gltf_materials_map_to_whitted_materials() {
         b64(&data)
     );
     type Check = fn(&Material) -> bool;
-    let cases: [(&str, Check); 4] = [
+    let cases: [(&str, Check); 5] = [
         (
             r#"{"pbrMetallicRoughness": {"baseColorFactor": [1, 0.8, 0.4, 1], "metallicFactor": 1, "roughnessFactor": 0.05}}"#,
-            |m| matches!(m, Material::Mirror { tint } if *tint == Vec3::new(1.0, 0.8, 0.4)),
+            |m| matches!(m, Material::Pbr(p) if p.base_color == Vec3::new(1.0, 0.8, 0.4) && p.roughness == 0.05),
         ),
         (
-            r#"{"emissiveFactor": [2, 2, 1]}"#,
-            |m| matches!(m, Material::Emissive { radiance } if radiance.z == 1.0),
+            r#"{"emissiveFactor": [2, 2, 1], "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 3}}}"#,
+            |m| matches!(m, Material::Pbr(p) if p.emissive == Vec3::new(6.0, 6.0, 3.0)),
         ),
         (r#"{"alphaMode": "BLEND", "pbrMetallicRoughness": {"baseColorFactor": [0.9, 1, 0.9, 0.2]}}"#, |m| {
             matches!(m, Material::Dielectric { .. })
         }),
         (
-            r#"{"pbrMetallicRoughness": {"metallicFactor": 0, "roughnessFactor": 1}}"#,
-            |m| matches!(m, Material::Phong { reflectivity, .. } if *reflectivity == 0.0),
+            r#"{"extensions": {"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_ior": {"ior": 1.33}}}"#,
+            |m| matches!(m, Material::Dielectric { ior, .. } if *ior == 1.33),
+        ),
+        (
+            r#"{}"#,
+            |m| matches!(m, Material::Pbr(p) if p.metallic == 1.0 && p.roughness == 1.0 && p.base_color == Vec3::ONE),
         ),
     ];
     for (json, check) in cases {
@@ -961,7 +1035,7 @@ fn gltf_base_colour_textures_load() {
     assert_eq!(p.textures.len(), 1);
     assert!(matches!(p.textures[0], Texture::Image(_)));
     assert!(
-        matches!(p.materials[0], Material::Phong { albedo: Albedo::Texture { texture: 0, tint }, .. } if tint.y == 0.5)
+        matches!(&p.materials[0], Material::Pbr(m) if m.base_texture.is_some_and(|t| t.texture == 0) && m.base_color.y == 0.5)
     );
 }
 

@@ -3,6 +3,7 @@
 
 use super::errors::{Location, SceneError, SourceMap};
 use super::format::*;
+use super::smooth::{DEFAULT_SMOOTH_ANGLE, smooth_normals};
 use super::subdivide::{self, MAX_SUBDIVIDE};
 use super::{AssetSource, gltf, obj};
 use crate::cameras::Camera;
@@ -21,6 +22,13 @@ use toml::Spanned;
 pub const MAX_TRIANGLES: usize = 20_000_000;
 /// Largest image texture side accepted.
 pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Scenes with more triangles than this get a warning with their memory estimate.
+pub const LARGE_TRIANGLES: usize = 10_000_000;
+/// Bytes a triangle takes once the scene is built, roughly: the triangle (36),
+/// its shading record (64), its unit normal (16) and its share of the BVH (~68).
+pub const BYTES_PER_TRIANGLE: usize = 184;
+/// Textures with more texels than this (8192²) get a warning.
+pub const LARGE_TEXTURE_TEXELS: u64 = 8192 * 8192;
 /// Largest image resolution a scene may ask to render.
 const MAX_RESOLUTION: u32 = 65_536;
 
@@ -61,6 +69,19 @@ pub(crate) struct Placement {
     pub material: Option<u32>,
     /// Midpoint subdivision levels applied to every mesh (see [`super::subdivide`]).
     pub subdivide: u32,
+    /// Whether meshes without normals get smooth ones.
+    pub smooth: Smoothing,
+}
+
+/// What an object says about smoothing meshes that have no normals.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Smoothing {
+    /// Nothing: OBJ smoothing groups (`s`) are followed, other meshes are flat.
+    Default,
+    /// `smooth = false`: flat, whatever the file says.
+    Off,
+    /// `smooth = true` / `smooth_angle`: smooth, with this crease angle (degrees).
+    On(f32),
 }
 
 /// Accumulates the scene while entries are processed.
@@ -104,6 +125,13 @@ pub(crate) fn join(base: &str, rel: &str) -> String {
 
 /// Decodes a PNG or JPEG image into a mip-mapped texture.
 pub(crate) fn decode_image(bytes: &[u8]) -> Result<MipMap, String> {
+    let img = decode_rgba8(bytes)?;
+    let (w, h) = img.dimensions();
+    Ok(MipMap::from_srgb8(w, h, img.as_raw()))
+}
+
+/// Decodes a PNG or JPEG image to 8-bit RGBA, within [`MAX_IMAGE_SIDE`].
+fn decode_rgba8(bytes: &[u8]) -> Result<image::RgbaImage, String> {
     let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())?;
@@ -119,7 +147,39 @@ pub(crate) fn decode_image(bytes: &[u8]) -> Result<MipMap, String> {
     if w == 0 || h == 0 {
         return Err("image has no pixels".into());
     }
-    Ok(MipMap::from_srgb8(w, h, img.as_raw()))
+    Ok(img)
+}
+
+/// Decodes a PNG or JPEG image holding data rather than colour (a glTF
+/// metallic-roughness map): channels scaled to 0..1, no sRGB decoding.
+pub(crate) fn decode_image_linear(bytes: &[u8]) -> Result<MipMap, String> {
+    let img = decode_rgba8(bytes)?;
+    let (w, h) = img.dimensions();
+    let texels = img.pixels().map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0).collect();
+    Ok(MipMap::from_linear(w, h, texels))
+}
+
+/// The warning for a scene of `triangles` triangles, when it is large.
+fn large_scene_warning(triangles: usize) -> Option<String> {
+    (triangles > LARGE_TRIANGLES).then(|| {
+        let gb = (triangles * BYTES_PER_TRIANGLE) as f64 / 1e9;
+        format!("{triangles} triangles: the built scene needs about {gb:.1} GB of memory")
+    })
+}
+
+/// The warning for a `w × h` texture taking `bytes`, when it is large.
+fn large_texture_warning(name: &str, w: u32, h: u32, bytes: usize) -> Option<String> {
+    (w as u64 * h as u64 > LARGE_TEXTURE_TEXELS).then(|| {
+        format!("texture {name} is {w}×{h}, larger than 8192²: it takes {:.0} MB", bytes as f64 / 1e6)
+    })
+}
+
+/// Decodes the alpha channel of a PNG or JPEG image (0..1, in every
+/// channel), for alpha-masked glTF materials.
+pub(crate) fn decode_image_alpha(bytes: &[u8]) -> Result<MipMap, String> {
+    let img = decode_rgba8(bytes)?;
+    let (w, h) = img.dimensions();
+    Ok(MipMap::from_linear(w, h, img.pixels().map(|p| Vec3::splat(p[3] as f32 / 255.0)).collect()))
 }
 
 /// Checks that each `(field, is_set)` is among `allowed` for the kind.
@@ -166,8 +226,19 @@ impl<'a> Builder<'a> {
         let file: SceneFile = toml::from_str(self.map.text).map_err(|e| self.map.syntax(&e))?;
         let whole = 0..self.map.text.len();
         self.parts.ambient = self.colour(file.ambient, Vec3::ZERO, &whole, "ambient", "ambient")?;
-        self.parts.background =
-            self.colour(file.background, Vec3::ZERO, &whole, "background", "background")?;
+        match file.background {
+            None => {}
+            Some(BackgroundDef::Colour(c)) => {
+                self.parts.background =
+                    self.colour(Some(c), Vec3::ZERO, &whole, "background", "background")?;
+            }
+            Some(BackgroundDef::Sky(sky)) => {
+                let zenith = self.colour(Some(sky.zenith), Vec3::ZERO, &whole, "background", "background")?;
+                self.parts.background =
+                    self.colour(Some(sky.horizon), Vec3::ZERO, &whole, "background", "background")?;
+                self.parts.zenith = Some(zenith);
+            }
+        }
         if let Some(settings) = &file.settings {
             self.settings(settings)?;
         }
@@ -196,6 +267,7 @@ impl<'a> Builder<'a> {
         if self.parts.triangles.is_empty() {
             return Err(SceneError::Empty { file: self.map.file.to_owned() });
         }
+        self.warn_about_the_whole();
         tracing::debug!(
             file = self.map.file,
             triangles = self.parts.triangles.len(),
@@ -205,6 +277,32 @@ impl<'a> Builder<'a> {
             "scene parsed"
         );
         Ok(self.parts)
+    }
+
+    /// Records (and logs) a warning for the user.
+    pub fn warn(&mut self, message: String) {
+        tracing::warn!(file = self.map.file, "{message}");
+        self.parts.warnings.push(message);
+    }
+
+    /// Warnings about the finished scene: nothing to light it, its size.
+    fn warn_about_the_whole(&mut self) {
+        let materials = &self.parts.materials;
+        let emissive = self
+            .parts
+            .shading
+            .iter()
+            .any(|s| materials.get(s.material as usize).is_some_and(Material::emits));
+        if self.parts.lights.is_empty() && !emissive {
+            let lit =
+                if self.parts.ambient.max_element() > 0.0 { "only by the ambient term" } else { "black" };
+            self.warn(format!(
+                "the scene has no lights and no emissive surface: it will render {lit} (add [[lights]])"
+            ));
+        }
+        if let Some(w) = large_scene_warning(self.parts.triangles.len()) {
+            self.warn(w);
+        }
     }
 
     fn origin(&self, span: &Range<usize>, what: String) -> Origin {
@@ -258,6 +356,11 @@ impl<'a> Builder<'a> {
 
     /// Adds a decoded image texture under a cache key, returning its index.
     pub fn add_image(&mut self, key: String, mip: MipMap) -> Result<u32, SceneError> {
+        let (w, h) = mip.level_size(0);
+        let name = key.split('#').next().unwrap_or(&key);
+        if let Some(warning) = large_texture_warning(name, w, h, mip.memory_bytes()) {
+            self.warn(warning);
+        }
         let i = self.parts.textures.len() as u32;
         self.parts.textures.push(Texture::Image(mip));
         self.images.insert(key, i);
@@ -543,6 +646,7 @@ impl<'a> Builder<'a> {
                         uv_scale: Vec2::ONE,
                         material: None,
                         subdivide: 0,
+                        smooth: Smoothing::Default,
                     };
                     self.emit(&mesh, &placement, material, &origin)?;
                 }
@@ -565,12 +669,14 @@ impl<'a> Builder<'a> {
             ("rings", d.rings.is_some()),
             ("caps", d.caps.is_some()),
             ("path", d.path.is_some()),
+            ("smooth", d.smooth.is_some()),
+            ("smooth_angle", d.smooth_angle.is_some()),
         ];
         let allowed: &[&str] = match d.kind {
             ObjectKind::Quad | ObjectKind::Plane | ObjectKind::Box => &[],
             ObjectKind::Sphere => &["segments", "rings"],
             ObjectKind::Cylinder => &["segments", "caps"],
-            ObjectKind::Obj | ObjectKind::Gltf => &["path"],
+            ObjectKind::Obj | ObjectKind::Gltf => &["path", "smooth", "smooth_angle"],
         };
         check_fields(&self.map, &span, &what, kind, &set, allowed)?;
 
@@ -607,8 +713,37 @@ impl<'a> Builder<'a> {
                 format!("must be between 0 and {MAX_SUBDIVIDE}, got {subdivide}"),
             ));
         }
-        let placement =
-            Placement { transform, uv_scale: d.uv_scale.map_or(Vec2::ONE, Splat::vec2), material, subdivide };
+        let smooth = match (d.smooth, d.smooth_angle) {
+            (Some(false), Some(_)) => {
+                return Err(self.invalid_field(
+                    &span,
+                    &what,
+                    "smooth_angle",
+                    "`smooth_angle` needs smoothing, but `smooth = false`".into(),
+                ));
+            }
+            (Some(false), None) => Smoothing::Off,
+            (None, None) => Smoothing::Default,
+            (_, angle) => {
+                let angle = angle.map_or(DEFAULT_SMOOTH_ANGLE, |n| n.0);
+                if !(0.0..=180.0).contains(&angle) {
+                    return Err(self.invalid_field(
+                        &span,
+                        &what,
+                        "smooth_angle",
+                        format!("must be between 0 and 180 degrees, got {angle}"),
+                    ));
+                }
+                Smoothing::On(angle)
+            }
+        };
+        let placement = Placement {
+            transform,
+            uv_scale: d.uv_scale.map_or(Vec2::ONE, Splat::vec2),
+            material,
+            subdivide,
+            smooth,
+        };
         let origin = self.origin(&span, what.clone());
         let count = |key: &str, value: Option<u32>, default: u32, min: u32| -> Result<u32, SceneError> {
             let n = value.unwrap_or(default);
@@ -674,6 +809,14 @@ impl<'a> Builder<'a> {
         if let Some(&bad) = mesh.indices.iter().flatten().find(|&&i| i as usize >= n) {
             return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
         }
+        let smoothed;
+        let mesh = match placement.smooth {
+            Smoothing::On(angle) if mesh.normals.len() != n => {
+                smoothed = smooth_normals(mesh, None, angle);
+                &smoothed
+            }
+            _ => mesh,
+        };
         let subdivided;
         let mesh = if placement.subdivide > 0 {
             subdivided = subdivide::subdivide(mesh, placement.subdivide);
@@ -687,6 +830,12 @@ impl<'a> Builder<'a> {
         let flip = t.flips_winding();
         let has_normals = mesh.normals.len() == n;
         let has_uvs = mesh.uvs.len() == n;
+        let has_colours = mesh.colours.len() == n;
+        if has_colours && self.parts.colours.is_empty() {
+            // The first mesh with vertex colours: the triangles before it are white.
+            self.parts.colours = vec![[Vec3::ONE; 3]; self.parts.triangles.len()];
+        }
+        let colours = has_colours || !self.parts.colours.is_empty();
         for &idx in &mesh.indices {
             if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
                 return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
@@ -723,6 +872,10 @@ impl<'a> Builder<'a> {
             };
             self.parts.triangles.push(tri);
             self.parts.shading.push(TriangleShading { normals, uvs, material });
+            if colours {
+                let c = if has_colours { idx.map(|i| mesh.colours[i as usize]) } else { [Vec3::ONE; 3] };
+                self.parts.colours.push(c);
+            }
         }
         Ok(())
     }
@@ -839,6 +992,16 @@ mod tests {
         assert_eq!(join("../../shared/m/c.obj", "c.mtl"), "../../shared/m/c.mtl");
         assert_eq!(join("m/c.obj", "tex\\wood.png"), "m/tex/wood.png");
         assert_eq!(join("m/c.obj", "/abs/wood.png"), "/abs/wood.png");
+    }
+
+    #[test]
+    fn size_warnings_start_past_their_limits_and_give_the_memory() {
+        assert_eq!(large_scene_warning(LARGE_TRIANGLES), None);
+        let w = large_scene_warning(12_000_000).unwrap();
+        assert!(w.contains("12000000 triangles") && w.contains("2.2 GB"), "{w}");
+        assert_eq!(large_texture_warning("a.png", 8192, 8192, 1), None);
+        let w = large_texture_warning("a.png", 16384, 8192, 3_000_000_000).unwrap();
+        assert!(w.contains("a.png") && w.contains("16384×8192") && w.contains("3000 MB"), "{w}");
     }
 
     #[test]

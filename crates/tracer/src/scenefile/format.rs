@@ -6,7 +6,8 @@
 //!
 //! ```toml
 //! ambient = [0.05, 0.05, 0.05]     # linear RGB added to every diffuse surface
-//! background = [0.0, 0.0, 0.0]     # colour of rays that leave the scene
+//! background = [0.0, 0.0, 0.0]     # colour of rays that leave the scene, or a sky:
+//! # background = { zenith = [0.2, 0.35, 0.7], horizon = [0.7, 0.75, 0.8] }
 //!
 //! [settings]                       # crate::RenderSettings; every key optional
 //! width = 640
@@ -191,8 +192,11 @@ impl<'de, const N: usize> Deserialize<'de> for Splat<N> {
 pub struct SceneFile {
     /// Ambient light added to every diffuse surface (linear RGB); default black.
     pub ambient: Option<Triple>,
-    /// Colour of rays that leave the scene (linear RGB); default black.
-    pub background: Option<Triple>,
+    /// What rays that leave the scene see: a colour (linear RGB), or a sky
+    /// `{ zenith = [r, g, b], horizon = [r, g, b] }` blended by the height
+    /// of the ray's direction (+Y up; below the horizon, the horizon's
+    /// colour); default black.
+    pub background: Option<BackgroundDef>,
     /// Resolution, samples and recursion depth; see [`RenderSettings`] for the
     /// keys (`width`, `height`, `spp`, `light_samples`, `max_depth`, `seed`).
     pub settings: Option<Spanned<RenderSettings>>,
@@ -210,6 +214,26 @@ pub struct SceneFile {
     /// Geometry (`[[objects]]`).
     #[serde(default)]
     pub objects: Vec<Spanned<ObjectDef>>,
+}
+
+/// `background`: a colour, or a two-colour sky gradient.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(untagged, expecting = "a colour [r, g, b] or a sky { zenith = [r, g, b], horizon = [r, g, b] }")]
+pub enum BackgroundDef {
+    /// The same colour in every direction.
+    Colour(Triple),
+    /// A gradient from the horizon to the zenith.
+    Sky(SkyDef),
+}
+
+/// A two-colour sky: `zenith` straight up (+Y), `horizon` at and below the horizon.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkyDef {
+    /// Colour straight up (linear RGB).
+    pub zenith: Triple,
+    /// Colour at the horizon and below (linear RGB).
+    pub horizon: Triple,
 }
 
 /// `[camera]`: either the paper's form (`eye` and the image plane's corners
@@ -408,6 +432,14 @@ pub struct ObjectDef {
     pub caps: Option<bool>,
     /// OBJ and glTF: file path relative to the scene file.
     pub path: Option<String>,
+    /// OBJ and glTF: give a mesh without vertex normals smooth ones
+    /// ([`super::smooth`]), across edges whose faces bend by at most
+    /// `smooth_angle`; `false` also turns off an OBJ's `s` smoothing groups.
+    /// Meshes with normals keep theirs.
+    pub smooth: Option<bool>,
+    /// OBJ and glTF: the crease angle of `smooth`, in degrees (0 to 180,
+    /// default 30); setting it implies `smooth = true`.
+    pub smooth_angle: Option<Num>,
     /// Midpoint subdivision levels (each splits every triangle 1 → 4, the
     /// shape unchanged); default 0, at most
     /// [`MAX_SUBDIVIDE`](super::subdivide::MAX_SUBDIVIDE).

@@ -6,19 +6,60 @@
 //! malformed file is an error, never a panic. All nodes of the default scene
 //! are instanced with their full parent-to-child transform chain.
 //!
-//! Materials map to the nearest Whitted material: an emissive factor (without
-//! an emissive texture) → emissive; `KHR_materials_transmission` above ½ or
-//! blended alpha < 1 → dielectric (IOR from
-//! `KHR_materials_ior` if present, else 1.5); metallic ≥ 0.9 with roughness ≤ 0.2
-//! and no texture → mirror tinted by the base colour; otherwise Phong with the
-//! base colour (or base-colour texture tinted by the factor) scaled by
-//! `1 − metallic`, a specular colour between 4 % grey and the base colour by
-//! metallic and dimmed by roughness, a Phong exponent `2/r⁴ − 2` from roughness
-//! `r`, and a mirror reflection of weight `metallic · (1 − r)²`.
+//! **Extensions.** Supported: `KHR_materials_emissive_strength`,
+//! `KHR_materials_ior`, `KHR_materials_transmission`, `KHR_texture_transform`,
+//! `KHR_mesh_quantization` and `KHR_lights_punctual` (lights and cameras are
+//! read by [`super::mesh_scene`] for scenes made around a file; a glTF object
+//! in a scene file contributes its meshes only). A file that lists another
+//! extension in `extensionsRequired` is refused with an error naming it; one
+//! only in `extensionsUsed` is a warning, and the file renders without it.
+//!
+//! **Geometry.** Triangle lists, strips and fans, indexed or not; points and
+//! lines are skipped. Attributes may be floats, normalised integers, or — with
+//! `KHR_mesh_quantization` — plain integers; sparse accessors are applied
+//! over their base view (or zeros). `COLOR_0` (RGB or RGBA, alpha ignored)
+//! multiplies the base colour. Nodes with a negative scale keep their
+//! triangles facing out (the winding is reversed). Surfaces are two-sided
+//! whatever `doubleSided` says: a Whitted tracer shades both faces.
+//!
+//! **Materials** map onto Whitted shading ([`crate::materials::Pbr`]), with
+//! the specification's defaults (white, `metallicFactor` = `roughnessFactor`
+//! = 1). At every hit, with `c` the base colour (`baseColorFactor` ×
+//! `baseColorTexture` × `COLOR_0`), `m` and `r` metallic and roughness (the
+//! factors × the blue and green of `metallicRoughnessTexture`):
+//!
+//! - the specular reflectance at normal incidence is `F0 = lerp(0.04, c, m)`
+//!   — 4 % for dielectrics, the base colour for metals;
+//! - the diffuse albedo is `c (1 − m)(1 − 0.04)` plus, since a very rough
+//!   specular reflects much as a diffuse surface does, a share `r²` of a
+//!   metal's `F0`: a fully rough metal is matte and coloured, never black;
+//! - the rest of `F0`, `F0 (1 − m r²)`, is a normalised Phong highlight of
+//!   exponent `2/r⁴ − 2` (1..=4096), which is what point and area lights
+//!   show on it;
+//! - a mirror reflection weighted by Schlick's Fresnel term from `F0` and by
+//!   `(1 − r)²`: smooth metals are mirrors tinted by their base colour,
+//!   smooth dielectrics reflect a little head-on and much at grazing angles,
+//!   rough surfaces not at all (their sharp reflection would be wrong);
+//! - `emissiveFactor` × `emissiveTexture` × `KHR_materials_emissive_strength`
+//!   is added as emitted light.
+//!
+//! The highlight and the mirror reflection both carry `F0`: mirrors in a
+//! Whitted tracer see no point lights, so the highlight is what shows them.
+//! `KHR_materials_transmission` above ½, or `alphaMode` `BLEND` with alpha
+//! below 1, makes a dielectric instead (index from `KHR_materials_ior`, else
+//! 1.5; tinted by the base colour). Textures honour `KHR_texture_transform`
+//! and their sampler's wrap modes (repeat, clamp, mirrored repeat); filtering
+//! is always isin's mip-mapped one, and only `TEXCOORD_0` is read (a
+//! texture on another set warns and uses it). `alphaMode` `MASK` cuts the
+//! surface out where alpha (`baseColorFactor`'s × the base texture's,
+//! unfiltered) is below `alphaCutoff` (default ½): camera, reflected,
+//! refracted and shadow rays pass through there. Not supported:
+//! `normalTexture`, `occlusionTexture`, `COLOR_0`'s alpha.
 
 use super::SceneError;
-use super::build::{Builder, Origin, Placement, decode_image, join};
-use crate::materials::{Albedo, Material};
+use super::build::{Builder, Origin, Placement, decode_image, decode_image_alpha, decode_image_linear, join};
+use super::mesh_scene::{FileCamera, FileLight};
+use crate::materials::{Material, Pbr, TextureMap, Wrap};
 use crate::math;
 use crate::meshes::{Mesh, Transform};
 use glam::{Mat4, Vec2, Vec3};
@@ -39,9 +80,9 @@ pub(crate) fn load(
 ) -> Result<(), SceneError> {
     let bytes = b.read_asset(path, origin)?;
     let bad = |m: String| origin.bad_asset(path, m);
-    check_glb_header(&bytes).map_err(bad)?;
-    let file = gltf::Gltf::from_slice(&bytes).map_err(|e| bad(format!("glTF: {e}")))?;
+    let file = parse(&bytes, path).map_err(bad)?;
     let doc = &file.document;
+    let quantized = doc.extensions_used().any(|e| e == "KHR_mesh_quantization");
 
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for buffer in doc.buffers() {
@@ -80,7 +121,7 @@ pub(crate) fn load(
         let Some(mesh) = node.mesh() else { continue };
         for prim in mesh.primitives() {
             let name = format!("mesh {} primitive {}", mesh.index(), prim.index());
-            let tris = read_primitive(&prim, &buffers).map_err(|e| bad(format!("{name}: {e}")))?;
+            let tris = read_primitive(&prim, &buffers, quantized).map_err(|e| bad(format!("{name}: {e}")))?;
             let Some(tris) = tris else {
                 tracing::debug!(path, %name, "skipping a non-triangle primitive");
                 continue;
@@ -103,6 +144,124 @@ pub(crate) fn load(
         }
     }
     Ok(())
+}
+
+/// Extensions this loader understands; files that require others are refused.
+pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_transmission",
+    "KHR_mesh_quantization",
+    "KHR_texture_transform",
+];
+
+/// Parses and validates a glTF or GLB file. Unsupported extensions in
+/// `extensionsRequired` are an error naming them all; unsupported ones in
+/// `extensionsUsed` are a warning each (the file still renders, without them).
+fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
+    check_glb_header(bytes)?;
+    let file = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| format!("glTF: {e}"))?;
+    let root = file.document.as_json();
+    let unsupported: Vec<&str> = root
+        .extensions_required
+        .iter()
+        .map(String::as_str)
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(e))
+        .collect();
+    if !unsupported.is_empty() {
+        return Err(format!(
+            "the file requires glTF extensions isin does not support: {} (supported: {})",
+            unsupported.join(", "),
+            SUPPORTED_EXTENSIONS.join(", ")
+        ));
+    }
+    for ext in root.extensions_used.iter().filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str())) {
+        tracing::warn!(file = path, extension = %ext, "glTF extension not supported; rendering without it");
+    }
+    let mut errors = Vec::new();
+    use gltf::json::validation::Validate;
+    root.validate(root, gltf::json::Path::new, &mut |at: &dyn Fn() -> gltf::json::Path, e| {
+        let at = at().to_string();
+        // Required extensions were checked above, against what isin supports.
+        if !at.starts_with("extensionsRequired") {
+            errors.push(format!("{at}: {e}"));
+        }
+    });
+    if !errors.is_empty() {
+        return Err(format!("glTF: invalid file: {}", errors.join("; ")));
+    }
+    Ok(file)
+}
+
+/// The first perspective camera and every punctual light of the default
+/// scene of a glTF or GLB file, in world space.
+pub(crate) fn cameras_and_lights(bytes: &[u8]) -> Result<(Option<FileCamera>, Vec<FileLight>), String> {
+    let file = parse(bytes, "")?;
+    let doc = &file.document;
+    let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
+        return Ok((None, Vec::new()));
+    };
+    let mut camera = None;
+    let mut lights = Vec::new();
+    // Depth first, in document order: the first camera is the one a viewer shows.
+    let mut stack: Vec<(gltf::Node, Mat4, usize)> = scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    stack.reverse();
+    let mut visited = 0;
+    while let Some((node, parent, depth)) = stack.pop() {
+        visited += 1;
+        if depth > MAX_DEPTH || visited > MAX_INSTANCES {
+            return Err("node hierarchy is too deep or cyclic".into());
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let children: Vec<_> = node.children().collect();
+        stack.extend(children.into_iter().rev().map(|child| (child, world, depth + 1)));
+        let origin = world.transform_point3(Vec3::ZERO);
+        let forward = world.transform_vector3(-Vec3::Z).normalize_or_zero();
+        if let Some(cam) = node.camera() {
+            match cam.projection() {
+                gltf::camera::Projection::Perspective(p) if camera.is_none() => {
+                    let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
+                    let ok = origin.is_finite() && forward != Vec3::ZERO && forward.cross(up).length() > 1e-3;
+                    if ok && p.yfov() > 0.0 && p.yfov() < 3.1 {
+                        camera = Some(FileCamera {
+                            eye: origin,
+                            forward,
+                            up,
+                            yfov: p.yfov(),
+                            aspect: p.aspect_ratio(),
+                        });
+                    }
+                }
+                gltf::camera::Projection::Orthographic(_) => {
+                    tracing::warn!(
+                        camera = cam.index(),
+                        "orthographic glTF cameras are not supported; framing the model instead"
+                    );
+                }
+                _ => {}
+            }
+        }
+        if let Some(light) = node.light() {
+            let colour = Vec3::from(light.color()).max(Vec3::ZERO) * light.intensity().max(0.0);
+            if !colour.is_finite() || !origin.is_finite() {
+                continue;
+            }
+            use gltf::khr_lights_punctual::Kind;
+            lights.push(match light.kind() {
+                Kind::Directional => FileLight::Directional { direction: forward, illuminance: colour },
+                Kind::Point => FileLight::Point { position: origin, intensity: colour },
+                Kind::Spot { .. } => {
+                    tracing::warn!(
+                        light = light.index(),
+                        "spot light cones are not supported: a point light"
+                    );
+                    FileLight::Point { position: origin, intensity: colour }
+                }
+            });
+        }
+    }
+    Ok((camera, lights))
 }
 
 /// Rejects GLB headers whose declared length would make the `gltf` crate's
@@ -191,8 +350,14 @@ fn percent_decode(uri: &str) -> String {
 }
 
 /// An accessor's elements as `f32` components (normalised integers scaled to
-/// 0..1 or −1..1), bounds-checked against its buffer view and buffer.
-fn read_floats(acc: &gltf::Accessor, buffers: &[Vec<u8>], dims: usize) -> Result<Vec<f32>, String> {
+/// 0..1 or −1..1; with `quantized` — the file uses `KHR_mesh_quantization` —
+/// plain integers too), bounds-checked against its buffer view and buffer.
+fn read_floats(
+    acc: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    dims: usize,
+    quantized: bool,
+) -> Result<Vec<f32>, String> {
     let normalize = acc.normalized();
     read_components(acc, buffers, dims, |ty, b| match ty {
         DataType::F32 => Some(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
@@ -200,6 +365,10 @@ fn read_floats(acc: &gltf::Accessor, buffers: &[Vec<u8>], dims: usize) -> Result
         DataType::U16 if normalize => Some(u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0),
         DataType::I8 if normalize => Some((b[0] as i8 as f32 / 127.0).max(-1.0)),
         DataType::I16 if normalize => Some((i16::from_le_bytes([b[0], b[1]]) as f32 / 32767.0).max(-1.0)),
+        DataType::U8 if quantized => Some(b[0] as f32),
+        DataType::U16 if quantized => Some(u16::from_le_bytes([b[0], b[1]]) as f32),
+        DataType::I8 if quantized => Some(b[0] as i8 as f32),
+        DataType::I16 if quantized => Some(i16::from_le_bytes([b[0], b[1]]) as f32),
         _ => None,
     })
 }
@@ -214,13 +383,32 @@ fn read_indices(acc: &gltf::Accessor, buffers: &[Vec<u8>]) -> Result<Vec<u32>, S
     })
 }
 
-fn read_components<T>(
+/// The bytes of a buffer view, checked against its buffer.
+fn view_bytes<'b>(view: &gltf::buffer::View, buffers: &'b [Vec<u8>], name: &str) -> Result<&'b [u8], String> {
+    let buffer = buffers.get(view.buffer().index()).ok_or_else(|| format!("{name}: no such buffer"))?;
+    view.offset()
+        .checked_add(view.length())
+        .and_then(|end| buffer.get(view.offset()..end))
+        .ok_or_else(|| format!("{name}: buffer view {} exceeds its buffer", view.index()))
+}
+
+/// `count` elements of `elem` bytes each, `stride` apart from `offset` in
+/// `data`, or `None` when they do not fit.
+fn elements(data: &[u8], offset: usize, count: usize, stride: usize, elem: usize) -> Option<&[u8]> {
+    if count == 0 {
+        return Some(&[]);
+    }
+    let end = (count - 1).checked_mul(stride)?.checked_add(elem)?.checked_add(offset)?;
+    data.get(offset..end)
+}
+
+fn read_components<T: Copy>(
     acc: &gltf::Accessor,
     buffers: &[Vec<u8>],
     dims: usize,
     decode: impl Fn(DataType, &[u8]) -> Option<T>,
 ) -> Result<Vec<T>, String> {
-    let name = format!("accessor {}", acc.index());
+    let name = format!("accessors[{}]", acc.index());
     let want = match dims {
         1 => Dimensions::Scalar,
         2 => Dimensions::Vec2,
@@ -230,45 +418,74 @@ fn read_components<T>(
     if acc.dimensions() != want {
         return Err(format!("{name} has type {:?}, expected {want:?}", acc.dimensions()));
     }
-    if acc.sparse().is_some() {
-        return Err(format!("{name}: sparse accessors are not supported"));
-    }
     let ty = acc.data_type();
     let size = ty.size();
-    if decode(ty, &[0; 4]).is_none() {
+    let Some(zero) = decode(ty, &[0; 4]) else {
         return Err(format!(
             "{name}: component type {ty:?} (normalized: {}) is not allowed here",
             acc.normalized()
         ));
-    }
+    };
     let count = acc.count();
-    if count == 0 {
-        return Ok(Vec::new());
-    }
-    let view = acc.view().ok_or_else(|| format!("{name} has no buffer view"))?;
-    let buffer = buffers.get(view.buffer().index()).ok_or_else(|| format!("{name}: no such buffer"))?;
-    let view_start = view.offset();
-    let view_end = view_start.checked_add(view.length()).filter(|&e| e <= buffer.len());
-    let view_end =
-        view_end.ok_or_else(|| format!("{name}: buffer view {} exceeds its buffer", view.index()))?;
     let elem = size * dims;
-    let stride = view.stride().unwrap_or(elem);
-    if stride < elem {
-        return Err(format!("{name}: byte stride {stride} is smaller than an element ({elem} bytes)"));
-    }
-    let end = (count - 1)
-        .checked_mul(stride)
-        .and_then(|x| x.checked_add(elem))
-        .and_then(|x| x.checked_add(acc.offset()))
-        .and_then(|x| x.checked_add(view_start))
-        .filter(|&e| e <= view_end)
-        .ok_or_else(|| format!("{name}: {count} elements exceed buffer view {}", view.index()))?;
-    let data = &buffer[view_start + acc.offset()..end];
-    let mut out = Vec::with_capacity(count * dims);
-    for i in 0..count {
-        for c in 0..dims {
-            let at = i * stride + c * size;
-            out.extend(decode(ty, &data[at..at + size]));
+    let mut out = match acc.view() {
+        Some(view) => {
+            let data = view_bytes(&view, buffers, &name)?;
+            let stride = view.stride().unwrap_or(elem);
+            if stride < elem {
+                return Err(format!(
+                    "{name}: byte stride {stride} is smaller than an element ({elem} bytes)"
+                ));
+            }
+            let data = elements(data, acc.offset(), count, stride, elem)
+                .ok_or_else(|| format!("{name}: {count} elements exceed buffer view {}", view.index()))?;
+            let mut out = Vec::with_capacity(count * dims);
+            for i in 0..count {
+                for c in 0..dims {
+                    let at = i * stride + c * size;
+                    out.extend(decode(ty, &data[at..at + size]));
+                }
+            }
+            out
+        }
+        // Without a view every element is zero (sparse accessors then set some).
+        None if acc.sparse().is_some() => {
+            if count > super::MAX_TRIANGLES * 3 {
+                return Err(format!("{name}: {count} elements is too many"));
+            }
+            vec![zero; count * dims]
+        }
+        None => return Err(format!("{name} has no buffer view")),
+    };
+    if let Some(sparse) = acc.sparse() {
+        let n = sparse.count();
+        let (indices, values) = (sparse.indices(), sparse.values());
+        let isize = match indices.index_type() {
+            gltf::accessor::sparse::IndexType::U8 => 1,
+            gltf::accessor::sparse::IndexType::U16 => 2,
+            gltf::accessor::sparse::IndexType::U32 => 4,
+        };
+        let what = format!("{name}.sparse");
+        let ib = elements(view_bytes(&indices.view(), buffers, &what)?, indices.offset(), n, isize, isize)
+            .ok_or_else(|| format!("{what}: {n} indices exceed their buffer view"))?;
+        let vb = elements(view_bytes(&values.view(), buffers, &what)?, values.offset(), n, elem, elem)
+            .ok_or_else(|| format!("{what}: {n} values exceed their buffer view"))?;
+        for k in 0..n {
+            let b = &ib[k * isize..k * isize + isize];
+            let i = match isize {
+                1 => b[0] as usize,
+                2 => u16::from_le_bytes([b[0], b[1]]) as usize,
+                _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+            };
+            if i >= count {
+                return Err(format!("{what}: index {i} is out of range ({count} elements)"));
+            }
+            for c in 0..dims {
+                let at = k * elem + c * size;
+                if let Some(v) = decode(ty, &vb[at..at + size]) {
+                    out[i * dims + c] = v;
+                }
+            }
         }
     }
     Ok(out)
@@ -276,7 +493,11 @@ fn read_components<T>(
 
 /// A triangle primitive as a [`Mesh`] (in the node's space); `None` for points
 /// and lines.
-fn read_primitive(prim: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Option<Mesh>, String> {
+fn read_primitive(
+    prim: &gltf::Primitive,
+    buffers: &[Vec<u8>],
+    quantized: bool,
+) -> Result<Option<Mesh>, String> {
     use gltf::mesh::Mode;
     let mode = prim.mode();
     if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
@@ -284,20 +505,33 @@ fn read_primitive(prim: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Option<
     }
     let positions = prim.get(&gltf::Semantic::Positions).ok_or("no POSITION attribute")?;
     let positions: Vec<Vec3> =
-        read_floats(&positions, buffers, 3)?.chunks_exact(3).map(Vec3::from_slice).collect();
+        read_floats(&positions, buffers, 3, quantized)?.chunks_exact(3).map(Vec3::from_slice).collect();
     let n = positions.len();
     let normals = match prim.get(&gltf::Semantic::Normals) {
-        Some(a) => read_floats(&a, buffers, 3)?
+        Some(a) => read_floats(&a, buffers, 3, quantized)?
             .chunks_exact(3)
             .map(|c| Vec3::from_slice(c).normalize_or_zero())
             .collect(),
         None => Vec::new(),
     };
     let uvs = match prim.get(&gltf::Semantic::TexCoords(0)) {
-        Some(a) => read_floats(&a, buffers, 2)?.chunks_exact(2).map(Vec2::from_slice).collect(),
+        Some(a) => read_floats(&a, buffers, 2, quantized)?.chunks_exact(2).map(Vec2::from_slice).collect(),
         None => Vec::new(),
     };
-    if normals.len() != n && !normals.is_empty() || uvs.len() != n && !uvs.is_empty() {
+    let colours: Vec<Vec3> = match prim.get(&gltf::Semantic::Colors(0)) {
+        Some(a) => {
+            let dims = if a.dimensions() == Dimensions::Vec4 { 4 } else { 3 };
+            read_floats(&a, buffers, dims, quantized)?
+                .chunks_exact(dims)
+                .map(|c| Vec3::from_slice(c).max(Vec3::ZERO))
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    if normals.len() != n && !normals.is_empty()
+        || uvs.len() != n && !uvs.is_empty()
+        || colours.len() != n && !colours.is_empty()
+    {
         return Err("attribute counts differ".into());
     }
     let order: Vec<u32> = match prim.indices() {
@@ -320,10 +554,10 @@ fn read_primitive(prim: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Option<
     if let Some(bad) = order.iter().find(|&&i| i as usize >= n) {
         return Err(format!("index {bad} out of range ({n} vertices)"));
     }
-    Ok(Some(Mesh { positions, normals, uvs, indices }))
+    Ok(Some(Mesh { positions, normals, uvs, indices, colours }))
 }
 
-/// Maps a glTF PBR material to the nearest Whitted material.
+/// Maps a glTF material to an isin material (see the module docs).
 fn convert(
     b: &mut Builder,
     m: &gltf::Material,
@@ -336,13 +570,15 @@ fn convert(
     let colour = Vec3::new(base[0], base[1], base[2]).max(Vec3::ZERO);
     let metallic = pbr.metallic_factor().clamp(0.0, 1.0);
     let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
-    let emissive = Vec3::from(m.emissive_factor()).max(Vec3::ZERO);
+    let strength = m.emissive_strength().unwrap_or(1.0).max(0.0);
+    let emissive = Vec3::from(m.emissive_factor()).max(Vec3::ZERO) * strength;
     let values = [colour.max_element(), base[3], metallic, roughness, emissive.max_element()];
+    let name = match m.index() {
+        Some(i) => format!("materials[{i}]"),
+        None => "the default material".to_owned(),
+    };
     if !values.iter().all(|v| v.is_finite()) {
-        return Err(origin.bad_asset(path, format!("material {:?} has non-finite factors", m.index())));
-    }
-    if emissive.max_element() > 0.0 && m.emissive_texture().is_none() {
-        return Ok(Material::Emissive { radiance: emissive * m.emissive_strength().unwrap_or(1.0) });
+        return Err(origin.bad_asset(path, format!("{name} has non-finite factors")));
     }
     let transmission = m.transmission().map_or(0.0, |t| t.transmission_factor());
     let blended = m.alpha_mode() == gltf::material::AlphaMode::Blend && base[3] < 1.0;
@@ -350,23 +586,83 @@ fn convert(
         let ior = m.ior().filter(|i| i.is_finite() && *i > 0.0).unwrap_or(1.5);
         return Ok(Material::Dielectric { ior, tint: colour });
     }
-    let texture = match pbr.base_color_texture() {
-        Some(info) => Some(image_texture(b, &info.texture().source(), path, buffers, origin)?),
-        None => None,
+    let mut map = |info: Option<gltf::texture::Info>, decode: Decode, slot: &str| -> Result<_, SceneError> {
+        let Some(info) = info else { return Ok(None) };
+        let what = format!("{name}.{slot}");
+        texture_map(b, &info, decode, path, buffers, origin, &what).map(Some)
     };
-    if metallic >= 0.9 && roughness <= 0.2 && texture.is_none() {
-        return Ok(Material::Mirror { tint: colour });
+    let base_texture = map(pbr.base_color_texture(), Decode::Srgb, "baseColorTexture")?;
+    let metallic_roughness =
+        map(pbr.metallic_roughness_texture(), Decode::Linear, "metallicRoughnessTexture")?;
+    let emissive_texture = map(m.emissive_texture(), Decode::Srgb, "emissiveTexture")?;
+    let masked = m.alpha_mode() == gltf::material::AlphaMode::Mask;
+    let alpha_texture = match masked {
+        true => map(pbr.base_color_texture(), Decode::Alpha, "baseColorTexture")?,
+        false => None,
+    };
+    let alpha_cutoff = masked.then(|| m.alpha_cutoff().unwrap_or(0.5)).filter(|c| c.is_finite());
+    Ok(Material::Pbr(Pbr {
+        base_color: colour,
+        base_texture,
+        metallic,
+        roughness,
+        metallic_roughness,
+        emissive,
+        emissive_texture,
+        alpha_cutoff,
+        alpha: base[3],
+        alpha_texture,
+    }))
+}
+
+/// How an image becomes a texture.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Decode {
+    /// Colour, sRGB-encoded.
+    Srgb,
+    /// Data (metallic-roughness), its bytes scaled to 0..1.
+    Linear,
+    /// Its alpha channel, scaled to 0..1.
+    Alpha,
+}
+
+/// A material's texture reference: the image (decoded as `decode` says),
+/// its `KHR_texture_transform` and its sampler's wrap modes.
+fn texture_map(
+    b: &mut Builder,
+    info: &gltf::texture::Info,
+    decode: Decode,
+    path: &str,
+    buffers: &[Vec<u8>],
+    origin: &Origin,
+    what: &str,
+) -> Result<TextureMap, SceneError> {
+    let texture = info.texture();
+    let index = image_texture(b, &texture.source(), decode, path, buffers, origin)?;
+    let mut map = TextureMap::plain(index);
+    let mut set = info.tex_coord();
+    if let Some(t) = info.texture_transform() {
+        let ([ox, oy], r, [sx, sy]) = (t.offset(), t.rotation(), t.scale());
+        if ![ox, oy, r, sx, sy].iter().all(|v| v.is_finite()) {
+            return Err(
+                origin.bad_asset(path, format!("{what}: KHR_texture_transform has non-finite values"))
+            );
+        }
+        let (sin, cos) = (math::sin(r), math::cos(r));
+        map.transform = [Vec2::new(cos * sx, -sin * sx), Vec2::new(sin * sy, cos * sy), Vec2::new(ox, oy)];
+        set = t.tex_coord().unwrap_or(set);
     }
-    let diffuse = colour * (1.0 - metallic);
-    let albedo = match texture {
-        Some(texture) => Albedo::Texture { texture, tint: diffuse },
-        None => Albedo::Constant(diffuse),
+    if set != 0 {
+        tracing::warn!(file = path, texture = what, set, "only TEXCOORD_0 is supported; using it instead");
+    }
+    let wrap = |mode| match mode {
+        gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+        gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+        gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
     };
-    let r = roughness.max(0.05);
-    let shininess = (2.0 / math::powf(r, 4.0) - 2.0).clamp(1.0, 1000.0);
-    let specular = Vec3::splat(0.04).lerp(colour, metallic) * (1.0 - roughness);
-    let reflectivity = metallic * (1.0 - roughness) * (1.0 - roughness);
-    Ok(Material::Phong { albedo, specular, shininess, reflectivity })
+    let sampler = texture.sampler();
+    map.wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+    Ok(map)
 }
 
 /// The scene texture for a glTF image (embedded in a buffer view, a data URI
@@ -374,22 +670,33 @@ fn convert(
 fn image_texture(
     b: &mut Builder,
     image: &gltf::Image,
+    decode: Decode,
     path: &str,
     buffers: &[Vec<u8>],
     origin: &Origin,
 ) -> Result<u32, SceneError> {
+    let suffix = match decode {
+        Decode::Srgb => "",
+        Decode::Linear => "#linear",
+        Decode::Alpha => "#alpha",
+    };
+    let key = format!("{path}#image{}{suffix}", image.index());
+    if let Some(i) = b.cached_image(&key) {
+        return Ok(i);
+    }
     let bytes = match image.source() {
-        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") && decode == Decode::Srgb => {
             let rel = join(path, &percent_decode(uri));
             let what = Origin { at: origin.at.clone(), what: format!("{} (image in {path})", origin.what) };
             return b.image_texture(&rel, &what);
         }
+        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+            let rel = join(path, &percent_decode(uri));
+            let what = Origin { at: origin.at.clone(), what: format!("{} (image in {path})", origin.what) };
+            b.read_asset(&rel, &what)?
+        }
         gltf::image::Source::Uri { uri, .. } => uri_bytes(b, path, uri, origin)?,
         gltf::image::Source::View { view, .. } => {
-            let key = format!("{path}#image{}", image.index());
-            if let Some(i) = b.cached_image(&key) {
-                return Ok(i);
-            }
             let buffer = &buffers[view.buffer().index()];
             let range = view.offset()..view.offset().saturating_add(view.length());
             buffer
@@ -398,12 +705,12 @@ fn image_texture(
                 .to_vec()
         }
     };
-    let key = format!("{path}#image{}", image.index());
-    if let Some(i) = b.cached_image(&key) {
-        return Ok(i);
-    }
-    let mip =
-        decode_image(&bytes).map_err(|e| origin.bad_asset(path, format!("image {}: {e}", image.index())))?;
+    let decoded = match decode {
+        Decode::Srgb => decode_image(&bytes),
+        Decode::Linear => decode_image_linear(&bytes),
+        Decode::Alpha => decode_image_alpha(&bytes),
+    };
+    let mip = decoded.map_err(|e| origin.bad_asset(path, format!("images[{}]: {e}", image.index())))?;
     b.add_image(key, mip)
 }
 

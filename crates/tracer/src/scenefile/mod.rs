@@ -14,11 +14,14 @@ mod build;
 mod errors;
 pub mod format;
 mod gltf;
+pub mod mesh_scene;
 mod obj;
+pub mod smooth;
 pub mod subdivide;
 
 pub use build::{MAX_IMAGE_SIDE, MAX_TRIANGLES};
 pub use errors::{Location, SceneError};
+pub use mesh_scene::{MeshFormat, mesh_bounds, mesh_scene};
 
 use crate::scene::{Scene, SceneParts};
 use serde::{Deserialize, Serialize};

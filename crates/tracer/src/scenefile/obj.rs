@@ -14,7 +14,8 @@
 //! `illum` 3, a mirror reflection weighted by `Ks`.
 
 use super::SceneError;
-use super::build::{Builder, Origin, Placement, join};
+use super::build::{Builder, Origin, Placement, Smoothing, join};
+use super::smooth::smooth_normals;
 use crate::materials::{Albedo, Material};
 use crate::meshes::Mesh;
 use glam::{Vec2, Vec3};
@@ -73,10 +74,33 @@ pub(crate) fn load(
         library_of.extend(std::iter::repeat_n(lib, count));
     }
 
+    // Smoothing groups, one per triangle in file order (the models' order).
+    let total: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
+    let groups = smoothing_groups(&bytes, total);
+    if groups.is_none() && bytes.split(|&c| c == b'\n').any(|l| l.starts_with(b"s ")) {
+        tracing::warn!(obj = path, "could not match the smoothing groups to the faces; ignoring them");
+    }
+    let mut first = 0;
     let mut mapped: HashMap<usize, u32> = HashMap::new();
     for model in &models {
         let m = &model.mesh;
-        let mesh = to_mesh(m).map_err(|e| origin.bad_asset(path, format!("object `{}`: {e}", model.name)))?;
+        let mut mesh =
+            to_mesh(m).map_err(|e| origin.bad_asset(path, format!("object `{}`: {e}", model.name)))?;
+        let range = first..first + mesh.indices.len();
+        first = range.end;
+        if mesh.normals.is_empty() && !mesh.indices.is_empty() {
+            let own = groups.as_ref().map(|g| &g[range]);
+            let angle = match placement.smooth {
+                Smoothing::On(angle) => Some(angle),
+                Smoothing::Default if own.is_some_and(|g| g.iter().any(|&k| k != 0)) => Some(180.0),
+                _ => None,
+            };
+            if let Some(angle) = angle {
+                // An explicit `smooth` smooths faces the file left flat too.
+                let own = own.filter(|g| g.iter().any(|&k| k != 0));
+                mesh = smooth_normals(&mesh, own, angle);
+            }
+        }
         let material = match (placement.material, m.material_id) {
             (Some(over), _) => over,
             (None, Some(id)) if id < materials.len() => match mapped.get(&id) {
@@ -91,9 +115,39 @@ pub(crate) fn load(
             },
             _ => b.default_material(),
         };
-        b.emit(&mesh, placement, material, origin)?;
+        let placed = Placement { smooth: Smoothing::Off, ..*placement };
+        b.emit(&mesh, &placed, material, origin)?;
     }
     Ok(())
+}
+
+/// The smoothing group (`s N`; `s off` and `s 0` are 0) of every triangle
+/// the OBJ text's faces make, in file order, when the file has any `s`
+/// statement and its faces make `triangles` triangles (as `tobj` fans them).
+fn smoothing_groups(text: &[u8], triangles: usize) -> Option<Vec<u32>> {
+    let text = String::from_utf8_lossy(text);
+    if !text.lines().any(|l| l.trim_start().starts_with("s ")) {
+        return None;
+    }
+    let mut group = 0;
+    let mut out = Vec::with_capacity(triangles);
+    for line in text.lines() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("s") => {
+                group = match words.next() {
+                    Some("off") | None => 0,
+                    Some(g) => g.parse().unwrap_or(1),
+                };
+            }
+            Some("f") => {
+                let corners = words.count();
+                out.extend(std::iter::repeat_n(group, corners.saturating_sub(2)));
+            }
+            _ => {}
+        }
+    }
+    (out.len() == triangles).then_some(out)
 }
 
 /// A `tobj` mesh (single-indexed) as a [`Mesh`], `v` flipped.
@@ -117,7 +171,7 @@ fn to_mesh(m: &tobj::Mesh) -> Result<Mesh, String> {
     if let Some(bad) = m.indices.iter().find(|&&i| i as usize >= n) {
         return Err(format!("vertex index {bad} out of range ({n} vertices)"));
     }
-    Ok(Mesh { positions, normals, uvs, indices })
+    Ok(Mesh { positions, normals, uvs, indices, colours: Vec::new() })
 }
 
 fn rgb(c: Option<[f32; 3]>) -> Option<Vec3> {
@@ -193,6 +247,14 @@ fn convert(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn smoothing_groups_follow_the_faces() {
+        let obj = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\ns 1\nf 1 2 3 4\ns off\nf 1 2 3\ns 2\nf 1 3 4\n";
+        assert_eq!(smoothing_groups(obj, 4), Some(vec![1, 1, 0, 2]));
+        assert_eq!(smoothing_groups(obj, 5), None, "a count that does not match is not guessed at");
+        assert_eq!(smoothing_groups(b"v 0 0 0\nf 1 1 1\n", 1), None, "no groups");
+    }
 
     #[test]
     fn map_kd_options_are_skipped() {

@@ -31,12 +31,13 @@ pub fn subdivide(mesh: &Mesh, levels: u32) -> Mesh {
 /// One level of midpoint subdivision.
 fn subdivide_once(m: &Mesh) -> Mesh {
     let n = m.positions.len();
-    let (has_normals, has_uvs) = (m.normals.len() == n, m.uvs.len() == n);
+    let (has_normals, has_uvs, has_colours) = (m.normals.len() == n, m.uvs.len() == n, m.colours.len() == n);
     let mut out = Mesh {
         positions: m.positions.clone(),
         normals: if has_normals { m.normals.clone() } else { Vec::new() },
         uvs: if has_uvs { m.uvs.clone() } else { Vec::new() },
         indices: Vec::with_capacity(m.indices.len() * 4),
+        colours: if has_colours { m.colours.clone() } else { Vec::new() },
     };
     let mut midpoints: HashMap<(u32, u32), u32> = HashMap::with_capacity(m.indices.len() * 3 / 2);
     let mut midpoint = |out: &mut Mesh, a: u32, b: u32| -> u32 {
@@ -50,6 +51,9 @@ fn subdivide_once(m: &Mesh) -> Mesh {
             }
             if has_uvs {
                 out.uvs.push((m.uvs[i] + m.uvs[j]) * 0.5);
+            }
+            if has_colours {
+                out.colours.push((m.colours[i] + m.colours[j]) * 0.5);
             }
             index
         })
@@ -113,6 +117,7 @@ mod tests {
             normals: vec![Vec3::Y, Vec3::Y, Vec3::X, Vec3::X],
             uvs: vec![Vec2::ZERO, Vec2::X, Vec2::Y, Vec2::ONE],
             indices: vec![[0, 2, 1], [1, 2, 3]],
+            colours: vec![Vec3::X, Vec3::Y, Vec3::Y, Vec3::Z],
         };
         let s = subdivide(&mesh, 1);
         // 4 corners + 5 distinct edges.
@@ -120,6 +125,8 @@ mod tests {
         assert_eq!(s.indices.len(), 8);
         let shared = s.positions.iter().position(|&p| p == Vec3::new(0.5, 0.0, 0.5)).unwrap();
         assert_eq!(s.uvs[shared], Vec2::splat(0.5));
+        assert_eq!(s.colours[shared], Vec3::Y, "midway between two green vertices");
+        assert_eq!(s.colours.len(), s.positions.len());
         assert!((s.normals[shared] - Vec3::new(1.0, 1.0, 0.0).normalize()).length() < 1e-6);
         assert!(s.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-6));
     }
