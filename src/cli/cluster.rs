@@ -125,11 +125,11 @@ pub fn render_frame(
         // A still: batch work, which fills what people flying leave.
         let work = isin_cluster::scheduler::Work::Batch;
         let (v, scene, mut events) = viewer::connect_as(transport.as_ref(), ticket, "render", work).await?;
-        let mut settings = scene.settings;
-        settings.width = width.unwrap_or(settings.width);
-        settings.height = height.unwrap_or(settings.height);
+        // As a local render: the scene's aspect kept, another shape widening the view.
+        let mut settings = scene.settings.resized(width, height);
         settings.spp = spp.unwrap_or(settings.spp);
-        let (frame, stats) = viewer::collect_frame(&v, &mut events, scene.camera, settings).await?;
+        let camera = scene.camera.fit_aspect(settings.width as f32 / settings.height as f32);
+        let (frame, stats) = viewer::collect_frame(&v, &mut events, camera, settings).await?;
         let wire = v.send(viewer::GetWireStats).await?;
         Ok((frame, stats, scene.name, wire.bytes_received))
     })

@@ -9,6 +9,7 @@
 //!
 //! Contents:
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
+//! - `another_aspect…`: `--width`/`--height` of another shape give the local render's pixels.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
 //! - `hot_join_mid_frame`: a slave joining while a frame is open takes part in that frame.
@@ -72,6 +73,14 @@ const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a
 /// test acts on it.
 const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "2"];
+
+cluster_test!(another_aspect_is_widened_as_locally_not_stretched, |t| {
+    let c = Cluster::start(t, 2, &[]);
+    for size in [&["--width", "200", "--height", "100"][..], &["--width", "90"]] {
+        let (cluster, _) = c.render("wide.png", size);
+        assert_same_pixels(&cluster, &render_local(size), &format!("cluster vs isin render at {size:?}"));
+    }
+});
 
 cluster_test!(
     identical,
