@@ -2,13 +2,14 @@
 //! local slaves and a viewer in one process over loopback TLS/TCP — the viewer
 //! window when there is a display, a few frames to `paper.png` otherwise.
 
-use crate::assets::load_scene_file;
+use crate::assets::{load_bundle, load_scene_file};
 use actix::Addr;
 use anyhow::Context;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, SlaveOptions, Tracer};
 use isin_actors::viewer;
 use isin_cluster::auth;
+use isin_cluster::protocol::{self, SceneInfo};
 use isin_tracer::{Camera, RenderSettings};
 use isin_transport::{Fingerprint, Ticket, Transport, TransportKind};
 use isin_transport_quic::QuicTransport;
@@ -112,10 +113,29 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: TransportKind) -> a
     }
 }
 
-/// Renders one frame through the cluster of `ticket`; the scene's camera and
+/// Refuses to go on when the master of a cluster serves another scene than
+/// `path` (a master serves the scene it was started with).
+pub fn check_scene(served: &SceneInfo, path: &Path) -> anyhow::Result<()> {
+    let ours = protocol::served_scene_hash(&load_bundle(path)?);
+    anyhow::ensure!(
+        ours == served.hash,
+        "the master serves {} (scene {}), not {} (scene {}): a master renders the scene it was \
+         started with; start one with `isin master {}`",
+        served.name,
+        protocol::short_hash(&served.hash),
+        path.display(),
+        protocol::short_hash(&ours),
+        path.display()
+    );
+    Ok(())
+}
+
+/// Renders one frame of the scene at `path` through the cluster of
+/// `ticket` (whose master must serve that scene); the scene's camera and
 /// settings come from the master, with the given overrides.
 pub fn render_frame(
     ticket: &Ticket,
+    path: &Path,
     width: Option<u32>,
     height: Option<u32>,
     spp: Option<u32>,
@@ -125,6 +145,7 @@ pub fn render_frame(
         // A still: batch work, which fills what people flying leave.
         let work = isin_cluster::scheduler::Work::Batch;
         let (v, scene, mut events) = viewer::connect_as(transport.as_ref(), ticket, "render", work).await?;
+        check_scene(&scene, path)?;
         // As a local render: the scene's aspect kept, another shape widening the view.
         let mut settings = scene.settings.resized(width, height);
         settings.spp = spp.unwrap_or(settings.spp);

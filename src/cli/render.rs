@@ -4,7 +4,7 @@ use crate::assets::load_scene_file_timed;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Arguments of `isin render`.
@@ -106,13 +106,8 @@ fn run_cluster(args: &RenderArgs, ticket: &str) -> anyhow::Result<()> {
     let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let t0 = Instant::now();
     let (frame, stats, scene, wire) =
-        super::cluster::render_frame(&ticket, args.width, args.height, args.spp)?;
+        super::cluster::render_frame(&ticket, &args.scene, args.width, args.height, args.spp)?;
     let elapsed = t0.elapsed();
-    let ours = args.scene.display().to_string();
-    let same = Path::new(&scene).file_name() == args.scene.file_name();
-    if !same {
-        tracing::warn!("the master serves {scene}, not {ours}: rendered the master's scene");
-    }
     image::save_buffer(&args.output, &frame.rgb, frame.width, frame.height, image::ColorType::Rgb8)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     println!("scene      {scene} (via cluster {})", ticket.addr);

@@ -309,17 +309,11 @@ pub struct Cluster {
     scratch: Vec<u8>,
 }
 
-/// The last component of a path, in either separator: what peers may know
-/// of the scene's file.
-fn file_name(path: &str) -> &str {
-    path.rsplit(['/', '\\']).next().unwrap_or(path)
-}
-
 impl Cluster {
     /// A master for `cfg`; fails only if the scene cannot be encoded.
     pub fn new(cfg: ClusterConfig) -> Result<Self, ProtocolError> {
         let mut bundle = cfg.scene;
-        bundle.name = file_name(&bundle.name).to_string();
+        bundle.name = protocol::served_name(&bundle.name).to_string();
         let hash = protocol::scene_hash(&bundle);
         let scene_sync =
             Arc::new(protocol::encode(&Message::SceneSync { hash, bundle: WireBundle::from(&bundle) })?);

@@ -479,12 +479,29 @@ pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
 /// Content hash of a scene bundle (name, text and every asset, length-prefixed
 /// so that no two different bundles hash the same input).
 pub fn scene_hash(bundle: &SceneBundle) -> SceneHash {
+    scene_hash_named(&bundle.name, bundle)
+}
+
+/// What peers are told a scene is called: the last component of its path
+/// (in either separator), never the path on the master's disk.
+pub fn served_name(name: &str) -> &str {
+    name.rsplit(['/', '\\']).next().unwrap_or(name)
+}
+
+/// The hash of `bundle` as a master serves it (under its [`served_name`]): a
+/// client compares it with the master's [`SceneInfo::hash`] to know whether
+/// the master serves the scene it means.
+pub fn served_scene_hash(bundle: &SceneBundle) -> SceneHash {
+    scene_hash_named(served_name(&bundle.name), bundle)
+}
+
+fn scene_hash_named(name: &str, bundle: &SceneBundle) -> SceneHash {
     let mut h = Sha256::new();
     let mut put = |bytes: &[u8]| {
         h.update((bytes.len() as u64).to_le_bytes());
         h.update(bytes);
     };
-    put(bundle.name.as_bytes());
+    put(name.as_bytes());
     put(bundle.source.as_bytes());
     for (path, bytes) in &bundle.assets {
         put(path.as_bytes());
