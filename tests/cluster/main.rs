@@ -10,6 +10,7 @@
 //! Contents:
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
 //! - `rendering_another_scene…`: `render OTHER --cluster` fails naming both scenes, writes nothing.
+//! - `fly_through_the_cluster…`: `fly --cluster --frames 10..16` writes the frames `fly` writes here.
 //! - `another_aspect…`: `--width`/`--height` of another shape give the local render's pixels.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
@@ -85,6 +86,37 @@ cluster_test!(rendering_another_scene_than_the_masters_is_refused_not_silently_w
     let said = p.matching(Stream::Err, |l| l.contains("the master serves paper.toml"));
     assert!(!said.is_empty(), "{}", p.dump());
     assert!(!out.exists(), "an image was written");
+});
+
+cluster_test!(fly_through_the_cluster_equals_fly_here_frame_for_frame, |t| {
+    let c = Cluster::start(t, 2, &[]);
+    let (scene, path) = (util::scene(), util::root().join("scenes/paths/paper.toml"));
+    let fly = |out: &std::path::Path, cluster: Option<&str>| {
+        let mut args = vec!["fly", scene.to_str().unwrap(), "--path", path.to_str().unwrap()];
+        args.extend([
+            "--out",
+            out.to_str().unwrap(),
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--frames",
+            "10..16",
+        ]);
+        args.extend(cluster.map(|t| ["--cluster", t]).into_iter().flatten());
+        let mut p = Proc::spawn("fly", &args, "warn");
+        assert!(p.wait_exit().success(), "fly failed\n{}", p.dump());
+    };
+    let (here, there) = (c.dir.path().join("here"), c.dir.path().join("there"));
+    fly(&here, None);
+    fly(&there, Some(&c.ticket));
+    for i in 10..16 {
+        let name = format!("frame_{i:04}.png");
+        let (a, b) = (util::pixels(&here.join(&name)), util::pixels(&there.join(&name)));
+        assert_same_pixels(&b, &a, &format!("{name}: cluster vs here"));
+    }
+    let written = std::fs::read_dir(&there).unwrap().count();
+    assert_eq!(written, 6, "frames 10..16 and no others");
 });
 
 cluster_test!(another_aspect_is_widened_as_locally_not_stretched, |t| {
