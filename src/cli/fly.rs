@@ -26,22 +26,22 @@ pub struct FlyArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Image width (default: the path's recorded width, else the scene's).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub width: Option<u32>,
     /// Image height (default: the path's recorded height, else the scene's).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub height: Option<u32>,
     /// Samples per pixel (default: the scene's).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::spp)]
     pub spp: Option<u32>,
     /// Render as the viewer does while moving: 1 sample, 1 shadow ray.
     #[arg(long)]
     pub fast: bool,
-    /// Render threads (default: all cores).
-    #[arg(long)]
+    /// Render threads (default, or 0: one per core).
+    #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
     /// Tile edge in pixels.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
     pub tile: u32,
     /// Only these frames of the path: `A..B` (B not included), `A..=B`, `A..`
     /// or `..B`; files keep the frame's number in the path.
@@ -113,8 +113,8 @@ fn flight_settings(
         settings.spp = 1;
         settings.light_samples = 1;
     }
-    anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
-    anyhow::ensure!(settings.spp > 0, "--spp must be at least 1");
+    // The size derived from one side at the scene's aspect is bounded too.
+    isin_tracer::limits::check_settings(&settings)?;
     Ok(settings)
 }
 

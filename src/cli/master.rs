@@ -38,10 +38,10 @@ pub struct MasterArgs {
     pub token: Option<String>,
     /// Tile edge in pixels (halved, down to 16, while a frame would have fewer
     /// than 8 tiles per render thread in the cluster).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
     pub tile: u32,
     /// Milliseconds of silence after which a slave is declared dead.
-    #[arg(long, default_value_t = 5000)]
+    #[arg(long, default_value_t = 5000, value_parser = super::bounded::heartbeat_ms)]
     pub heartbeat_timeout_ms: u64,
     /// Do not hand idle slaves copies of straggling tiles.
     #[arg(long)]
@@ -52,7 +52,7 @@ pub struct MasterArgs {
     pub compression: Compression,
     /// Tiles queued per slave beyond one per render thread (the in-flight window;
     /// near the end of a frame slaves only get one tile per thread anyway).
-    #[arg(long, default_value_t = SchedulerConfig::default().queue_depth)]
+    #[arg(long, default_value_t = SchedulerConfig::default().queue_depth, value_parser = super::bounded::queue_depth)]
     pub queue_depth: u32,
 }
 

@@ -51,16 +51,16 @@ pub struct WindowArgs {
     /// Render width in pixels (default: the scene's; alone, the height follows
     /// at the scene's aspect). Another shape than the scene's widens the view
     /// about its centre; the window scales the image, letterboxed, never stretched.
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub width: Option<u32>,
     /// Render height in pixels (default: the scene's; alone, the width follows).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub height: Option<u32>,
     /// Record the navigation (one camera per move) to this camera-path file (TOML).
     #[arg(long, value_name = "PATH")]
     pub record: Option<PathBuf>,
     /// Stop refining a still view at this many samples per pixel.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = super::bounded::spp)]
     pub max_spp: u32,
     /// While moving, always render at 1/N of the resolution in each direction
     /// (shown enlarged, bilinear; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
@@ -152,11 +152,11 @@ pub struct ViewArgs {
     pub transport: isin_transport::TransportKind,
     #[command(flatten)]
     pub window: WindowArgs,
-    /// Render threads (default: all cores; without --connect).
-    #[arg(long)]
+    /// Render threads (default, or 0: one per core; without --connect).
+    #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
     /// Tile edge in pixels.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
     pub tile: u32,
 }
 
@@ -230,7 +230,7 @@ pub fn run_with_source(
     status: Option<StatusFn>,
 ) -> anyhow::Result<()> {
     settings = settings.resized(window.width, window.height);
-    anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
+    isin_tracer::limits::check_settings(&settings)?;
     // Another shape than the scene's widens the view; never stretched.
     let camera = camera.fit_aspect(settings.width as f32 / settings.height as f32);
     let mut quality = Quality::for_settings(&settings);

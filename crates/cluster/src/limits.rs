@@ -1,25 +1,17 @@
-//! What the master accepts, and how much of it: frame requests' bounds and
-//! the budgets every peer lives within, each with the reason for its value.
+//! What the master accepts, and how much of it: the bounds of every number
+//! (the tracer's table, [`isin_tracer::limits`], re-exported here: the same
+//! for the command line, scene files, the master and the slave) and the
+//! budgets every peer lives within, each with the reason for its value.
 //!
-//! The request limits bound the work one request can ask for; the budgets
-//! bound what peers can make the master hold. Both are checked before any
-//! work or allocation starts.
+//! The bounds limit the work one request can ask for; the budgets limit what
+//! peers can make the master hold. Both are checked before any work or
+//! allocation starts.
 
 use crate::codec;
 use crate::protocol::HANDSHAKE_MAX_FRAME;
 use isin_tracer::{Camera, RenderSettings};
 
-/// Largest image a viewer may request, in pixels per side (a 16k² frame is
-/// 768 MiB of RGB8 at the viewer: beyond that a request is a mistake).
-pub const MAX_IMAGE_SIDE: u32 = 16384;
-/// Largest samples per pixel a viewer may request (the viewer's refinement
-/// stops at 64; stills rarely need more than a few thousand).
-pub const MAX_SPP: u32 = 65536;
-/// Largest shadow-ray count per area light a viewer may request.
-pub const MAX_LIGHT_SAMPLES: u32 = 4096;
-/// Largest recursion depth a viewer may request (a mirror hall needs a few
-/// dozen bounces; the tracer stops far earlier in any real scene).
-pub const MAX_DEPTH: u32 = 64;
+pub use isin_tracer::limits::*;
 
 /// Bytes of a tile message besides its pixels: ids, rectangle, timings and
 /// MessagePack framing take under a hundred; this leaves room for an error
@@ -62,23 +54,10 @@ pub fn slave_max_frame(edge: u32) -> usize {
     (TILE_MESSAGE_OVERHEAD + codec::max_encoded_len(edge, edge)).max(HANDSHAKE_MAX_FRAME)
 }
 
-/// Checks a frame request against the limits above and the camera's own
-/// validity.
+/// Checks a frame request against the bounds and the camera's own validity.
 pub fn validate_request(camera: &Camera, s: &RenderSettings) -> Result<(), String> {
     camera.validate().map_err(|e| format!("bad camera: {e}"))?;
-    if s.width == 0 || s.height == 0 || s.width > MAX_IMAGE_SIDE || s.height > MAX_IMAGE_SIDE {
-        return Err(format!("image size {}x{} out of range 1..={MAX_IMAGE_SIDE}", s.width, s.height));
-    }
-    if s.spp == 0 || s.spp > MAX_SPP {
-        return Err(format!("samples per pixel {} out of range 1..={MAX_SPP}", s.spp));
-    }
-    if s.light_samples > MAX_LIGHT_SAMPLES || s.max_depth > MAX_DEPTH {
-        return Err(format!(
-            "light samples {} / depth {} above the limits {MAX_LIGHT_SAMPLES} / {MAX_DEPTH}",
-            s.light_samples, s.max_depth
-        ));
-    }
-    Ok(())
+    check_settings(s).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -98,11 +77,11 @@ mod tests {
         let cam = Camera::default();
         let ok = RenderSettings { width: 64, height: 48, ..RenderSettings::default() };
         assert!(validate_request(&cam, &ok).is_ok());
-        let wide = RenderSettings { width: MAX_IMAGE_SIDE + 1, ..ok };
+        let wide = RenderSettings { width: IMAGE_SIDE.max as u32 + 1, ..ok };
         assert!(validate_request(&cam, &wide).unwrap_err().contains("16384"));
         let spp = RenderSettings { spp: 0, ..ok };
         assert!(validate_request(&cam, &spp).unwrap_err().contains("samples per pixel"));
-        let deep = RenderSettings { max_depth: MAX_DEPTH + 1, ..ok };
+        let deep = RenderSettings { max_depth: DEPTH.max as u32 + 1, ..ok };
         assert!(validate_request(&cam, &deep).unwrap_err().contains("depth"));
     }
 }

@@ -1094,3 +1094,24 @@ fn scene_bundles_round_trip_through_messagepack() {
     let e = broken.load().expect_err("missing OBJ").to_string();
     assert_mentions(&e, &["bundle.toml:3", "meshes/sub/thing.obj", "not in the scene bundle"]);
 }
+
+#[test]
+fn settings_beyond_the_limits_are_refused_or_clamped_as_everywhere_else() {
+    // Refused before any work, naming the limit.
+    let e = err("[settings]\nlight_samples = 1000000000\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml", "light_samples", "above the limit of 4096"]);
+    let e = err("[settings]\nwidth = 100000\n", &mut Mem::default());
+    assert_mentions(&e, &["settings.width", "above the limit of 16384"]);
+    // Deeper than any frame is rendered: clamped, with one warning, so a
+    // cluster (sent the clamped settings) renders it as a local render does.
+    let src = "[settings]\nmax_depth = 1000000\n[[objects]]\nkind = \"sphere\"\n";
+    let parts = parse_scene("deep.toml", src, &mut Mem::default()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(parts.settings.max_depth, 64);
+    assert_eq!(parts.warnings.iter().filter(|w| w.contains("max_depth")).count(), 1, "{:?}", parts.warnings);
+}
+
+#[test]
+fn a_number_too_large_for_the_tracer_says_so() {
+    let e = err("[[lights]]\nkind = \"point\"\nposition = [0, 1, 0]\npower = 1e308\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml:4", "too large"]);
+}

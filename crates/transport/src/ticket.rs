@@ -44,6 +44,9 @@ pub enum TicketError {
     /// A fingerprint string is not 64 hex digits.
     #[error("malformed certificate fingerprint `{0}`: expected 64 hex digits (SHA-256)")]
     BadFingerprint(String),
+    /// The address's port is not a port (1–65535): no retry could reach it.
+    #[error("join ticket names port `{0}`: a port is a number from 1 to 65535")]
+    BadPort(String),
 }
 
 /// The transports a master can speak, as named in tickets and on the command line.
@@ -219,6 +222,10 @@ impl FromStr for Ticket {
         if token.is_empty() || addr.is_empty() || !addr.contains(':') {
             return Err(bad());
         }
+        let port = addr.rsplit_once(':').map_or("", |(_, p)| p);
+        if !port.parse::<u16>().is_ok_and(|p| p > 0) {
+            return Err(TicketError::BadPort(port.chars().take(20).collect()));
+        }
         let mut fingerprint = None;
         // Unknown parameters are left to newer builds; a fingerprint must be well-formed.
         for (key, value) in query.split('&').filter(|p| !p.is_empty()).filter_map(|p| p.split_once('=')) {
@@ -279,6 +286,15 @@ mod tests {
         ] {
             assert!(matches!(bad.parse::<Fingerprint>(), Err(TicketError::BadFingerprint(_))), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_port_that_cannot_exist_is_refused_at_once() {
+        for port in ["99999", "0", "http", ""] {
+            let t = format!("isin+tcp-insecure://tok@host:{port}").parse::<Ticket>();
+            assert!(matches!(t, Err(TicketError::BadPort(_))), "{port}: {t:?}");
+        }
+        assert!("isin+tcp-insecure://tok@host:65535".parse::<Ticket>().is_ok());
     }
 
     #[test]

@@ -352,7 +352,7 @@ fn absurd_requests_get_an_error_and_the_viewer_stays() {
     net.run_for(MS);
     let errors = net.errors(v);
     assert_eq!(errors.len(), 2, "{errors:?}");
-    assert!(errors[0].contains("image size") && errors[1].contains("samples per pixel"), "{errors:?}");
+    assert!(errors[0].contains("image side 0") && errors[1].contains("samples per pixel"), "{errors:?}");
     assert!(!net.is_closed(v));
     assert_eq!(net.core.status().frames_requested, 0);
 }
