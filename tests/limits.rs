@@ -76,3 +76,12 @@ fn an_output_isin_cannot_write_is_refused_before_rendering_and_leaves_nothing() 
     let left: Vec<_> = std::fs::read_dir(dir.path()).expect("dir").collect();
     assert!(left.is_empty(), "left behind: {left:?}");
 }
+
+#[test]
+fn a_slave_whose_master_host_never_resolves_gives_up_with_a_clear_error() {
+    // `.invalid` never resolves (RFC 2606).
+    let err = refused(&["slave", "--connect", "isin+tcp-insecure://tok@master.invalid:7878"]);
+    assert!(err.contains("cannot resolve master.invalid:7878"), "{err}");
+    let said = err.lines().filter(|l| l.contains("retrying")).count();
+    assert_eq!(said, 1, "retrying is said once a minute, not per attempt:\n{err}");
+}

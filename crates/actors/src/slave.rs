@@ -243,28 +243,52 @@ pub async fn run<R: Renderer>(
     let counters = Arc::new(SlaveCounters::default());
     let mut cache: Option<SceneCache<R::Scene>> = None;
     let mut backoff = Duration::from_millis(100);
-    let mut failures = 0u32;
+    let (mut failures, mut unresolved) = (0u32, 0u32);
+    // Retrying is said once a minute, not at every attempt.
+    let mut said: Option<std::time::Instant> = None;
     loop {
         match join(transport.as_ref(), &ticket, &opts, &renderer, &mut cache).await {
             Ok(session) => {
                 backoff = Duration::from_millis(100);
-                failures = 0;
+                (failures, unresolved, said) = (0, 0, None);
                 let why = serve(session, renderer.clone(), pool.clone(), counters.clone(), &opts).await;
                 tracing::warn!("lost the master ({why}); reconnecting");
             }
             Err(e) if !e.is_retryable() => return Err(e),
             Err(e) => {
                 failures += 1;
-                if opts.max_attempts.is_some_and(|m| failures >= m) {
+                unresolved = if matches!(e, JoinError::Transport(TransportError::Unresolvable { .. })) {
+                    unresolved + 1
+                } else {
+                    0
+                };
+                if opts.max_attempts.is_some_and(|m| failures >= m) || unresolved >= MAX_UNRESOLVED {
                     return Err(e);
                 }
-                tracing::info!("cannot join {} yet ({e}); retrying in {backoff:?}", ticket.addr);
+                if said.is_none_or(|at| at.elapsed() >= RETRY_REPORT) {
+                    said = Some(std::time::Instant::now());
+                    tracing::warn!(
+                        "cannot join {} yet ({e}); retrying (every {:?} at most; said again in a minute)",
+                        ticket.addr,
+                        opts.max_backoff
+                    );
+                } else {
+                    tracing::debug!("cannot join {} yet ({e}); retrying in {backoff:?}", ticket.addr);
+                }
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(opts.max_backoff);
             }
         }
     }
 }
+
+/// Consecutive attempts on a host name that resolves to nothing before a
+/// slave gives up (with the default backoff, about 20 s: a name server that is
+/// down for a moment is waited for, a mistyped name is not).
+pub const MAX_UNRESOLVED: u32 = 10;
+
+/// How often a slave that cannot join says it is still trying.
+pub const RETRY_REPORT: Duration = Duration::from_secs(60);
 
 /// An authenticated, scene-synced connection, ready for tiles.
 pub struct Session<S> {

@@ -197,14 +197,9 @@ impl QuicTransport {
 /// The address to use for `HOST:PORT`: IPv4 when the name has both (a lost
 /// UDP handshake is only noticed after the idle timeout, so unlike TCP there
 /// is no quick trying of each address in turn; masters mostly listen on IPv4).
-async fn resolve(addr: &str) -> Result<SocketAddr, String> {
-    let addrs: Vec<SocketAddr> = tokio::net::lookup_host(addr).await.map_err(|e| e.to_string())?.collect();
-    addrs
-        .iter()
-        .find(|a| a.is_ipv4())
-        .or(addrs.first())
-        .copied()
-        .ok_or_else(|| "no address found".to_string())
+async fn resolve(addr: &str) -> Result<SocketAddr, TransportError> {
+    let addrs = isin_transport::resolve(addr).await?;
+    Ok(addrs.iter().find(|a| a.is_ipv4()).copied().unwrap_or(addrs[0]))
 }
 
 fn endpoint(
@@ -240,7 +235,7 @@ impl Transport for QuicTransport {
             let crypto = self.server.clone().ok_or_else(|| {
                 err("this QUIC transport has no certificate to serve (use QuicTransport::server)".into())
             })?;
-            let bind = resolve(addr).await.map_err(err)?;
+            let bind = resolve(addr).await?;
             let mut server = quinn::ServerConfig::with_crypto(crypto);
             server.transport_config(self.transport_config());
             let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
@@ -266,7 +261,7 @@ impl Transport for QuicTransport {
                 err("no certificate fingerprint to pin (QUIC needs the one in the join ticket)".into())
             })?;
             let (crypto, verifier) = quic_client_config(pinned).map_err(|e| err(e.to_string()))?;
-            let target = resolve(addr).await.map_err(err)?;
+            let target = resolve(addr).await?;
             let bind: SocketAddr = if target.is_ipv6() { "[::]:0".parse() } else { "0.0.0.0:0".parse() }
                 .map_err(|_| err("".into()))?;
             let endpoint = endpoint(bind, None, &self.options).map_err(|e| err(e.to_string()))?;

@@ -338,7 +338,8 @@ impl Transport for TcpTransport {
                     ));
                 }
             };
-            let sock = TcpStream::connect(addr).await.map_err(|e| err(e.to_string()))?;
+            let addrs = isin_transport::resolve(addr).await?;
+            let sock = TcpStream::connect(&addrs[..]).await.map_err(|e| err(e.to_string()))?;
             let Some(pinned) = pinned else {
                 return Ok(wrap_plain(sock, addr.to_string(), ConnShared::new(INITIAL_MAX_FRAME)));
             };

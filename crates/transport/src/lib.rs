@@ -58,6 +58,17 @@ pub const INITIAL_MAX_FRAME: usize = 16 << 10;
 /// link it supports.
 pub const DEFAULT_FRAME_TIMEOUT: Duration = Duration::from_secs(30);
 
+/// The addresses of `HOST:PORT`; [`TransportError::Unresolvable`] when it has none.
+pub async fn resolve(addr: &str) -> Result<Vec<std::net::SocketAddr>, TransportError> {
+    let unresolvable = |reason: String| TransportError::Unresolvable { addr: addr.to_string(), reason };
+    let addrs: Vec<_> =
+        tokio::net::lookup_host(addr).await.map_err(|e| unresolvable(e.to_string()))?.collect();
+    if addrs.is_empty() {
+        return Err(unresolvable("no address found".into()));
+    }
+    Ok(addrs)
+}
+
 /// A boxed, sendable future (the trait methods are object-safe this way).
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 
@@ -107,6 +118,15 @@ pub enum TransportError {
         len: u64,
         /// The connection's frame timeout.
         timeout: Duration,
+    },
+    /// The peer's host name does not resolve to any address. Worth retrying
+    /// for a while (a name server may be down), not forever.
+    #[error("cannot resolve {addr}: {reason}")]
+    Unresolvable {
+        /// The `HOST:PORT` given.
+        addr: String,
+        /// Why.
+        reason: String,
     },
     /// The byte stream failed or ended inside a frame.
     #[error("connection error: {0}")]
