@@ -23,5 +23,7 @@ pub mod codec;
 pub mod limits;
 pub mod protocol;
 pub mod scheduler;
+#[cfg(test)]
+mod testing;
 
 pub use cluster::{Class, Cluster, ClusterConfig, ClusterStatus, PeerId, Transmit};

@@ -5,20 +5,7 @@ use super::*;
 use std::collections::HashMap;
 
 const MS: Duration = Duration::from_millis(1);
-
-/// Tiny xorshift so runs are reproducible without a dependency.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-}
+use crate::testing::Rng;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Mode {

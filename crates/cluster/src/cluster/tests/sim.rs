@@ -45,22 +45,7 @@ fn render(seed: u64, t: Tile) -> Vec<u8> {
     rgb
 }
 
-/// Tiny xorshift so runs are reproducible without a dependency.
-pub struct Rng(pub u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    /// A number below `n` (0 for `n` = 0).
-    pub fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-}
+pub use crate::testing::Rng;
 
 /// How a simulated peer behaves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
