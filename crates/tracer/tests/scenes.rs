@@ -244,6 +244,16 @@ fn mesh_scene_loads_its_obj_and_gltf() {
     ));
 }
 
+#[test]
+fn shipped_cameras_are_left_alone_at_their_own_aspect() {
+    // Corners written to three decimals are not exactly 4:3; the image must not change for that.
+    for name in ["paper.toml", "cornell.toml", "mesh.toml"] {
+        let (p, _) = load_shipped(name);
+        let aspect = p.settings.width as f32 / p.settings.height as f32;
+        assert_eq!(p.camera.fit_aspect(aspect), p.camera, "{name}");
+    }
+}
+
 /// The shipped scenes' geometry, lights and cameras.
 #[test]
 fn shipped_scene_layouts() {
