@@ -577,3 +577,26 @@ fn corpus_renders_are_identical_across_tilings_and_threads() {
         assert!(whole.iter().any(|&b| b != whole[0]));
     }
 }
+
+#[test]
+fn a_scene_made_around_a_mesh_travels_as_a_bundle_and_renders_the_same_bytes() {
+    let json = cube_gltf(r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.2, 0.6, 0.9, 1]}}"#, "", None);
+    let mut assets = Mem::default();
+    assets.0.insert("m/model.gltf".into(), json.into_bytes());
+    let text = mesh_scene("m/model.gltf", &mut assets).unwrap();
+    let local = load_scene("made", &text, &mut assets.clone()).unwrap();
+    // What a slave gets: the text and the bytes, serialised.
+    let bundle = isin_tracer::SceneBundle {
+        name: "made".into(),
+        source: text,
+        assets: assets.0.into_iter().collect(),
+    };
+    let shipped: isin_tracer::SceneBundle =
+        rmp_serde::from_slice(&rmp_serde::to_vec(&bundle).unwrap()).unwrap();
+    let remote = shipped.load().unwrap();
+    let s = settings(&local);
+    let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+    let a = render_tile(&local, &local.camera, &s, tile);
+    assert_eq!(a, render_tile(&remote, &remote.camera, &s, tile));
+    assert!(a.iter().any(|&b| b != a[0]));
+}

@@ -245,6 +245,18 @@ fn mesh_scene_loads_its_obj_and_gltf() {
 }
 
 #[test]
+fn the_shipped_materials_gltf_opens_alone() {
+    let mut assets = Dir { base: scenes_dir(), read: BTreeMap::new() };
+    let text = isin_tracer::scenefile::mesh_scene("meshes/materials.gltf", &mut assets).unwrap();
+    let p = parse_scene("made.toml", &text, &mut assets).unwrap();
+    check_scene(&p, "materials.gltf");
+    assert_eq!(p.materials.iter().filter(|m| matches!(m, Material::Pbr(_))).count(), 5);
+    assert!(p.materials.iter().any(|m| matches!(m, Material::Pbr(g) if g.base_texture.is_some())));
+    assert_eq!(p.colours.len(), p.triangles.len(), "the vertex-coloured sphere");
+    assert!(p.warnings.is_empty(), "{:?}", p.warnings);
+}
+
+#[test]
 fn shipped_cameras_are_left_alone_at_their_own_aspect() {
     // Corners written to three decimals are not exactly 4:3; the image must not change for that.
     for name in ["paper.toml", "cornell.toml", "mesh.toml"] {
