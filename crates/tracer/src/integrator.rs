@@ -606,7 +606,8 @@ impl<'a> Integrator<'a> {
             .and_then(|m| Some((m, scene.textures.get(m.texture as usize)?)))
         {
             Some((m, t)) => {
-                let (uv, fp) = m.apply(sp.uv, fp);
+                let uv = scene.uv_of_set(m.set, hit.prim, hit.u, hit.v, sp.uv);
+                let (uv, fp) = m.apply(uv, fp);
                 t.eval_rect_clamped(uv, fp, m.clamped())
             }
             None => Vec3::ONE,

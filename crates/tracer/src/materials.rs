@@ -93,12 +93,14 @@ pub struct TextureMap {
     pub transform: [Vec2; 3],
     /// Wrap modes along `u` and `v`.
     pub wrap: [Wrap; 2],
+    /// The texture coordinate set it reads: 0 (`TEXCOORD_0`) or 1.
+    pub set: u8,
 }
 
 impl TextureMap {
     /// The identity map onto `texture`, repeating.
     pub fn plain(texture: u32) -> Self {
-        TextureMap { texture, transform: [Vec2::X, Vec2::Y, Vec2::ZERO], wrap: [Wrap::Repeat; 2] }
+        TextureMap { texture, transform: [Vec2::X, Vec2::Y, Vec2::ZERO], wrap: [Wrap::Repeat; 2], set: 0 }
     }
 
     /// The axes that do not wrap around (clamped, or mirrored into `0..=1`).

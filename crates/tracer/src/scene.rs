@@ -57,6 +57,10 @@ pub struct SceneParts {
     /// What the loader found worth telling the user (each was also logged
     /// with `tracing::warn!`): no light at all, huge textures, huge meshes.
     pub warnings: Vec<String>,
+    /// Second texture coordinates (glTF `TEXCOORD_1`) per triangle: empty
+    /// when no mesh has them, else parallel to `triangles` (zero where a mesh
+    /// has none).
+    pub uvs1: Vec<[Vec2; 3]>,
     /// Vertex colours (linear RGB, glTF `COLOR_0`) per triangle, multiplying
     /// the base colour of [`Material::Pbr`] surfaces: empty when no mesh has
     /// any, else parallel to `triangles` (white where a mesh has none).
@@ -88,6 +92,8 @@ pub struct Scene {
     pub settings: RenderSettings,
     /// Vertex colours, see [`SceneParts::colours`].
     pub colours: Vec<[Vec3; 3]>,
+    /// Second texture coordinates, see [`SceneParts::uvs1`].
+    pub uvs1: Vec<[Vec2; 3]>,
     /// True when some material is alpha-masked ([`crate::materials::Pbr::alpha_cutoff`]):
     /// ray queries then look through its cut-out parts.
     pub(crate) cutouts: bool,
@@ -132,6 +138,10 @@ impl Scene {
             parts.colours.is_empty() || parts.colours.len() == parts.triangles.len(),
             "vertex colours for every triangle or none"
         );
+        assert!(
+            parts.uvs1.is_empty() || parts.uvs1.len() == parts.triangles.len(),
+            "TEXCOORD_1 for all or none"
+        );
         let cutouts =
             parts.materials.iter().any(|m| matches!(m, Material::Pbr(p) if p.alpha_cutoff.is_some()));
         let bvh = Bvh::build(&parts.triangles);
@@ -173,6 +183,7 @@ impl Scene {
             camera: parts.camera,
             settings: parts.settings,
             colours: parts.colours,
+            uvs1: parts.uvs1,
             cutouts,
             bounds,
             bvh,
@@ -199,6 +210,17 @@ impl Scene {
         match self.colours.get(prim as usize) {
             Some(c) => c[0] * (1.0 - u - v) + c[1] * u + c[2] * v,
             None => Vec3::ONE,
+        }
+    }
+
+    /// Texture coordinates of set `set` (0, or 1 for `TEXCOORD_1`) of
+    /// triangle `prim` at barycentric `(u, v)`, given set 0's `uv0` there.
+    #[inline]
+    pub fn uv_of_set(&self, set: u8, prim: u32, u: f32, v: f32, uv0: Vec2) -> Vec2 {
+        match (set, self.uvs1.get(prim as usize)) {
+            (1, Some(t)) => t[0] * (1.0 - u - v) + t[1] * u + t[2] * v,
+            (1, None) => Vec2::ZERO,
+            _ => uv0,
         }
     }
 
@@ -255,6 +277,7 @@ impl Scene {
         {
             let w = 1.0 - hit.u - hit.v;
             let uv = sh.uvs[0] * w + sh.uvs[1] * hit.u + sh.uvs[2] * hit.v;
+            let uv = self.uv_of_set(m.set, hit.prim, hit.u, hit.v, uv);
             let (uv, _) = m.apply(uv, Vec2::ZERO);
             alpha *= t.eval_rect_clamped(uv, Vec2::ZERO, m.clamped()).x;
         }

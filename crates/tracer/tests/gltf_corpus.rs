@@ -369,6 +369,35 @@ fn an_alpha_mask_cuts_out_what_camera_and_shadow_rays_pass_through() {
 }
 
 #[test]
+fn textures_may_read_the_second_texture_coordinates() {
+    // TEXCOORD_0 pins the square to the texture's red left edge; TEXCOORD_1 spans it.
+    let mut b = Builder::default();
+    let pos = b.floats(&[-0.5, -0.5, 0.0, 0.5, -0.5, 0.0, 0.5, 0.5, 0.0, -0.5, 0.5, 0.0], 3);
+    let uv0 = b.floats(&[0.1, 0.5].repeat(4), 2);
+    let uv1 = b.floats(&[0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], 2);
+    let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()).collect();
+    let idx = b.accessor(&idx, 5123, 6, "SCALAR", "");
+    let json = |set: u32| {
+        b.json(&format!(
+            r#""scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0, "translation": [0, 0.6, 0]}}],
+  "meshes": [{{"primitives": [{{"attributes": {{"POSITION": {pos}, "TEXCOORD_0": {uv0}, "TEXCOORD_1": {uv1}}}, "indices": {idx}, "material": 0}}]}}],
+  "materials": [{{"pbrMetallicRoughness": {{"metallicFactor": 0, "baseColorTexture": {{"index": 0, "texCoord": {set}}}}}}}], {}"#,
+            halves_texture()
+        ))
+    };
+    let blue = |f: &Frame| pixels(f).filter(|&p| dominant(p, 2)).count();
+    let red = |f: &Frame| pixels(f).filter(|&p| dominant(p, 0)).count();
+    let (first, second) = (render(&json(0)), render(&json(1)));
+    assert!(red(&first) > 200 && blue(&first) == 0, "set 0: all red");
+    assert!(
+        red(&second) > 100 && blue(&second) > 100,
+        "set 1: both halves ({}, {})",
+        red(&second),
+        blue(&second)
+    );
+}
+
+#[test]
 fn unsupported_required_extensions_are_refused_by_name() {
     let json = cube_gltf(
         "{}",

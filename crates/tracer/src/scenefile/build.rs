@@ -836,6 +836,11 @@ impl<'a> Builder<'a> {
             self.parts.colours = vec![[Vec3::ONE; 3]; self.parts.triangles.len()];
         }
         let colours = has_colours || !self.parts.colours.is_empty();
+        let has_uvs1 = mesh.uvs1.len() == n;
+        if has_uvs1 && self.parts.uvs1.is_empty() {
+            self.parts.uvs1 = vec![[Vec2::ZERO; 3]; self.parts.triangles.len()];
+        }
+        let uvs1 = has_uvs1 || !self.parts.uvs1.is_empty();
         for &idx in &mesh.indices {
             if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
                 return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
@@ -875,6 +880,12 @@ impl<'a> Builder<'a> {
             if colours {
                 let c = if has_colours { idx.map(|i| mesh.colours[i as usize]) } else { [Vec3::ONE; 3] };
                 self.parts.colours.push(c);
+            }
+            if uvs1 {
+                let t = if has_uvs1 { idx.map(|i| mesh.uvs1[i as usize]) } else { [Vec2::ZERO; 3] };
+                self.parts
+                    .uvs1
+                    .push(t.map(|uv| if uv.is_finite() { uv * placement.uv_scale } else { Vec2::ZERO }));
             }
         }
         Ok(())

@@ -49,8 +49,9 @@
 //! below 1, makes a dielectric instead (index from `KHR_materials_ior`, else
 //! 1.5; tinted by the base colour). Textures honour `KHR_texture_transform`
 //! and their sampler's wrap modes (repeat, clamp, mirrored repeat); filtering
-//! is always isin's mip-mapped one, and only `TEXCOORD_0` is read (a
-//! texture on another set warns and uses it). `alphaMode` `MASK` cuts the
+//! is always isin's mip-mapped one (a texture on `TEXCOORD_1` is filtered
+//! over `TEXCOORD_0`'s footprint); `TEXCOORD_0` and `TEXCOORD_1` are read (a
+//! texture on another set warns and uses the first). `alphaMode` `MASK` cuts the
 //! surface out where alpha (`baseColorFactor`'s × the base texture's,
 //! unfiltered) is below `alphaCutoff` (default ½): camera, reflected,
 //! refracted and shadow rays pass through there. Not supported:
@@ -518,6 +519,10 @@ fn read_primitive(
         Some(a) => read_floats(&a, buffers, 2, quantized)?.chunks_exact(2).map(Vec2::from_slice).collect(),
         None => Vec::new(),
     };
+    let uvs1: Vec<Vec2> = match prim.get(&gltf::Semantic::TexCoords(1)) {
+        Some(a) => read_floats(&a, buffers, 2, quantized)?.chunks_exact(2).map(Vec2::from_slice).collect(),
+        None => Vec::new(),
+    };
     let colours: Vec<Vec3> = match prim.get(&gltf::Semantic::Colors(0)) {
         Some(a) => {
             let dims = if a.dimensions() == Dimensions::Vec4 { 4 } else { 3 };
@@ -531,6 +536,7 @@ fn read_primitive(
     if normals.len() != n && !normals.is_empty()
         || uvs.len() != n && !uvs.is_empty()
         || colours.len() != n && !colours.is_empty()
+        || uvs1.len() != n && !uvs1.is_empty()
     {
         return Err("attribute counts differ".into());
     }
@@ -554,7 +560,7 @@ fn read_primitive(
     if let Some(bad) = order.iter().find(|&&i| i as usize >= n) {
         return Err(format!("index {bad} out of range ({n} vertices)"));
     }
-    Ok(Some(Mesh { positions, normals, uvs, indices, colours }))
+    Ok(Some(Mesh { positions, normals, uvs, indices, colours, uvs1 }))
 }
 
 /// Maps a glTF material to an isin material (see the module docs).
@@ -652,9 +658,10 @@ fn texture_map(
         map.transform = [Vec2::new(cos * sx, -sin * sx), Vec2::new(sin * sy, cos * sy), Vec2::new(ox, oy)];
         set = t.tex_coord().unwrap_or(set);
     }
-    if set != 0 {
-        tracing::warn!(file = path, texture = what, set, "only TEXCOORD_0 is supported; using it instead");
+    if set > 1 {
+        tracing::warn!(file = path, texture = what, set, "only TEXCOORD_0 and _1 are supported; using _0");
     }
+    map.set = u8::from(set == 1);
     let wrap = |mode| match mode {
         gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
         gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,

@@ -171,7 +171,7 @@ fn to_mesh(m: &tobj::Mesh) -> Result<Mesh, String> {
     if let Some(bad) = m.indices.iter().find(|&&i| i as usize >= n) {
         return Err(format!("vertex index {bad} out of range ({n} vertices)"));
     }
-    Ok(Mesh { positions, normals, uvs, indices, colours: Vec::new() })
+    Ok(Mesh { positions, normals, uvs, indices, ..Mesh::default() })
 }
 
 fn rgb(c: Option<[f32; 3]>) -> Option<Vec3> {
