@@ -10,12 +10,39 @@ use crate::geometry::{Aabb, Ray};
 use crate::integrator::uv_gradients;
 use crate::lights::Light;
 use crate::materials::Material;
+use crate::math;
 use crate::render::RenderSettings;
 use crate::shadows::{CellAnswer, CellIndex, ShadowCells};
 use crate::shapes::{Hit, Triangle};
-use crate::textures::Texture;
+use crate::textures::{MipMap, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+
+/// An equirectangular environment image seen by rays that leave the scene.
+///
+/// Straight up (+Y) is the image's top row, straight down its bottom; the
+/// image's centre column is seen looking along −Z (turned by `rotation`
+/// about +Y), and `u` grows towards +X.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Environment {
+    /// The image (linear RGB).
+    pub map: MipMap,
+    /// Multiplier of the image's radiance.
+    pub strength: f32,
+    /// Turn about +Y, radians (counter-clockwise seen from above).
+    pub rotation: f32,
+}
+
+impl Environment {
+    /// The radiance arriving from unit direction `dir` (bilinear, unfiltered).
+    pub fn radiance(&self, dir: Vec3) -> Vec3 {
+        let phi = math::atan2(dir.x, -dir.z) - self.rotation;
+        let u = 0.5 + phi * (0.5 / std::f32::consts::PI);
+        let v = math::acos(dir.y.clamp(-1.0, 1.0)) * (1.0 / std::f32::consts::PI);
+        // Around the horizon the image wraps; at the poles it stops.
+        self.map.eval_clamped(Vec2::new(u, v), 0.0, [false, true]) * self.strength
+    }
+}
 
 /// Per-triangle data needed only once a hit has been found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -50,6 +77,9 @@ pub struct SceneParts {
     /// A sky's colour straight up (+Y): rays that leave the scene see
     /// `background` blended towards it by the height of their direction.
     pub zenith: Option<Vec3>,
+    /// An environment image, seen by rays that leave the scene (instead of
+    /// `background` and `zenith`).
+    pub environment: Option<Environment>,
     /// The camera the scene file defines.
     pub camera: Camera,
     /// The render settings the scene file defines.
@@ -86,6 +116,8 @@ pub struct Scene {
     pub background: Vec3,
     /// A sky's zenith colour, see [`SceneParts::zenith`].
     pub zenith: Option<Vec3>,
+    /// An environment image, see [`SceneParts::environment`].
+    pub environment: Option<Environment>,
     /// The scene file's camera.
     pub camera: Camera,
     /// The scene file's render settings.
@@ -180,6 +212,7 @@ impl Scene {
             ambient: parts.ambient,
             background: parts.background,
             zenith: parts.zenith,
+            environment: parts.environment,
             camera: parts.camera,
             settings: parts.settings,
             colours: parts.colours,
@@ -194,6 +227,9 @@ impl Scene {
     /// What a ray leaving the scene along unit `dir` sees.
     #[inline]
     pub fn background(&self, dir: Vec3) -> Vec3 {
+        if let Some(env) = &self.environment {
+            return env.radiance(dir);
+        }
         match self.zenith {
             None => self.background,
             Some(zenith) => {

@@ -760,6 +760,47 @@ fn a_scene_without_any_light_is_warned_about() {
     assert_eq!(glowing.warnings, Vec::<String>::new(), "an emissive surface lights the scene");
 }
 
+/// A 16 × 8 Radiance HDR: the top half bright green (3), the bottom half
+/// red on the left (u < ½) and blue on the right.
+fn hdr_sky() -> Vec<u8> {
+    let img = image::Rgb32FImage::from_fn(16, 8, |x, y| match (x < 8, y < 4) {
+        (_, true) => image::Rgb([0.0, 3.0, 0.0]),
+        (true, false) => image::Rgb([1.0, 0.0, 0.0]),
+        (false, false) => image::Rgb([0.0, 0.0, 1.0]),
+    });
+    let mut out = Vec::new();
+    image::DynamicImage::ImageRgb32F(img)
+        .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Hdr)
+        .unwrap();
+    out
+}
+
+#[test]
+fn an_equirectangular_hdr_background_is_seen_by_escaping_rays() {
+    let src = |extra: &str| {
+        format!("background = {{ image = \"sky/env.hdr\"{extra} }}\n{QUAD}translate = [0, -50, 0]\n")
+    };
+    let mut assets = Mem::default().with("sky/env.hdr", hdr_sky());
+    let scene = isin_tracer::load_scene("env.toml", &src(""), &mut assets).unwrap();
+    assert!(
+        close(scene.background(Vec3::Y), Vec3::new(0.0, 3.0, 0.0)),
+        "up: the top rows, radiance above 1 kept"
+    );
+    // Looking along −Z the centre column; a little towards +X is the right half.
+    let down_right = Vec3::new(0.3, -0.5, -1.0).normalize();
+    let down_left = Vec3::new(-0.3, -0.5, -1.0).normalize();
+    assert!(close(scene.background(down_right), Vec3::Z), "{}", scene.background(down_right));
+    assert!(close(scene.background(down_left), Vec3::X), "{}", scene.background(down_left));
+    // Turned half a turn and twice as strong: the halves swap.
+    let turned =
+        isin_tracer::load_scene("env.toml", &src(", rotate = 180, strength = 2"), &mut assets).unwrap();
+    assert!(close(turned.background(down_right), Vec3::X * 2.0), "{}", turned.background(down_right));
+    let e = err(&src(""), &mut Mem::default().with("sky/env.hdr", b"#?RADIANCE\nbroken".to_vec()));
+    assert_mentions(&e, &["test.toml:1", "background", "sky/env.hdr"]);
+    let e = err(&src(""), &mut Mem::default());
+    assert_mentions(&e, &["test.toml:1", "sky/env.hdr"]);
+}
+
 #[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\
