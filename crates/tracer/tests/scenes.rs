@@ -496,12 +496,25 @@ fn missing_asset_files_are_named_with_the_referring_line() {
     let e = err(src, &mut Mem::default());
     assert_mentions(&e, &["test.toml:3", "textures/gone.png", "textures.t"]);
 
-    // A texture named by an MTL library: resolved against the library's directory.
+    // A texture named by an MTL library, resolved against the library's
+    // directory: missing, it is a warning naming that path (exporters often
+    // leave textures out), and the material keeps its Kd.
     let obj = "mtllib lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n";
     let src = "[[objects]]\nkind = \"obj\"\npath = \"m/tri.obj\"\n";
-    let mut assets = Mem::default().with("m/tri.obj", obj).with("m/lib.mtl", "newmtl a\nmap_Kd tex/a.png\n");
-    let e = err(src, &mut assets);
-    assert_mentions(&e, &["test.toml:3", "m/tex/a.png", "map_Kd"]);
+    let mut assets = Mem::default()
+        .with("m/tri.obj", obj)
+        .with("m/lib.mtl", "newmtl a\nKd 0.2 0.4 0.6\nmap_Kd tex/a.png\n");
+    let p = load(src, &mut assets).unwrap();
+    assert!(p.warnings.iter().any(|w| w.contains("m/tex/a.png") && w.contains("map_Kd")), "{:?}", p.warnings);
+    assert!(
+        matches!(p.materials[0], Material::Phong { albedo: Albedo::Constant(c), .. } if c == Vec3::new(0.2, 0.4, 0.6))
+    );
+    // `Tr` is 1 − d: with an index of refraction, a mostly transparent material is glass.
+    let mut glass = Mem::default().with("m/tri.obj", obj).with("m/lib.mtl", "newmtl a\nNi 1.4\nTr 0.9\n");
+    assert!(matches!(load(src, &mut glass).unwrap().materials[0], Material::Dielectric { .. }));
+    // An undecodable one is still an error.
+    let mut assets = assets.with("m/tex/a.png", b"not a png".to_vec());
+    assert_mentions(&err(src, &mut assets), &["test.toml:3", "m/tex/a.png"]);
 
     let gltf = r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":12,"uri":"data/buf.bin"}]}"#;
     let src = "[[objects]]\nkind = \"gltf\"\npath = \"g/a.gltf\"\n";

@@ -4,11 +4,12 @@
 //! relative to the MTL file; everything is read through the scene's
 //! [`super::AssetSource`]. A missing MTL library is only a warning (many OBJ
 //! files name one that was never shipped): its materials become the default
-//! grey. A missing texture or a malformed library is an error. OBJ counts texture `v` upwards from the bottom of the
+//! grey. A missing texture is a warning too (the material keeps its `Kd`
+//! colour); a malformed library or texture is an error. OBJ counts texture `v` upwards from the bottom of the
 //! image, the tracer downwards from the top, so `v` is flipped.
 //!
 //! MTL materials map to the nearest Whitted material: `Ke` → emissive;
-//! `illum` 4, 6, 7 or `d` < 1 with `Ni` → dielectric (`Ni` as the index,
+//! `illum` 4, 6, 7 or `d` < 1 (or `Tr` > 0) with `Ni` → dielectric (`Ni` as the index,
 //! `Tf` as the tint); `illum` 3 with a black `Kd` → mirror tinted by `Ks`;
 //! otherwise Phong with `Kd` (or `map_Kd` tinted by `Kd`), `Ks`, `Ns` and, for
 //! `illum` 3, a mirror reflection weighted by `Ks`.
@@ -212,7 +213,9 @@ fn convert(
     }
     let ns = m.shininess.unwrap_or(1.0);
     let ni = m.optical_density.unwrap_or(1.5);
-    let d = m.dissolve.unwrap_or(1.0);
+    // `Tr` (transparency) is the complement of `d`, which wins when both are given.
+    let tr = m.unknown_param.get("Tr").and_then(|t| t.trim().parse::<f32>().ok());
+    let d = m.dissolve.or(tr.map(|t| 1.0 - t)).unwrap_or(1.0);
     if !(ns.is_finite() && ni.is_finite() && d.is_finite()) {
         return Err(bad("Ns, Ni and d must be finite"));
     }
@@ -228,7 +231,19 @@ fn convert(
             let tex_path = join(library, texture_file(spec));
             let tex_origin =
                 Origin { at: origin.at.clone(), what: format!("{} (map_Kd of `{}`)", origin.what, m.name) };
-            Some(b.image_texture(&tex_path, &tex_origin)?)
+            match b.image_texture(&tex_path, &tex_origin) {
+                Ok(t) => Some(t),
+                // Exporters often reference textures that were never shipped:
+                // the material keeps its Kd colour.
+                Err(SceneError::MissingAsset { reason, .. }) => {
+                    b.warn(format!(
+                        "{}: texture {tex_path} (map_Kd of `{}`) cannot be read ({reason}); using Kd",
+                        origin.what, m.name
+                    ));
+                    None
+                }
+                Err(e) => return Err(e),
+            }
         }
         _ => None,
     };
