@@ -141,6 +141,10 @@ pub struct Pbr {
     pub emissive: Vec3,
     /// `emissiveTexture` (sRGB), multiplied by `emissive`.
     pub emissive_texture: Option<TextureMap>,
+    /// `normalTexture` (linear, tangent space), with its `scale`.
+    pub normal_texture: Option<TextureMap>,
+    /// `normalTexture.scale`: multiplies the map's red and green.
+    pub normal_scale: f32,
     /// `alphaMode` `MASK`: the `alphaCutoff` below which the surface is cut
     /// out — camera, reflected and shadow rays pass through it. `None` for
     /// opaque surfaces.
@@ -162,6 +166,8 @@ impl Default for Pbr {
             metallic_roughness: None,
             emissive: Vec3::ZERO,
             emissive_texture: None,
+            normal_texture: None,
+            normal_scale: 1.0,
             alpha_cutoff: None,
             alpha: 1.0,
             alpha_texture: None,
@@ -243,7 +249,9 @@ impl Pbr {
 
     /// The material's textures.
     pub fn textures(&self) -> impl Iterator<Item = &TextureMap> {
-        [&self.base_texture, &self.metallic_roughness, &self.emissive_texture].into_iter().flatten()
+        [&self.base_texture, &self.metallic_roughness, &self.emissive_texture, &self.normal_texture]
+            .into_iter()
+            .flatten()
     }
 }
 

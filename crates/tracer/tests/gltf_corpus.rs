@@ -369,6 +369,37 @@ fn an_alpha_mask_cuts_out_what_camera_and_shadow_rays_pass_through() {
 }
 
 #[test]
+fn a_normal_map_changes_the_shading() {
+    let with_map = |rgb: [u8; 3]| {
+        let extra = format!(
+            r#""textures": [{{"source": 0}}], "images": [{{"uri": "{}"}}],"#,
+            png_uri(4, 4, |_, _| [rgb[0], rgb[1], rgb[2], 255])
+        );
+        let material = r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1], "metallicFactor": 0}, "normalTexture": {"index": 0}}"#;
+        render(&square_gltf(material, &extra))
+    };
+    let plain = render(&square_gltf(
+        r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1], "metallicFactor": 0}}"#,
+        "",
+    ));
+    let diff =
+        |a: &Frame, b: &Frame| a.rgb.iter().zip(&b.rgb).map(|(x, y)| x.abs_diff(*y) as u32).max().unwrap();
+    let flat = with_map([128, 128, 255]);
+    assert!(diff(&flat, &plain) <= 3, "a flat normal map is (nearly) no map: {}", diff(&flat, &plain));
+    let (left, right) = (with_map([38, 128, 217]), with_map([217, 128, 217]));
+    let (up, down) = (with_map([128, 217, 217]), with_map([128, 38, 217]));
+    for (name, f) in [("left", &left), ("right", &right), ("up", &up), ("down", &down)] {
+        assert!(diff(f, &plain) > 20, "tilted {name}: the shading changes ({})", diff(f, &plain));
+    }
+    assert!(diff(&left, &right) > 20 && diff(&up, &down) > 20, "opposite tilts differ");
+    // The key light stands above and to the left: normals tilted towards it
+    // (red low: −u, to the left; green high: −v, up) catch more of it.
+    let light = |f: &Frame| f.rgb.iter().map(|&c| c as u64).sum::<u64>();
+    assert!(light(&left) > light(&right), "left {} vs right {}", light(&left), light(&right));
+    assert!(light(&up) > light(&down), "up {} vs down {}", light(&up), light(&down));
+}
+
+#[test]
 fn textures_may_read_the_second_texture_coordinates() {
     // TEXCOORD_0 pins the square to the texture's red left edge; TEXCOORD_1 spans it.
     let mut b = Builder::default();
@@ -580,9 +611,9 @@ fn corpus_renders_are_identical_across_tilings_and_threads() {
     let extra = format!(
         r#""textures": [{{"source": 0, "sampler": 0}}], "images": [{{"uri": "{uri}"}}], "samplers": [{{"wrapS": 33648}}],"#
     );
-    let masked = r#"{"alphaMode": "MASK", "pbrMetallicRoughness": {"roughnessFactor": 0.2, "baseColorTexture": {"index": 0}}}"#;
+    let masked = r#"{"alphaMode": "MASK", "pbrMetallicRoughness": {"roughnessFactor": 0.2, "baseColorTexture": {"index": 0}}, "normalTexture": {"index": 0, "scale": 0.5}}"#;
     let masked = scene_of(&square_gltf(masked, &extra));
-    for (name, scene) in [("textured cube", textured), ("cut-out square", masked)] {
+    for (name, scene) in [("textured cube", textured), ("cut-out, normal-mapped square", masked)] {
         let s = RenderSettings { spp: 2, ..settings(&scene) };
         let (w, h) = (s.width, s.height);
         let whole = render_tile(&scene, &scene.camera, &s, Tile { x: 0, y: 0, w, h });

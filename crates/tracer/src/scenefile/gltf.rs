@@ -54,8 +54,11 @@
 //! texture on another set warns and uses the first). `alphaMode` `MASK` cuts the
 //! surface out where alpha (`baseColorFactor`'s × the base texture's,
 //! unfiltered) is below `alphaCutoff` (default ½): camera, reflected,
-//! refracted and shadow rays pass through there. Not supported:
-//! `normalTexture`, `occlusionTexture`, `COLOR_0`'s alpha.
+//! refracted and shadow rays pass through there. `normalTexture` bends the
+//! shading normal in a tangent frame made per triangle from its texture
+//! coordinates (not from a `TANGENT` attribute, not MikkTSpace: seams of
+//! curved, normal-mapped meshes may show). Not supported:
+//! `occlusionTexture`, `COLOR_0`'s alpha.
 
 use super::SceneError;
 use super::build::{Builder, Origin, Placement, decode_image, decode_image_alpha, decode_image_linear, join};
@@ -606,6 +609,20 @@ fn convert(
         true => map(pbr.base_color_texture(), Decode::Alpha, "baseColorTexture")?,
         false => None,
     };
+    let normal_texture = match m.normal_texture() {
+        Some(n) => {
+            let texture = n.texture();
+            let index = image_texture(b, &texture.source(), Decode::Linear, path, buffers, origin)?;
+            let sampler = texture.sampler();
+            Some(TextureMap {
+                wrap: [wrap_mode(sampler.wrap_s()), wrap_mode(sampler.wrap_t())],
+                set: u8::from(n.tex_coord() == 1),
+                ..TextureMap::plain(index)
+            })
+        }
+        None => None,
+    };
+    let normal_scale = m.normal_texture().map_or(1.0, |n| n.scale()).clamp(-100.0, 100.0);
     let alpha_cutoff = masked.then(|| m.alpha_cutoff().unwrap_or(0.5)).filter(|c| c.is_finite());
     Ok(Material::Pbr(Pbr {
         base_color: colour,
@@ -615,6 +632,8 @@ fn convert(
         metallic_roughness,
         emissive,
         emissive_texture,
+        normal_texture,
+        normal_scale: if normal_scale.is_finite() { normal_scale } else { 1.0 },
         alpha_cutoff,
         alpha: base[3],
         alpha_texture,
@@ -662,14 +681,18 @@ fn texture_map(
         tracing::warn!(file = path, texture = what, set, "only TEXCOORD_0 and _1 are supported; using _0");
     }
     map.set = u8::from(set == 1);
-    let wrap = |mode| match mode {
+    let sampler = texture.sampler();
+    map.wrap = [wrap_mode(sampler.wrap_s()), wrap_mode(sampler.wrap_t())];
+    Ok(map)
+}
+
+/// A glTF sampler wrap mode.
+fn wrap_mode(mode: gltf::texture::WrappingMode) -> Wrap {
+    match mode {
         gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
         gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
         gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
-    };
-    let sampler = texture.sampler();
-    map.wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
-    Ok(map)
+    }
 }
 
 /// The scene texture for a glTF image (embedded in a buffer view, a data URI
