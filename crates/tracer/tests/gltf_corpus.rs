@@ -442,10 +442,14 @@ fn unsupported_required_extensions_are_refused_by_name() {
         assert!(e.contains(part), "{part} missing from: {e}");
     }
     assert!(!e.contains("EXT_foo"), "only the required ones: {e}");
-    // Only used, not required: the file loads.
+    // Only used, not required: the file loads, with one warning naming it.
     let json = cube_gltf("{}", r#""extensionsUsed": ["EXT_foo"],"#, None);
     assets.0.insert("model.gltf".into(), json.into_bytes());
-    assert!(mesh_scene("model.gltf", &mut assets).is_ok());
+    let text = mesh_scene("model.gltf", &mut assets).unwrap();
+    let parts = isin_tracer::parse_scene("made.toml", &text, &mut assets).unwrap();
+    let named: Vec<_> = parts.warnings.iter().filter(|w| w.contains("EXT_foo")).collect();
+    assert_eq!(named.len(), 1, "{:?}", parts.warnings);
+    assert_eq!(parts.warnings.len(), 1, "the made scene has lights: {:?}", parts.warnings);
 }
 
 /// The bounds of the mesh in `json`.

@@ -94,6 +94,7 @@ pub(crate) struct Builder<'a> {
     images: HashMap<String, u32>,
     default_material: Option<u32>,
     degenerate: usize,
+    quiet: bool,
 }
 
 /// Joins `rel` (as written inside `base`, a path relative to the scene file)
@@ -244,6 +245,7 @@ impl<'a> Builder<'a> {
             images: HashMap::new(),
             default_material: None,
             degenerate: 0,
+            quiet: false,
         }
     }
 
@@ -321,10 +323,21 @@ impl<'a> Builder<'a> {
         Ok(self.parts)
     }
 
-    /// Records (and logs) a warning for the user.
+    /// Records a warning for the user, and logs it unless the builder is
+    /// [`Builder::quiet`].
     pub fn warn(&mut self, message: String) {
-        tracing::warn!(file = self.map.file, "{message}");
+        if !self.quiet {
+            tracing::warn!(file = self.map.file, "{message}");
+        }
         self.parts.warnings.push(message);
+    }
+
+    /// A builder that keeps its warnings to itself (in
+    /// [`SceneParts::warnings`]): for a look at a mesh before the scene
+    /// around it is loaded, and warns, for real.
+    pub fn quiet(mut self) -> Self {
+        self.quiet = true;
+        self
     }
 
     /// Warnings about the finished scene: nothing to light it, its size.

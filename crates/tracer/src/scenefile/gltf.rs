@@ -84,7 +84,10 @@ pub(crate) fn load(
 ) -> Result<(), SceneError> {
     let bytes = b.read_asset(path, origin)?;
     let bad = |m: String| origin.bad_asset(path, m);
-    let file = parse(&bytes, path).map_err(bad)?;
+    let (file, warnings) = parse(&bytes).map_err(bad)?;
+    for w in warnings {
+        b.warn(format!("{path}: {w}"));
+    }
     let doc = &file.document;
     let quantized = doc.extensions_used().any(|e| e == "KHR_mesh_quantization");
 
@@ -162,8 +165,9 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
 
 /// Parses and validates a glTF or GLB file. Unsupported extensions in
 /// `extensionsRequired` are an error naming them all; unsupported ones in
-/// `extensionsUsed` are a warning each (the file still renders, without them).
-fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
+/// `extensionsUsed` are a warning each (the file still renders, without
+/// them), returned with the file.
+fn parse(bytes: &[u8]) -> Result<(gltf::Gltf, Vec<String>), String> {
     check_glb_header(bytes)?;
     let file = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| format!("glTF: {e}"))?;
     let root = file.document.as_json();
@@ -180,9 +184,12 @@ fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
             SUPPORTED_EXTENSIONS.join(", ")
         ));
     }
-    for ext in root.extensions_used.iter().filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str())) {
-        tracing::warn!(file = path, extension = %ext, "glTF extension not supported; rendering without it");
-    }
+    let warnings = root
+        .extensions_used
+        .iter()
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str()))
+        .map(|e| format!("glTF extension {e} is not supported: rendering without it"))
+        .collect();
     let mut errors = Vec::new();
     use gltf::json::validation::Validate;
     root.validate(root, gltf::json::Path::new, &mut |at: &dyn Fn() -> gltf::json::Path, e| {
@@ -195,13 +202,14 @@ fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
     if !errors.is_empty() {
         return Err(format!("glTF: invalid file: {}", errors.join("; ")));
     }
-    Ok(file)
+    Ok((file, warnings))
 }
 
 /// The first perspective camera and every punctual light of the default
 /// scene of a glTF or GLB file, in world space.
 pub(crate) fn cameras_and_lights(bytes: &[u8]) -> Result<(Option<FileCamera>, Vec<FileLight>), String> {
-    let file = parse(bytes, "")?;
+    // The file's warnings are the loader's to give: it reads the file too.
+    let (file, _) = parse(bytes)?;
     let doc = &file.document;
     let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
         return Ok((None, Vec::new()));
@@ -678,7 +686,7 @@ fn texture_map(
         set = t.tex_coord().unwrap_or(set);
     }
     if set > 1 {
-        tracing::warn!(file = path, texture = what, set, "only TEXCOORD_0 and _1 are supported; using _0");
+        b.warn(format!("{path}: {what} reads TEXCOORD_{set}: only TEXCOORD_0 and _1 are read; using _0"));
     }
     map.set = u8::from(set == 1);
     let sampler = texture.sampler();

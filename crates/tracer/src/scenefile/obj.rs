@@ -45,10 +45,9 @@ pub(crate) fn load(
                 failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
             }),
             Err(reason) => {
-                // Real-world OBJ files often name a library that was never
-                // shipped (the shared dragon does): warn and use defaults.
-                tracing::warn!(obj = path, mtl = %rel, %reason, "MTL library not found; using default materials");
-                missing.borrow_mut().push(rel.clone());
+                missing.borrow_mut().push(format!(
+                    "{path}: MTL library {rel} cannot be read ({reason}); using default materials"
+                ));
                 Err(tobj::LoadError::OpenFileFailed)
             }
         };
@@ -63,10 +62,16 @@ pub(crate) fn load(
     if let Some(e) = failure.into_inner() {
         return Err(e);
     }
+    // Real-world OBJ files often name a library that was never shipped (the
+    // shared dragon does): a warning, and the default materials.
+    let missing = missing.into_inner();
+    for w in &missing {
+        b.warn(w.clone());
+    }
     let (models, materials) = loaded.map_err(|e| origin.bad_asset(path, format!("OBJ: {e}")))?;
     let materials = match materials {
         Ok(m) => m,
-        Err(_) if !missing.borrow().is_empty() => Vec::new(),
+        Err(_) if !missing.is_empty() => Vec::new(),
         Err(e) => return Err(origin.bad_asset(path, format!("MTL: {e}"))),
     };
     // Which library each material index came from, to resolve its textures.
@@ -79,7 +84,7 @@ pub(crate) fn load(
     let total: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
     let groups = smoothing_groups(&bytes, total);
     if groups.is_none() && bytes.split(|&c| c == b'\n').any(|l| l.starts_with(b"s ")) {
-        tracing::warn!(obj = path, "could not match the smoothing groups to the faces; ignoring them");
+        b.warn(format!("{path}: could not match the smoothing groups (s) to the faces; ignoring them"));
     }
     let mut first = 0;
     let mut mapped: HashMap<usize, u32> = HashMap::new();
