@@ -55,6 +55,22 @@ pub struct LoadTimes {
 /// like any other.
 pub fn load_scene_file_timed(path: &Path) -> anyhow::Result<(Scene, SceneBundle, LoadTimes)> {
     let t0 = Instant::now();
+    let (parts, bundle) = parse_file(path)?;
+    let t1 = Instant::now();
+    let scene = Scene::new(parts);
+    let times = LoadTimes { parse: t1 - t0, bvh: t1.elapsed() };
+    Ok((scene, bundle, times))
+}
+
+/// The bundle of a scene file (or of the scene made around a mesh file):
+/// parsed, so that every asset it refers to is read, but not built (no BVH).
+/// What a cluster client needs to name the scene it means.
+pub fn load_bundle(path: &Path) -> anyhow::Result<SceneBundle> {
+    parse_file(path).map(|(_, bundle)| bundle)
+}
+
+/// Reads and parses `path` and every asset it refers to.
+fn parse_file(path: &Path) -> anyhow::Result<(isin_tracer::scene::SceneParts, SceneBundle)> {
     let base = path.parent().unwrap_or(Path::new("."));
     let mut assets = DiskAssets::new(base);
     let (name, source) = match mesh_file_name(path) {
@@ -69,11 +85,7 @@ pub fn load_scene_file_timed(path: &Path) -> anyhow::Result<(Scene, SceneBundle,
         }
     };
     let parts = isin_tracer::parse_scene(&name, &source, &mut assets)?;
-    let t1 = Instant::now();
-    let scene = Scene::new(parts);
-    let times = LoadTimes { parse: t1 - t0, bvh: t1.elapsed() };
-    let bundle = SceneBundle { name, source, assets: assets.read };
-    Ok((scene, bundle, times))
+    Ok((parts, SceneBundle { name, source, assets: assets.read }))
 }
 
 /// The file name of `path` when it names a mesh file rather than a scene.

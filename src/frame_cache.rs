@@ -12,8 +12,8 @@
 //! Files are named by a SHA-256 of the scene's hash, the camera and the
 //! settings; a file of the wrong size is ignored and rendered again.
 
-use isin_actors::protocol::{SceneHash, scene_hash};
 use isin_actors::slave::Renderer;
+use isin_cluster::protocol::{SceneHash, scene_hash};
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;

@@ -2,56 +2,51 @@
 //! local slaves and a viewer in one process over loopback TLS/TCP — the viewer
 //! window when there is a display, a few frames to `paper.png` otherwise.
 
-use crate::assets::load_scene_file;
+use crate::assets::{load_bundle, load_scene_file};
 use actix::Addr;
 use anyhow::Context;
-use isin_actors::auth::{self, Ticket};
-use isin_actors::auth::{ENCRYPTED_TCP, PLAINTEXT_TCP};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, SlaveOptions, Tracer};
-use isin_actors::transport::Transport;
 use isin_actors::viewer;
+use isin_cluster::auth;
+use isin_cluster::protocol::{self, SceneInfo};
 use isin_tracer::{Camera, RenderSettings};
+use isin_transport::{Fingerprint, Ticket, Transport, TransportKind};
 use isin_transport_quic::QuicTransport;
 use isin_transport_tcp::TcpTransport;
-use isin_transport_tcp::tls::{Fingerprint, Identity};
+use isin_transport_tls::Identity;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// The transport a master listens with (`name`: `tcp` — TLS —, `quic`, or
-/// `tcp-insecure` for plaintext, which `isin master` only picks with
-/// `--insecure`), and the certificate fingerprint its ticket must carry (the
-/// encrypted ones). The master keeps its TLS identity in `identity_dir` when
-/// given (created on first use), so tickets stay valid across restarts;
-/// otherwise it generates a fresh one. The transport's `name()` is the
-/// ticket's transport.
+/// The transport a master of `kind` listens with (`isin master` picks
+/// plaintext only with `--insecure`), and the certificate fingerprint its
+/// ticket must carry (the encrypted ones). The master keeps its TLS identity
+/// in `identity_dir` when given (created on first use), so tickets stay valid
+/// across restarts; otherwise it generates a fresh one.
 pub fn server_transport(
-    name: &str,
+    kind: TransportKind,
     identity_dir: Option<&Path>,
-) -> anyhow::Result<(Arc<dyn Transport>, Option<String>)> {
+) -> anyhow::Result<(Arc<dyn Transport>, Option<Fingerprint>)> {
     let identity = || match identity_dir {
         Some(dir) => load_or_create_identity(dir),
         None => Ok(Identity::generate()?),
     };
-    match name {
-        ENCRYPTED_TCP => {
+    match kind {
+        TransportKind::Tcp => {
             let identity = identity()?;
-            let fingerprint = identity.fingerprint().to_string();
-            Ok((Arc::new(TcpTransport::server(&identity)?), Some(fingerprint)))
+            Ok((Arc::new(TcpTransport::server(&identity)?), Some(identity.fingerprint())))
         }
-        PLAINTEXT_TCP => {
+        TransportKind::TcpInsecure => {
             if identity_dir.is_some() {
                 tracing::warn!("--identity is not used by plaintext TCP (--insecure)");
             }
             Ok((Arc::new(TcpTransport::insecure()), None))
         }
-        "quic" => {
+        TransportKind::Quic => {
             let identity = identity()?;
-            let fingerprint = identity.fingerprint().to_string();
-            Ok((Arc::new(QuicTransport::server(&identity)?), Some(fingerprint)))
+            Ok((Arc::new(QuicTransport::server(&identity)?), Some(identity.fingerprint())))
         }
-        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic)"),
     }
 }
 
@@ -59,22 +54,11 @@ pub fn server_transport(
 /// pinning the ticket's fingerprint for `tcp` and `quic`, plaintext only for
 /// a `tcp-insecure` ticket (never as a fallback).
 pub fn client_transport(ticket: &Ticket) -> anyhow::Result<Arc<dyn Transport>> {
-    let pinned = || -> anyhow::Result<Fingerprint> {
-        let fp = ticket.fingerprint.as_deref().with_context(|| {
-            format!(
-                "a {} ticket must carry the master's certificate fingerprint (`?fp=…`): \
-                 pass the whole ticket the master printed",
-                ticket.transport
-            )
-        })?;
-        Ok(fp.parse()?)
-    };
-    match ticket.transport.as_str() {
-        ENCRYPTED_TCP => Ok(Arc::new(TcpTransport::client(pinned()?)?)),
-        PLAINTEXT_TCP => Ok(Arc::new(TcpTransport::insecure())),
-        "quic" => Ok(Arc::new(QuicTransport::client(pinned()?)?)),
-        other => anyhow::bail!("unknown transport `{other}` (available: tcp, quic, tcp-insecure)"),
-    }
+    Ok(match ticket.transport {
+        TransportKind::Tcp => Arc::new(TcpTransport::client(ticket.pinned()?)?),
+        TransportKind::TcpInsecure => Arc::new(TcpTransport::insecure()),
+        TransportKind::Quic => Arc::new(QuicTransport::client(ticket.pinned()?)?),
+    })
 }
 
 /// Reads `cert.der` and `key.der` from `dir`, or generates them there.
@@ -110,7 +94,7 @@ fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
 /// A ticket from `--connect`: a full `isin://…` ticket, or `HOST:PORT` with
 /// `--token` for a plaintext master (`transport` `tcp-insecure`; the encrypted
 /// transports need the whole ticket, for its fingerprint).
-pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Result<Ticket> {
+pub fn ticket(connect: &str, token: Option<&str>, transport: TransportKind) -> anyhow::Result<Ticket> {
     if connect.contains("://") {
         let mut t: Ticket = connect.parse()?;
         if let Some(tok) = token {
@@ -120,36 +104,53 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: &str) -> anyhow::Re
     } else {
         let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
         anyhow::ensure!(
-            transport == PLAINTEXT_TCP,
+            transport == TransportKind::TcpInsecure,
             "--transport {transport} needs the whole ticket the master printed (it carries the \
              certificate fingerprint); a bare HOST:PORT only reaches a plaintext master \
              (--transport tcp-insecure)"
         );
-        Ok(Ticket {
-            transport: transport.to_string(),
-            token: token.to_string(),
-            addr: connect.to_string(),
-            fingerprint: None,
-        })
+        Ok(Ticket { transport, token: token.to_string(), addr: connect.to_string(), fingerprint: None })
     }
 }
 
-/// Renders one frame through the cluster of `ticket`; the scene's camera and
+/// Refuses to go on when the master of a cluster serves another scene than
+/// `path` (a master serves the scene it was started with).
+pub fn check_scene(served: &SceneInfo, path: &Path) -> anyhow::Result<()> {
+    let ours = protocol::served_scene_hash(&load_bundle(path)?);
+    anyhow::ensure!(
+        ours == served.hash,
+        "the master serves {} (scene {}), not {} (scene {}): a master renders the scene it was \
+         started with; start one with `isin master {}`",
+        served.name,
+        protocol::short_hash(&served.hash),
+        path.display(),
+        protocol::short_hash(&ours),
+        path.display()
+    );
+    Ok(())
+}
+
+/// Renders one frame of the scene at `path` through the cluster of
+/// `ticket` (whose master must serve that scene); the scene's camera and
 /// settings come from the master, with the given overrides.
 pub fn render_frame(
     ticket: &Ticket,
+    path: &Path,
     width: Option<u32>,
     height: Option<u32>,
     spp: Option<u32>,
-) -> anyhow::Result<(isin_tracer::Frame, isin_actors::protocol::FrameStats, String, u64)> {
+) -> anyhow::Result<(isin_tracer::Frame, isin_cluster::protocol::FrameStats, String, u64)> {
     let transport = client_transport(ticket)?;
     actix::System::new().block_on(async move {
-        let (v, scene, mut events) = viewer::connect(transport.as_ref(), ticket, "render").await?;
-        let mut settings = scene.settings;
-        settings.width = width.unwrap_or(settings.width);
-        settings.height = height.unwrap_or(settings.height);
+        // A still: batch work, which fills what people flying leave.
+        let work = isin_cluster::scheduler::Work::Batch;
+        let (v, scene, mut events) = viewer::connect_as(transport.as_ref(), ticket, "render", work).await?;
+        check_scene(&scene, path)?;
+        // As a local render: the scene's aspect kept, another shape widening the view.
+        let mut settings = scene.settings.resized(width, height);
         settings.spp = spp.unwrap_or(settings.spp);
-        let (frame, stats) = viewer::collect_frame(&v, &mut events, scene.camera, settings).await?;
+        let camera = scene.camera.fit_aspect(settings.width as f32 / settings.height as f32);
+        let (frame, stats) = viewer::collect_frame(&v, &mut events, camera, settings).await?;
         let wire = v.send(viewer::GetWireStats).await?;
         Ok((frame, stats, scene.name, wire.bytes_received))
     })
@@ -173,10 +174,10 @@ async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Add
     let tcp: Arc<dyn Transport> = Arc::new(TcpTransport::both(&identity, identity.fingerprint())?);
     let listener = tcp.listen("127.0.0.1:0").await?;
     let ticket = Ticket {
-        transport: ENCRYPTED_TCP.into(),
-        token: cfg.token.clone(),
+        transport: TransportKind::Tcp,
+        token: cfg.cluster.token.clone(),
         addr: listener.local_addr(),
-        fingerprint: Some(identity.fingerprint().to_string()),
+        fingerprint: Some(identity.fingerprint()),
     };
     println!("embedded cluster: master on {} with {slaves} local slaves × {threads} threads", ticket.addr);
     println!("join more slaves with: isin slave --connect {ticket}");
@@ -215,7 +216,7 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
     let (scene, bundle) = load_scene_file(&default_scene())?;
     let token = auth::generate_token()?;
     let extent = super::view::scene_extent(&scene);
-    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings);
+    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
     drop(scene);
     let (ticket_tx, ticket_rx) = std::sync::mpsc::channel();
     std::thread::Builder::new()
@@ -241,7 +242,7 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
 fn run_default_headless() -> anyhow::Result<()> {
     let (scene, bundle) = load_scene_file(&default_scene())?;
     let token = auth::generate_token()?;
-    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings);
+    let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
     let settings: RenderSettings = scene.settings;
     let camera: Camera = scene.camera;
     drop(scene);

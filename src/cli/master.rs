@@ -3,10 +3,11 @@
 use super::cluster;
 use crate::assets::load_scene_file;
 use clap::Args;
-use isin_actors::auth::{self, Ticket};
-use isin_actors::codec::Compression;
 use isin_actors::master::{Master, MasterConfig};
-use isin_actors::scheduler::SchedulerConfig;
+use isin_cluster::auth;
+use isin_cluster::codec::Compression;
+use isin_cluster::scheduler::SchedulerConfig;
+use isin_transport::{Ticket, TransportKind};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -22,7 +23,7 @@ pub struct MasterArgs {
     /// Transport: `tcp` or `quic`, both TLS 1.3 with a self-signed certificate
     /// whose fingerprint the ticket carries and slaves pin.
     #[arg(long, default_value = "tcp")]
-    pub transport: String,
+    pub transport: TransportKind,
     /// Plaintext TCP instead of TLS (trusted networks only: the token still
     /// authenticates, but frames can be read and altered). The ticket then
     /// starts with `isin+tcp-insecure://`.
@@ -37,10 +38,10 @@ pub struct MasterArgs {
     pub token: Option<String>,
     /// Tile edge in pixels (halved, down to 16, while a frame would have fewer
     /// than 8 tiles per render thread in the cluster).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
     pub tile: u32,
     /// Milliseconds of silence after which a slave is declared dead.
-    #[arg(long, default_value_t = 5000)]
+    #[arg(long, default_value_t = 5000, value_parser = super::bounded::heartbeat_ms)]
     pub heartbeat_timeout_ms: u64,
     /// Do not hand idle slaves copies of straggling tiles.
     #[arg(long)]
@@ -51,7 +52,7 @@ pub struct MasterArgs {
     pub compression: Compression,
     /// Tiles queued per slave beyond one per render thread (the in-flight window;
     /// near the end of a frame slaves only get one tile per thread anyway).
-    #[arg(long, default_value_t = SchedulerConfig::default().queue_depth)]
+    #[arg(long, default_value_t = SchedulerConfig::default().queue_depth, value_parser = super::bounded::queue_depth)]
     pub queue_depth: u32,
 }
 
@@ -63,24 +64,23 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
         Some(t) => t,
         None => auth::generate_token()?,
     };
-    let mut cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings);
+    let mut cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings)?;
     drop(scene);
-    cfg.scheduler.tile_size = args.tile.max(1);
-    cfg.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
-    cfg.scheduler.duplicate_stragglers = !args.no_duplicates;
-    cfg.scheduler.queue_depth = args.queue_depth;
-    cfg.compression = args.compression;
-    let name = match (args.transport.as_str(), args.insecure) {
-        (_, false) => args.transport.as_str(),
-        ("tcp", true) => isin_actors::auth::PLAINTEXT_TCP,
+    cfg.cluster.scheduler.tile_size = args.tile.max(1);
+    cfg.cluster.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
+    cfg.cluster.scheduler.duplicate_stragglers = !args.no_duplicates;
+    cfg.cluster.scheduler.queue_depth = args.queue_depth;
+    cfg.cluster.compression = args.compression;
+    let kind = match (args.transport, args.insecure) {
+        (kind, false) => kind,
+        (TransportKind::Tcp | TransportKind::TcpInsecure, true) => TransportKind::TcpInsecure,
         (other, true) => anyhow::bail!("--insecure is for TCP only; --transport {other} is always encrypted"),
     };
-    let (transport, fingerprint) = cluster::server_transport(name, args.identity.as_deref())?;
+    let (transport, fingerprint) = cluster::server_transport(kind, args.identity.as_deref())?;
     actix::System::new().block_on(async move {
         let listener = transport.listen(&args.listen).await?;
         let addr = listener.local_addr();
-        let ticket =
-            Ticket { transport: transport.name().to_string(), token, addr: addr.clone(), fingerprint };
+        let ticket = Ticket { transport: kind, token, addr: addr.clone(), fingerprint };
         let mut out = std::io::stdout().lock();
         writeln!(out, "listening {addr}")?;
         writeln!(out, "ticket {ticket}")?;

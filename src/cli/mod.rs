@@ -1,6 +1,7 @@
 //! Command-line interface.
 
 mod bench;
+mod bounded;
 mod cluster;
 mod fly;
 mod master;

@@ -19,12 +19,12 @@
 
 use super::cluster;
 use anyhow::Context;
-use isin_actors::auth::Ticket;
 use isin_actors::client::HANDSHAKE_TIMEOUT;
-use isin_actors::protocol::SceneInfo;
 use isin_actors::viewer::{
     self, Disconnect, GetSlaves, GetWireStats, RequestFrameAs, SlaveList, ViewerActor, ViewerEvent,
 };
+use isin_cluster::protocol::SceneInfo;
+use isin_transport::Ticket;
 use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate, Worker};
 use std::collections::BTreeMap;
 use std::thread::JoinHandle;
@@ -77,7 +77,7 @@ impl Remote {
                     let link = Link {
                         viewer,
                         feed: thread_feed,
-                        transport: ticket.transport.clone(),
+                        transport: ticket.transport.to_string(),
                         current: None,
                         tiles: BTreeMap::new(),
                     };
@@ -200,6 +200,11 @@ impl Link {
                 self.feed.send(SourceEvent::FrameComplete { frame_id: request, elapsed })
             }
             ViewerEvent::Error(message) => self.feed.send(SourceEvent::Failed(message)),
+            // The status line shows the slave count; the terminal says why frames wait.
+            ViewerEvent::Notice(message) => {
+                tracing::warn!("master: {message}");
+                true
+            }
             ViewerEvent::Closed(message) => {
                 self.feed.send(SourceEvent::Failed(message));
                 false
@@ -220,7 +225,7 @@ impl Link {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isin_actors::protocol::SlaveEntry;
+    use isin_cluster::protocol::SlaveEntry;
 
     fn entry(id: u64, alive: bool) -> SlaveEntry {
         SlaveEntry { id, name: format!("s#{id}"), addr: "127.0.0.1:1".into(), threads: 2, alive }

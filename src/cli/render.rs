@@ -4,7 +4,7 @@ use crate::assets::load_scene_file_timed;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Arguments of `isin render`.
@@ -18,19 +18,19 @@ pub struct RenderArgs {
     /// Image width in pixels (default: the scene's; alone, the height follows
     /// at the scene's aspect ratio). An image of another shape than the
     /// scene's widens the view (or heightens it) about the centre: never stretched.
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub width: Option<u32>,
     /// Image height in pixels (default: the scene's; alone, the width follows).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub height: Option<u32>,
     /// Samples per pixel (default: the scene's).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::spp)]
     pub spp: Option<u32>,
-    /// Render threads (default: all cores).
-    #[arg(long)]
+    /// Render threads (default, or 0: one per core).
+    #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
     /// Tile edge in pixels.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
     pub tile: u32,
     /// Do not draw a progress bar.
     #[arg(long)]
@@ -41,10 +41,64 @@ pub struct RenderArgs {
     pub cluster: Option<String>,
 }
 
+/// An output image being written: the format checked and the file created
+/// (as `NAME.part` beside it) before any rendering, renamed into place once
+/// the image is whole, removed if it never is — a failed render leaves
+/// nothing behind.
+struct Output {
+    path: PathBuf,
+    part: PathBuf,
+    format: image::ImageFormat,
+}
+
+impl Output {
+    fn create(path: &std::path::Path) -> anyhow::Result<Self> {
+        let format = match image::ImageFormat::from_path(path) {
+            Ok(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg)) => f,
+            _ => anyhow::bail!(
+                "cannot write {}: isin writes PNG or JPEG images (name the file .png, .jpg or .jpeg)",
+                path.display()
+            ),
+        };
+        let mut name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
+        name.push(".part");
+        let part = path.with_file_name(name);
+        std::fs::File::create(&part).with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(Self { path: path.to_owned(), part, format })
+    }
+
+    fn write(self, frame: &isin_tracer::Frame) -> anyhow::Result<()> {
+        let file = std::fs::File::create(&self.part)
+            .with_context(|| format!("cannot write {}", self.path.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        image::write_buffer_with_format(
+            &mut w,
+            &frame.rgb,
+            frame.width,
+            frame.height,
+            image::ColorType::Rgb8,
+            self.format,
+        )
+        .with_context(|| format!("cannot write {}", self.path.display()))?;
+        std::io::Write::flush(&mut w).with_context(|| format!("cannot write {}", self.path.display()))?;
+        drop(w);
+        std::fs::rename(&self.part, &self.path)
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
+impl Drop for Output {
+    fn drop(&mut self) {
+        // Renamed away when written; otherwise a leftover.
+        let _ = std::fs::remove_file(&self.part);
+    }
+}
+
 /// Runs `isin render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    let output = Output::create(&args.output)?;
     if let Some(ticket) = &args.cluster {
-        return run_cluster(&args, ticket);
+        return run_cluster(&args, ticket, output);
     }
     let (scene, _bundle, load) = load_scene_file_timed(&args.scene)?;
 
@@ -52,8 +106,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     if let Some(spp) = args.spp {
         settings.spp = spp;
     }
-    anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
-    anyhow::ensure!(settings.spp > 0, "--spp must be at least 1");
+    // The size derived from one side at the scene's aspect is bounded too.
+    isin_tracer::limits::check_settings(&settings)?;
     let camera = scene.camera.fit_aspect(settings.width as f32 / settings.height as f32);
 
     let pool = rayon::ThreadPoolBuilder::new()
@@ -73,8 +127,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let render_time = t1.elapsed();
     bar.finish_and_clear();
 
-    image::save_buffer(&args.output, &frame.rgb, frame.width, frame.height, image::ColorType::Rgb8)
-        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    output.write(&frame)?;
 
     let secs = render_time.as_secs_f64();
     println!("scene      {}", args.scene.display());
@@ -102,19 +155,13 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
 }
 
 /// `isin render --cluster TICKET`: one frame through a running cluster.
-fn run_cluster(args: &RenderArgs, ticket: &str) -> anyhow::Result<()> {
-    let ticket = super::cluster::ticket(ticket, None, "tcp")?;
+fn run_cluster(args: &RenderArgs, ticket: &str, output: Output) -> anyhow::Result<()> {
+    let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let t0 = Instant::now();
     let (frame, stats, scene, wire) =
-        super::cluster::render_frame(&ticket, args.width, args.height, args.spp)?;
+        super::cluster::render_frame(&ticket, &args.scene, args.width, args.height, args.spp)?;
     let elapsed = t0.elapsed();
-    let ours = args.scene.display().to_string();
-    let same = Path::new(&scene).file_name() == args.scene.file_name();
-    if !same {
-        tracing::warn!("the master serves {scene}, not {ours}: rendered the master's scene");
-    }
-    image::save_buffer(&args.output, &frame.rgb, frame.width, frame.height, image::ColorType::Rgb8)
-        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    output.write(&frame)?;
     println!("scene      {scene} (via cluster {})", ticket.addr);
     println!("resolution {}x{}", frame.width, frame.height);
     let per: Vec<String> = stats.per_slave.iter().map(|(k, n)| format!("{k}: {n}")).collect();

@@ -20,9 +20,9 @@ pub struct SlaveArgs {
     pub token: Option<String>,
     /// Transport, when `--connect` is a bare address.
     #[arg(long, default_value = "tcp")]
-    pub transport: String,
-    /// Render threads (default: all cores).
-    #[arg(long)]
+    pub transport: isin_transport::TransportKind,
+    /// Render threads (default, or 0: one per core).
+    #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
     /// Name in the master's logs (default: host name and process id).
     #[arg(long)]
@@ -36,11 +36,11 @@ pub struct SlaveArgs {
 
 /// Runs `isin slave` until refused or killed.
 pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
-    let ticket = cluster::ticket(&args.connect, args.token.as_deref(), &args.transport)?;
+    let ticket = cluster::ticket(&args.connect, args.token.as_deref(), args.transport)?;
     let transport = cluster::client_transport(&ticket)?;
     let mut opts = SlaveOptions::default();
-    if let Some(n) = args.threads {
-        anyhow::ensure!(n > 0, "--threads must be at least 1");
+    // 0 means one per core, as for every command.
+    if let Some(n) = args.threads.filter(|&n| n > 0) {
         opts.threads = n;
     }
     opts.name = args.name.unwrap_or_else(|| format!("slave-{}", std::process::id()));

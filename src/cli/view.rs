@@ -11,8 +11,8 @@ use super::remote::Remote;
 use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
-use isin_actors::auth::Ticket;
 use isin_tracer::{Camera, RenderSettings};
+use isin_transport::Ticket;
 use isin_viewer::stats::Summary;
 use isin_viewer::{CameraPath, Divisor, FrameReport, MovingResolution};
 use isin_viewer::{
@@ -51,16 +51,16 @@ pub struct WindowArgs {
     /// Render width in pixels (default: the scene's; alone, the height follows
     /// at the scene's aspect). Another shape than the scene's widens the view
     /// about its centre; the window scales the image, letterboxed, never stretched.
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub width: Option<u32>,
     /// Render height in pixels (default: the scene's; alone, the width follows).
-    #[arg(long)]
+    #[arg(long, value_parser = super::bounded::side)]
     pub height: Option<u32>,
     /// Record the navigation (one camera per move) to this camera-path file (TOML).
     #[arg(long, value_name = "PATH")]
     pub record: Option<PathBuf>,
     /// Stop refining a still view at this many samples per pixel.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = super::bounded::spp)]
     pub max_spp: u32,
     /// While moving, always render at 1/N of the resolution in each direction
     /// (shown enlarged, bilinear; N from 1 to 16 in steps of 0.25, e.g. 2.5). Without it
@@ -149,14 +149,14 @@ pub struct ViewArgs {
     pub token: Option<String>,
     /// Transport, when `--connect` is a bare address.
     #[arg(long, default_value = "tcp")]
-    pub transport: String,
+    pub transport: isin_transport::TransportKind,
     #[command(flatten)]
     pub window: WindowArgs,
-    /// Render threads (default: all cores; without --connect).
-    #[arg(long)]
+    /// Render threads (default, or 0: one per core; without --connect).
+    #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
     /// Tile edge in pixels.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
     pub tile: u32,
 }
 
@@ -166,7 +166,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // Fail before the (possibly slow) scene load or connection when no window can open.
     isin_viewer::check_display()?;
     if let Some(connect) = &args.connect {
-        let ticket = cluster::ticket(connect, args.token.as_deref(), &args.transport)?;
+        let ticket = cluster::ticket(connect, args.token.as_deref(), args.transport)?;
         if let Some(scene) = &args.scene {
             tracing::warn!("showing the master's scene; {} is not loaded", scene.display());
         }
@@ -230,7 +230,7 @@ pub fn run_with_source(
     status: Option<StatusFn>,
 ) -> anyhow::Result<()> {
     settings = settings.resized(window.width, window.height);
-    anyhow::ensure!(settings.width > 0 && settings.height > 0, "image size must be positive");
+    isin_tracer::limits::check_settings(&settings)?;
     // Another shape than the scene's widens the view; never stretched.
     let camera = camera.fit_aspect(settings.width as f32 / settings.height as f32);
     let mut quality = Quality::for_settings(&settings);

@@ -9,6 +9,9 @@
 //!
 //! Contents:
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
+//! - `rendering_another_scene…`: `render OTHER --cluster` fails naming both scenes, writes nothing.
+//! - `fly_through_the_cluster…`: `fly --cluster --frames 10..16` writes the frames `fly` writes here.
+//! - `another_aspect…`: `--width`/`--height` of another shape give the local render's pixels.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
 //! - `hot_join_mid_frame`: a slave joining while a frame is open takes part in that frame.
@@ -24,6 +27,8 @@
 //! - `wrong_fingerprint`: a slave whose ticket pins another certificate gives up at once with
 //!   both fingerprints named; the master never sees it authenticate.
 //! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
+//! - [`hostile`]: peers that know the token and lie in the protocol.
+//! - [`clients`]: several viewers on one cluster at once.
 
 mod util;
 
@@ -63,10 +68,64 @@ macro_rules! cluster_test {
     };
 }
 
+mod clients;
+mod hostile;
+
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a
 /// test acts on it.
 const SLOW: &[&str] = &["--width", "320", "--height", "240", "--spp", "2"];
+
+cluster_test!(rendering_another_scene_than_the_masters_is_refused_not_silently_wrong, |t| {
+    let c = Cluster::start(t, 1, &[]);
+    let other = util::root().join("scenes/cornell.toml");
+    let out = c.dir.path().join("other.png");
+    let args = ["render", other.to_str().unwrap(), "--cluster", &c.ticket, "-o", out.to_str().unwrap()];
+    let mut p = Proc::spawn("render other scene", &args, "warn");
+    assert!(!p.wait_exit().success(), "rendered another scene than asked\n{}", p.dump());
+    let said = p.matching(Stream::Err, |l| l.contains("the master serves paper.toml"));
+    assert!(!said.is_empty(), "{}", p.dump());
+    assert!(!out.exists(), "an image was written");
+});
+
+cluster_test!(fly_through_the_cluster_equals_fly_here_frame_for_frame, |t| {
+    let c = Cluster::start(t, 2, &[]);
+    let (scene, path) = (util::scene(), util::root().join("scenes/paths/paper.toml"));
+    let fly = |out: &std::path::Path, cluster: Option<&str>| {
+        let mut args = vec!["fly", scene.to_str().unwrap(), "--path", path.to_str().unwrap()];
+        args.extend([
+            "--out",
+            out.to_str().unwrap(),
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--frames",
+            "10..16",
+        ]);
+        args.extend(cluster.map(|t| ["--cluster", t]).into_iter().flatten());
+        let mut p = Proc::spawn("fly", &args, "warn");
+        assert!(p.wait_exit().success(), "fly failed\n{}", p.dump());
+    };
+    let (here, there) = (c.dir.path().join("here"), c.dir.path().join("there"));
+    fly(&here, None);
+    fly(&there, Some(&c.ticket));
+    for i in 10..16 {
+        let name = format!("frame_{i:04}.png");
+        let (a, b) = (util::pixels(&here.join(&name)), util::pixels(&there.join(&name)));
+        assert_same_pixels(&b, &a, &format!("{name}: cluster vs here"));
+    }
+    let written = std::fs::read_dir(&there).unwrap().count();
+    assert_eq!(written, 6, "frames 10..16 and no others");
+});
+
+cluster_test!(another_aspect_is_widened_as_locally_not_stretched, |t| {
+    let c = Cluster::start(t, 2, &[]);
+    for size in [&["--width", "200", "--height", "100"][..], &["--width", "90"]] {
+        let (cluster, _) = c.render("wide.png", size);
+        assert_same_pixels(&cluster, &render_local(size), &format!("cluster vs isin render at {size:?}"));
+    }
+});
 
 cluster_test!(
     identical,
@@ -234,10 +293,11 @@ fn embedded_default_renders_the_paper_scene_through_its_own_cluster() {
 
 cluster_test!(wrong_fingerprint, |t: Transport| {
     let c = Cluster::start(t, 1, &[]);
-    let mut ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
-    let real = ticket.fingerprint.clone().expect("encrypted tickets carry a fingerprint");
-    let other = isin_transport_quic::tls::Identity::generate().expect("identity").fingerprint().to_string();
-    ticket.fingerprint = Some(other.clone());
+    let mut ticket: isin_transport::Ticket = c.ticket.parse().expect("ticket");
+    let real = ticket.fingerprint.expect("encrypted tickets carry a fingerprint").to_string();
+    let other = isin_transport_tls::Identity::generate().expect("identity").fingerprint();
+    ticket.fingerprint = Some(other);
+    let other = other.to_string();
     let mut s = Proc::spawn(
         "impostor-fp slave",
         &["slave", "--connect", &ticket.to_string(), "--threads", "1"],
@@ -258,8 +318,8 @@ fn tls_ticket_never_falls_back_to_plaintext() {
     let c = Cluster::start(Transport::TcpInsecure, 1, &[]);
     // The plaintext master's address in a TLS ticket: the slave must fail the
     // TLS handshake (and keep retrying it), never speak plaintext.
-    let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
-    let fp = isin_transport_quic::tls::Identity::generate().expect("identity").fingerprint();
+    let ticket: isin_transport::Ticket = c.ticket.parse().expect("ticket");
+    let fp = isin_transport_tls::Identity::generate().expect("identity").fingerprint();
     let tls_ticket = format!("isin://{}@{}?fp={fp}", ticket.token, ticket.addr);
     let s = Proc::spawn("tls slave", &["slave", "--connect", &tls_ticket, "--threads", "1"], "info");
     let line = s.wait_for(Stream::Err, "retrying");

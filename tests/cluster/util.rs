@@ -60,7 +60,7 @@ impl Transport {
         if self == Transport::TcpInsecure {
             return (Vec::new(), format!("{scheme}{token}@{addr}"));
         }
-        let id = isin_transport_quic::tls::Identity::generate().expect("identity");
+        let id = isin_transport_tls::Identity::generate().expect("identity");
         std::fs::write(dir.join("cert.der"), id.cert_der().as_ref()).expect("cert");
         std::fs::write(dir.join("key.der"), id.key_der().secret_pkcs8_der()).expect("key");
         let args = vec!["--identity".to_string(), dir.display().to_string()];
@@ -89,7 +89,21 @@ pub enum RawPeer {
     Tcp(std::net::TcpStream),
     /// A TLS/TCP or QUIC connection that passed TLS (it knows the ticket's
     /// fingerprint) but not the token handshake.
-    Framed(tokio::runtime::Runtime, isin_actors::transport::Connection),
+    Framed(tokio::runtime::Runtime, isin_transport::Connection),
+}
+
+/// A client of `c`'s transport, pinned to its certificate (for peers the
+/// test drives itself).
+pub fn client_transport(c: &Cluster) -> Box<dyn isin_transport::Transport> {
+    if c.transport == Transport::TcpInsecure {
+        return Box::new(isin_transport_tcp::TcpTransport::insecure());
+    }
+    let ticket: isin_transport::Ticket = c.ticket.parse().expect("ticket");
+    let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
+    match c.transport {
+        Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
+        _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
+    }
 }
 
 impl RawPeer {
@@ -98,17 +112,8 @@ impl RawPeer {
         if c.transport == Transport::TcpInsecure {
             return RawPeer::Tcp(std::net::TcpStream::connect(&c.addr).expect("connect"));
         }
-        let ticket: isin_actors::auth::Ticket = c.ticket.parse().expect("ticket");
-        let fp = ticket.fingerprint.expect("an encrypted ticket carries a fingerprint");
-        let fp: isin_transport_quic::tls::Fingerprint = fp.parse().expect("fingerprint");
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
-        let conn = rt.block_on(async {
-            let t: Box<dyn isin_actors::transport::Transport> = match c.transport {
-                Transport::Quic => Box::new(isin_transport_quic::QuicTransport::client(fp).expect("client")),
-                _ => Box::new(isin_transport_tcp::TcpTransport::client(fp).expect("client")),
-            };
-            t.connect(&c.addr).await.expect("connect")
-        });
+        let conn = rt.block_on(async { client_transport(c).connect(&c.addr).await.expect("connect") });
         RawPeer::Framed(rt, conn)
     }
 
@@ -354,7 +359,7 @@ impl Cluster {
         let mut args = vec!["master", scene.to_str().unwrap(), "--listen", "127.0.0.1:0"];
         args.extend_from_slice(transport.master_args());
         args.extend_from_slice(master_args);
-        let master = Proc::spawn("master", &args, "info,isin_actors::master=debug");
+        let master = Proc::spawn("master", &args, "info,isin_cluster::cluster=debug");
         let ticket = master.wait_for(Stream::Out, "ticket ").trim_start_matches("ticket ").trim().to_string();
         assert!(ticket.starts_with(transport.scheme()), "{transport:?} master printed {ticket}");
         let addr =
@@ -406,7 +411,7 @@ impl Cluster {
 
     /// The master's ticket with its token replaced by `token`.
     pub fn ticket_with_token(&self, token: &str) -> String {
-        let mut t: isin_actors::auth::Ticket = self.ticket.parse().expect("ticket");
+        let mut t: isin_transport::Ticket = self.ticket.parse().expect("ticket");
         t.token = token.to_string();
         t.to_string()
     }

@@ -1,13 +1,18 @@
 //! The peer side of the handshake, shared by slaves and viewers: connect,
 //! answer the master's challenge, check the master's own proof.
 
-use crate::auth::{self, Ticket};
-use crate::codec::Codec;
-use crate::protocol::{
+use isin_cluster::auth;
+use isin_cluster::codec::Codec;
+use isin_cluster::protocol::{
     self, DEFAULT_MAX_FRAME, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, Welcome,
 };
-use crate::transport::{Connection, Transport, TransportError};
+use isin_cluster::scheduler::Work;
+use isin_transport::{Connection, Ticket, Transport, TransportError};
 use std::time::Duration;
+
+/// How long one frame from the master may take to arrive once begun: a
+/// 512 MiB scene over 10 Mbit/s, with room to spare.
+pub const SCENE_FRAME_TIMEOUT: Duration = Duration::from_secs(600);
 
 /// How long each handshake step may take.
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
@@ -72,17 +77,42 @@ pub fn send_message(conn: &Connection, msg: &Message) -> Result<(), JoinError> {
     Ok(())
 }
 
-/// Connects to the master of `ticket` and authenticates as `role`, offering
-/// the tile codecs `codecs` (the master's choice is in the [`Welcome`]).
+/// Who joins a master, and as what.
+#[derive(Clone, Copy, Debug)]
+pub struct Join<'a> {
+    /// Slave or viewer.
+    pub role: Role,
+    /// Name for the master's logs.
+    pub name: &'a str,
+    /// Render threads (slaves).
+    pub threads: u32,
+    /// The scene held already, if any (slaves): it is not sent again.
+    pub cached_scene: Option<SceneHash>,
+    /// Tile codecs offered (the master's choice is in the [`Welcome`]).
+    pub codecs: &'a [Codec],
+    /// What kind of work the frames are (viewers).
+    pub work: Work,
+}
+
+impl<'a> Join<'a> {
+    /// A slave with `threads` render threads.
+    pub fn slave(name: &'a str, threads: u32, cached_scene: Option<SceneHash>, codecs: &'a [Codec]) -> Self {
+        Self { role: Role::Slave, name, threads, cached_scene, codecs, work: Work::Interactive }
+    }
+
+    /// A viewer whose frames are `work`, decoding every codec.
+    pub fn viewer(name: &'a str, work: Work) -> Self {
+        Self { role: Role::Viewer, name, threads: 0, cached_scene: None, codecs: &Codec::ALL, work }
+    }
+}
+
+/// Connects to the master of `ticket` and authenticates as `join` says.
 pub async fn handshake(
     transport: &dyn Transport,
     ticket: &Ticket,
-    role: Role,
-    name: &str,
-    threads: u32,
-    cached_scene: Option<SceneHash>,
-    codecs: &[Codec],
+    join: Join<'_>,
 ) -> Result<(Connection, Welcome), JoinError> {
+    let Join { role, name, threads, cached_scene, codecs, work } = join;
     let mut conn = tokio::time::timeout(HANDSHAKE_TIMEOUT, transport.connect(&ticket.addr))
         .await
         .map_err(|_| JoinError::Timeout(HANDSHAKE_TIMEOUT))??;
@@ -94,10 +124,13 @@ pub async fn handshake(
     let client_nonce = auth::random_bytes::<32>().map_err(|e| JoinError::Scene(e.to_string()))?;
     let proof = auth::client_proof(&ticket.token, role, &nonce, &client_nonce);
     let codecs = codecs.iter().map(|c| c.name().to_string()).collect();
-    let hello = Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene, codecs };
+    let hello =
+        Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene, codecs, work };
     send_message(&conn, &Message::Hello(hello))?;
-    // The master's welcome is small, but what follows (the scene) is not.
+    // The master's welcome is small, but what follows (the scene) is not,
+    // and may take minutes on a slow link.
     conn.sender.set_max_frame(DEFAULT_MAX_FRAME);
+    conn.sender.set_frame_timeout(SCENE_FRAME_TIMEOUT);
     let welcome = match recv_message(&mut conn, DEFAULT_MAX_FRAME, HANDSHAKE_TIMEOUT).await? {
         Message::Welcome(w) => w,
         Message::Reject { reason } => return Err(JoinError::Rejected(reason)),

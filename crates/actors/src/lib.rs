@@ -6,19 +6,13 @@
 //! dead — live in a plain state machine driven by explicit time, so tests run it
 //! without sockets or clocks; the actors are thin shells around it.
 //!
-//! Modules:
-//! - [`protocol`]: every message, the versioned wire encoding, scene hashes.
-//! - [`auth`]: HMAC-SHA256 challenge–response over the shared token (never sent),
-//!   join tickets (`isin://TOKEN@HOST:PORT?fp=CERT-SHA256`).
-//! - [`codec`]: tile compression (QOI, LZ4, raw), negotiated at join; bounded,
-//!   panic-free decoding of untrusted tiles.
-//! - [`scheduler`]: the pure scheduling core (`handle_*` / `poll_*`, time as an argument).
-//! - [`transport`]: the interface a transport implements — a connection is a pair
-//!   of frame channels with byte counters — plus the length-delimited stream codec
-//!   and an in-memory transport for tests. TCP (TLS or plaintext) lives in `isin-transport-tcp`,
-//!   QUIC in `isin-transport-quic`.
-//! - [`master`], [`slave`], [`viewer`]: the actors; [`client`]: the peer side of
-//!   the handshake that slaves and viewers share.
+//! The decisions themselves — the protocol, codecs, authentication and the
+//! scheduler — live in `isin-cluster`, which does no I/O; connections come
+//! through the interface of `isin-transport` (TCP in `isin-transport-tcp`,
+//! QUIC in `isin-transport-quic`).
+//!
+//! Modules: [`master`], [`slave`], [`viewer`]: the actors; [`client`]: the peer
+//! side of the handshake that slaves and viewers share.
 //!
 //! Data flow: a viewer sends `FrameRequest`; the master's scheduler cuts the
 //! frame into tiles and keeps every slave's window full with `TileAssignment`s;
@@ -26,12 +20,10 @@
 //! master forwards the first result for each tile to the viewer as a `FrameTile`
 //! and ends with `FrameDone`.
 
-pub mod auth;
 pub mod client;
-pub mod codec;
 pub mod master;
-pub mod protocol;
-pub mod scheduler;
 pub mod slave;
-pub mod transport;
 pub mod viewer;
+
+// A fresh connection must carry the handshake, and no more.
+const _: () = assert!(isin_transport::INITIAL_MAX_FRAME == isin_cluster::protocol::HANDSHAKE_MAX_FRAME);

@@ -14,13 +14,12 @@
 //! pipeline frames, handing out the next frame's tiles while the older frame's
 //! are still queued here.
 
-use crate::auth::Ticket;
 use crate::client::{self, JoinError};
-use crate::codec::{self, Codec};
-use crate::protocol::{self, FrameId, Message, Role, SceneHash, TileAssignment, TileId, TileResult};
-use crate::transport::{FrameSender, Transport, TransportError};
 use actix::prelude::*;
+use isin_cluster::codec::{self, Codec};
+use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId, TileResult};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
+use isin_transport::{Delivery, FrameSender, Ticket, Transport, TransportError};
 use serde_bytes::ByteBuf;
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -244,22 +243,38 @@ pub async fn run<R: Renderer>(
     let counters = Arc::new(SlaveCounters::default());
     let mut cache: Option<SceneCache<R::Scene>> = None;
     let mut backoff = Duration::from_millis(100);
-    let mut failures = 0u32;
+    let (mut failures, mut unresolved) = (0u32, 0u32);
+    // Retrying is said once a minute, not at every attempt.
+    let mut said: Option<std::time::Instant> = None;
     loop {
         match join(transport.as_ref(), &ticket, &opts, &renderer, &mut cache).await {
             Ok(session) => {
                 backoff = Duration::from_millis(100);
-                failures = 0;
+                (failures, unresolved, said) = (0, 0, None);
                 let why = serve(session, renderer.clone(), pool.clone(), counters.clone(), &opts).await;
                 tracing::warn!("lost the master ({why}); reconnecting");
             }
             Err(e) if !e.is_retryable() => return Err(e),
             Err(e) => {
                 failures += 1;
-                if opts.max_attempts.is_some_and(|m| failures >= m) {
+                unresolved = if matches!(e, JoinError::Transport(TransportError::Unresolvable { .. })) {
+                    unresolved + 1
+                } else {
+                    0
+                };
+                if opts.max_attempts.is_some_and(|m| failures >= m) || unresolved >= MAX_UNRESOLVED {
                     return Err(e);
                 }
-                tracing::info!("cannot join {} yet ({e}); retrying in {backoff:?}", ticket.addr);
+                if said.is_none_or(|at| at.elapsed() >= RETRY_REPORT) {
+                    said = Some(std::time::Instant::now());
+                    tracing::warn!(
+                        "cannot join {} yet ({e}); retrying (every {:?} at most; said again in a minute)",
+                        ticket.addr,
+                        opts.max_backoff
+                    );
+                } else {
+                    tracing::debug!("cannot join {} yet ({e}); retrying in {backoff:?}", ticket.addr);
+                }
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(opts.max_backoff);
             }
@@ -267,9 +282,17 @@ pub async fn run<R: Renderer>(
     }
 }
 
+/// Consecutive attempts on a host name that resolves to nothing before a
+/// slave gives up (with the default backoff, about 20 s: a name server that is
+/// down for a moment is waited for, a mistyped name is not).
+pub const MAX_UNRESOLVED: u32 = 10;
+
+/// How often a slave that cannot join says it is still trying.
+pub const RETRY_REPORT: Duration = Duration::from_secs(60);
+
 /// An authenticated, scene-synced connection, ready for tiles.
 pub struct Session<S> {
-    conn: crate::transport::Connection,
+    conn: isin_transport::Connection,
     scene: Arc<S>,
     name: String,
     codec: Codec,
@@ -284,16 +307,8 @@ pub async fn join<R: Renderer>(
     cache: &mut Option<SceneCache<R::Scene>>,
 ) -> Result<Session<R::Scene>, JoinError> {
     let cached = cache.as_ref().map(|c| c.hash);
-    let (mut conn, welcome) = client::handshake(
-        transport,
-        ticket,
-        Role::Slave,
-        &opts.name,
-        opts.threads as u32,
-        cached,
-        &opts.codecs,
-    )
-    .await?;
+    let join = client::Join::slave(&opts.name, opts.threads as u32, cached, &opts.codecs);
+    let (mut conn, welcome) = client::handshake(transport, ticket, join).await?;
     if welcome.codec != Codec::Raw && !opts.codecs.contains(&welcome.codec) {
         conn.sender.close();
         return Err(JoinError::Rejected(format!(
@@ -301,6 +316,10 @@ pub async fn join<R: Renderer>(
             welcome.codec
         )));
     }
+    // The master holds every logged-in peer to its heartbeat, and receiving
+    // and loading a large scene takes longer than that: say alive meanwhile.
+    let heartbeats = tokio::spawn(heartbeat_until_dropped(conn.sender.clone(), opts.heartbeat_interval));
+    let _stop_heartbeats = AbortOnDrop(heartbeats);
     if cached != Some(welcome.scene.hash) {
         let (hash, bundle) = loop {
             match client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120))
@@ -342,6 +361,27 @@ pub async fn join<R: Renderer>(
     Ok(Session { conn, scene, name: welcome.name, codec: welcome.codec })
 }
 
+/// Sends a heartbeat every `interval` until the connection closes (or the
+/// task is aborted).
+async fn heartbeat_until_dropped(sender: isin_transport::FrameSender, interval: Duration) {
+    let Ok(hb) = protocol::encode(&Message::Heartbeat) else { return };
+    loop {
+        tokio::time::sleep(interval).await;
+        if sender.send(hb.clone()).is_err() {
+            return;
+        }
+    }
+}
+
+/// Aborts a task when dropped.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
 /// Serves one session until the connection ends; returns why it ended.
 pub async fn serve<R: Renderer>(
     session: Session<R::Scene>,
@@ -351,7 +391,7 @@ pub async fn serve<R: Renderer>(
     opts: &SlaveOptions,
 ) -> String {
     let (done_tx, done_rx) = oneshot::channel();
-    let crate::transport::Connection { sender, mut receiver, .. } = session.conn;
+    let isin_transport::Connection { sender, mut receiver, .. } = session.conn;
     let actor = SlaveActor {
         sender,
         scene: session.scene,
@@ -480,7 +520,10 @@ impl<R: Renderer> SlaveActor<R> {
                 });
                 match protocol::encode(&msg) {
                     Ok(bytes) => {
-                        let _ = sender.send(bytes);
+                        // Tiles may overtake each other (over QUIC a lost
+                        // packet then delays only its own tile), never the
+                        // ordered messages around them.
+                        let _ = sender.send_as(bytes, Delivery::Independent);
                         counters.tiles.fetch_add(1, Ordering::Relaxed);
                     }
                     Err(e) => tracing::error!("cannot encode tile: {e}"),

@@ -2,12 +2,12 @@
 //! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
 //! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
 
-use crate::auth::Ticket;
 use crate::client::{self, JoinError};
-use crate::protocol::{self, FrameStats, Message, Role, SceneInfo, SlaveEntry};
-use crate::transport::{ConnStats, FrameSender, Transport, TransportError};
 use actix::prelude::*;
+use isin_cluster::protocol::{self, FrameStats, Message, SceneInfo, SlaveEntry};
+use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, Frame, RenderSettings, Tile};
+use isin_transport::{ConnStats, FrameSender, Ticket, Transport, TransportError};
 use std::time::Duration;
 use tokio::sync::mpsc;
 
@@ -36,6 +36,9 @@ pub enum ViewerEvent {
     },
     /// The master could not serve a request.
     Error(String),
+    /// The master says something worth showing (e.g. that the frames wait
+    /// for a slave to join).
+    Notice(String),
     /// The connection ended.
     Closed(String),
 }
@@ -235,6 +238,7 @@ impl Handler<Inbound> for ViewerActor {
                 None
             }
             Ok(Message::Error { message }) => Some(ViewerEvent::Error(message)),
+            Ok(Message::Notice { message }) => Some(ViewerEvent::Notice(message)),
             Ok(Message::Reject { reason }) => Some(ViewerEvent::Closed(format!("master refused: {reason}"))),
             Ok(Message::Heartbeat) => None,
             Ok(other) => Some(ViewerEvent::Error(format!("unexpected {} from the master", other.kind()))),
@@ -257,10 +261,21 @@ pub async fn connect(
     ticket: &Ticket,
     name: &str,
 ) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
-    let (conn, welcome) =
-        client::handshake(transport, ticket, Role::Viewer, name, 0, None, &crate::codec::Codec::ALL).await?;
+    connect_as(transport, ticket, name, Work::Interactive).await
+}
+
+/// [`connect`] as a client whose frames are `work`: a batch client's frames
+/// fill what interactive clients leave (a still or an animation rendered
+/// while others fly).
+pub async fn connect_as(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    name: &str,
+    work: Work,
+) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
+    let (conn, welcome) = client::handshake(transport, ticket, client::Join::viewer(name, work)).await?;
     let (sink, events) = mpsc::unbounded_channel();
-    let crate::transport::Connection { sender, mut receiver, .. } = conn;
+    let isin_transport::Connection { sender, mut receiver, .. } = conn;
     let addr = ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0 }.start();
     let target = addr.clone();
     tokio::spawn(async move {
@@ -314,8 +329,61 @@ pub async fn collect_frame(
                 return Ok((frame, stats));
             }
             ViewerEvent::Tile { .. } | ViewerEvent::FrameDone { .. } => {}
+            ViewerEvent::Notice(m) => tracing::warn!("master: {m}"),
             ViewerEvent::Error(e) | ViewerEvent::Closed(e) => return Err(ViewerError::Master(e)),
         }
     }
     Err(ViewerError::Master("connection closed".into()))
+}
+
+/// Renders one frame per camera of `cameras` through `viewer`, keeping up to
+/// `depth` of them queued at the master ([`QueueFrame`]) so that slaves roll
+/// from one frame straight into the next, and hands each to `done` (with its
+/// index in `cameras`) as it completes — in the order they complete. Stops at
+/// the first error, `done`'s included.
+pub async fn collect_frames<E: std::fmt::Display>(
+    viewer: &Addr<ViewerActor>,
+    events: &mut mpsc::UnboundedReceiver<ViewerEvent>,
+    cameras: &[Camera],
+    settings: RenderSettings,
+    depth: usize,
+    mut done: impl FnMut(usize, Frame, FrameStats) -> Result<(), E>,
+) -> Result<(), ViewerError> {
+    // Requests in flight: request number → (camera index, frame, pixels so far).
+    let mut open: std::collections::BTreeMap<u64, (usize, Frame, usize)> = std::collections::BTreeMap::new();
+    let mut next = 0;
+    let all = settings.width as usize * settings.height as usize;
+    while next < cameras.len() || !open.is_empty() {
+        while next < cameras.len() && open.len() < depth.max(1) {
+            let queue = QueueFrame { camera: cameras[next], settings };
+            let request = viewer.send(queue).await.map_err(|_| ViewerError::Mailbox)?;
+            open.insert(request, (next, Frame::new(settings.width, settings.height), 0));
+            next += 1;
+        }
+        let Some(ev) = events.recv().await else {
+            return Err(ViewerError::Master("connection closed".into()));
+        };
+        match ev {
+            ViewerEvent::Tile { request, tile, pixels, .. } => {
+                let Some((_, frame, covered)) = open.get_mut(&request) else { continue };
+                let inside = tile.x as u64 + tile.w as u64 <= settings.width as u64
+                    && tile.y as u64 + tile.h as u64 <= settings.height as u64;
+                if !inside {
+                    return Err(ViewerError::Master(format!("tile {tile:?} outside the image")));
+                }
+                frame.blit(tile, &pixels);
+                *covered += tile.pixel_count();
+            }
+            ViewerEvent::FrameDone { request, stats } => {
+                let Some((index, frame, covered)) = open.remove(&request) else { continue };
+                if covered != all {
+                    return Err(ViewerError::Master(format!("frame done with {covered} pixels delivered")));
+                }
+                done(index, frame, stats).map_err(|e| ViewerError::Master(e.to_string()))?;
+            }
+            ViewerEvent::Notice(m) => tracing::warn!("master: {m}"),
+            ViewerEvent::Error(e) | ViewerEvent::Closed(e) => return Err(ViewerError::Master(e)),
+        }
+    }
+    Ok(())
 }

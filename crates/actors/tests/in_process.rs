@@ -2,15 +2,15 @@
 //! fake renderer (a pixel's bytes are a hash of its coordinates and the
 //! camera), so these run without the ray tracer.
 
-use isin_actors::auth::Ticket;
 use isin_actors::client::JoinError;
-use isin_actors::codec::{Codec, Compression};
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, SlaveOptions};
-use isin_actors::transport::Transport;
-use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer;
+use isin_cluster::codec::{Codec, Compression};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Ticket;
+use isin_transport::Transport;
+use isin_transport::mem::MemTransport;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -41,11 +41,20 @@ async fn start_master_with(
     token: &str,
     compression: Compression,
 ) -> (actix::Addr<Master>, Ticket) {
-    let mut cfg = MasterConfig::new(token.into(), bundle(), Camera::default(), settings(64, 48));
-    cfg.compression = compression;
+    let mut cfg = MasterConfig::new(token.into(), bundle(), Camera::default(), settings(64, 48)).unwrap();
+    cfg.cluster.compression = compression;
     let listener = t.listen("master").await.unwrap();
     let addr = Master::new(cfg).unwrap().serve(listener);
-    (addr, Ticket { transport: "mem".into(), token: token.into(), addr: "master".into(), fingerprint: None })
+    // The kind is not read: the test hands the in-memory transport to the peer itself.
+    (
+        addr,
+        Ticket {
+            transport: isin_transport::TransportKind::TcpInsecure,
+            token: token.into(),
+            addr: "master".into(),
+            fingerprint: None,
+        },
+    )
 }
 
 fn spawn_slave(t: &MemTransport, ticket: &Ticket, name: &str, fake: Arc<Fake>) {
@@ -101,84 +110,15 @@ async fn frames_through_two_slaves_are_exact_and_scene_is_sent_once_each() {
 }
 
 #[actix::test]
-async fn wrong_token_is_refused_with_a_clear_message_and_no_scene() {
-    let t = MemTransport::new();
-    let (master, ticket) = start_master(&t, "right").await;
-    let wrong = Ticket { token: "wrong".into(), ..ticket.clone() };
-    match viewer::connect(&t, &wrong, "intruder").await {
-        Err(JoinError::Rejected(reason)) => assert!(reason.contains("wrong token"), "{reason}"),
-        other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
-    }
-    let fake = Arc::new(Fake::default());
-    let opts = SlaveOptions { name: "intruder".into(), threads: 1, ..SlaveOptions::default() };
-    let err = slave::run(Arc::new(t.clone()), wrong, opts, fake.clone()).await.unwrap_err();
-    assert!(matches!(err, JoinError::Rejected(_)), "{err}");
-    assert_eq!(fake.loads.load(Ordering::Relaxed), 0, "no scene reached the intruder");
-    let status = master.send(GetStatus).await.unwrap();
-    assert_eq!(status.refused, 2);
-    assert!(status.slaves.is_empty());
-}
-
-#[actix::test]
-async fn slave_joining_mid_session_gets_tiles() {
-    let t = MemTransport::new();
-    let (master, ticket) = start_master(&t, "tok").await;
-    let first = Arc::new(Fake::default());
-    spawn_slave(&t, &ticket, "first", first.clone());
-    wait_slaves(&master, 1).await;
-    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
-    viewer::collect_frame(&v, &mut events, Camera::default(), settings(64, 64)).await.unwrap();
-    let late = Arc::new(Fake::default());
-    spawn_slave(&t, &ticket, "late", late.clone());
-    wait_slaves(&master, 2).await;
-    viewer::collect_frame(&v, &mut events, Camera::default(), settings(320, 240)).await.unwrap();
-    assert!(late.tiles.load(Ordering::Relaxed) > 0, "the late slave rendered tiles");
-}
-
-#[actix::test]
-async fn a_viewer_whose_frame_is_superseded_by_another_viewer_is_told() {
-    let t = MemTransport::new();
-    let (master, ticket) = start_master(&t, "tok").await;
-    // No slaves yet: the first request stays open.
-    let (v1, _, mut e1) = viewer::connect(&t, &ticket, "one").await.unwrap();
-    let (v2, _, mut e2) = viewer::connect(&t, &ticket, "two").await.unwrap();
-    let first = v1.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
-    first.await.unwrap();
-    // Make sure the master has seen the first request before the second.
-    let mut seen = false;
-    for _ in 0..5000 {
-        if master.send(GetStatus).await.unwrap().frames_requested == 1 {
-            seen = true;
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(1)).await;
-    }
-    assert!(seen, "the master never saw the first request");
-    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
-    let (frame, _) = viewer::collect_frame(&v2, &mut e2, Camera::default(), settings(32, 32)).await.unwrap();
-    assert_eq!(frame.width, 32);
-    loop {
-        match e1.recv().await.expect("viewer one hears back") {
-            viewer::ViewerEvent::Error(m) => {
-                assert!(m.contains("superseded"), "{m}");
-                break;
-            }
-            viewer::ViewerEvent::Tile { .. } => {}
-            other => panic!("unexpected {other:?}"),
-        }
-    }
-}
-
-#[actix::test]
 async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by_others() {
     use isin_actors::client;
-    use isin_actors::protocol::{self, Message, Role, TileResult};
+    use isin_cluster::protocol::{self, Message, TileResult};
     let t = MemTransport::new();
     let (master, ticket) = start_master(&t, "tok").await;
     // A hand-driven slave that lies about a tile's size.
     // It offers no codec, as a build without compression would: raw it is.
     let (mut conn, welcome) =
-        client::handshake(&t, &ticket, Role::Slave, "liar", 1, None, &[]).await.unwrap();
+        client::handshake(&t, &ticket, client::Join::slave("liar", 1, None, &[])).await.unwrap();
     assert_eq!(welcome.codec, Codec::Raw);
     let max = protocol::DEFAULT_MAX_FRAME;
     loop {
@@ -224,7 +164,7 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
     ));
     // An honest slave finishes the frame, the liar's tiles included.
     spawn_slave(&t, &ticket, "honest", Arc::new(Fake::default()));
-    let mut covered = 0;
+    let (mut covered, mut told) = (0, false);
     while let Some(ev) = events.recv().await {
         match ev {
             viewer::ViewerEvent::Tile { tile, pixels, .. } => {
@@ -232,51 +172,14 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
                 covered += tile.pixel_count();
             }
             viewer::ViewerEvent::FrameDone { .. } => break,
+            // The liar was the only slave: the frame waited for the next.
+            viewer::ViewerEvent::Notice(m) => told |= m.contains("no slaves connected"),
             other => panic!("unexpected {other:?}"),
         }
     }
     assert_eq!(covered, 64 * 64);
+    assert!(told, "the viewer was not told its frame waited");
     assert_eq!(master.send(GetStatus).await.unwrap().deaths, 1);
-}
-
-#[actix::test]
-async fn absurd_frame_requests_get_an_error_and_the_viewer_stays_connected() {
-    let t = MemTransport::new();
-    let (_master, ticket) = start_master(&t, "tok").await;
-    spawn_slave(&t, &ticket, "s", Arc::new(Fake::default()));
-    let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
-    for bad in [
-        settings(0, 10),
-        settings(100_000, 10),
-        RenderSettings { spp: 0, ..settings(8, 8) },
-        RenderSettings { max_depth: 1_000_000, ..settings(8, 8) },
-    ] {
-        let err = viewer::collect_frame(&v, &mut events, Camera::default(), bad).await;
-        assert!(matches!(err, Err(viewer::ViewerError::Master(_))), "{bad:?} accepted");
-    }
-    let mut cam = Camera::default();
-    cam.eye = cam.corners[0];
-    assert!(viewer::collect_frame(&v, &mut events, cam, settings(8, 8)).await.is_err(), "degenerate camera");
-    viewer::collect_frame(&v, &mut events, Camera::default(), settings(8, 8)).await.unwrap();
-}
-
-#[actix::test]
-async fn a_peer_speaking_another_protocol_version_is_told_so() {
-    use isin_actors::client;
-    use isin_actors::protocol::{self, Message};
-    let t = MemTransport::new();
-    let (master, ticket) = start_master(&t, "tok").await;
-    let mut conn = t.connect(&ticket.addr).await.unwrap();
-    let challenge = client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap();
-    assert!(matches!(challenge, Message::Challenge { .. }));
-    let mut frame = protocol::encode(&Message::Heartbeat).unwrap();
-    frame[..2].copy_from_slice(&(protocol::PROTOCOL_VERSION + 1).to_be_bytes());
-    conn.sender.send(frame).unwrap();
-    match client::recv_message(&mut conn, 1 << 16, Duration::from_secs(10)).await.unwrap() {
-        Message::Reject { reason } => assert!(reason.contains("protocol version"), "{reason}"),
-        other => panic!("expected a refusal, got {}", other.kind()),
-    }
-    assert_eq!(master.send(GetStatus).await.unwrap().refused, 1);
 }
 
 #[actix::test]
@@ -322,7 +225,6 @@ async fn a_request_under_the_callers_number_comes_back_tagged_with_it_and_the_sl
 #[actix::test]
 async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
     use isin_actors::client;
-    use isin_actors::protocol::Role;
     let all = Codec::ALL;
     for (compression, best) in [
         (Compression::Auto, Codec::ALL[0]),
@@ -346,8 +248,13 @@ async fn codecs_are_negotiated_at_join_and_every_one_delivers_exact_frames() {
             ),
             (&[][..], Codec::Raw),
         ] {
-            let (conn, welcome) =
-                client::handshake(&t, &ticket, Role::Viewer, "probe", 0, None, offer).await.unwrap();
+            let (conn, welcome) = client::handshake(
+                &t,
+                &ticket,
+                client::Join { codecs: offer, ..client::Join::viewer("probe", Default::default()) },
+            )
+            .await
+            .unwrap();
             assert_eq!(welcome.codec, want, "{compression:?} offered {offer:?}");
             conn.sender.close();
         }

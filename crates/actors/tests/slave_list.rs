@@ -1,15 +1,15 @@
 //! The master tells its viewers which slaves it has: when a viewer joins, and
 //! again whenever a slave joins or dies.
 
-use isin_actors::auth::Ticket;
 use isin_actors::client;
-use isin_actors::codec::Codec;
 use isin_actors::master::{Master, MasterConfig};
-use isin_actors::protocol::{Message, Role, SlaveEntry};
-use isin_actors::transport::Transport;
-use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer::{self, GetSlaves, SlaveList, ViewerActor};
+use isin_cluster::codec::Codec;
+use isin_cluster::protocol::{Message, SlaveEntry};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Ticket;
+use isin_transport::Transport;
+use isin_transport::mem::MemTransport;
 use std::time::Duration;
 
 /// Waits (up to 10 s) for a slave list that `want` accepts.
@@ -35,9 +35,9 @@ async fn fake_slave(
     ticket: &Ticket,
     name: &str,
     threads: u32,
-) -> isin_actors::transport::Connection {
+) -> isin_transport::Connection {
     let (mut conn, _) =
-        client::handshake(t, ticket, Role::Slave, name, threads, None, &[Codec::Raw]).await.unwrap();
+        client::handshake(t, ticket, client::Join::slave(name, threads, None, &[Codec::Raw])).await.unwrap();
     let hash = loop {
         match client::recv_message(&mut conn, 1 << 20, Duration::from_secs(10)).await.unwrap() {
             Message::SceneSync { hash, .. } => break hash,
@@ -54,10 +54,11 @@ async fn viewers_get_the_slave_list_on_joining_and_on_every_join_and_death() {
     let t = MemTransport::new();
     let bundle = SceneBundle { name: "fake.toml".into(), source: "fake".into(), ..Default::default() };
     let settings = RenderSettings { width: 32, height: 32, ..RenderSettings::default() };
-    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings);
+    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings).unwrap();
     let _master = Master::new(cfg).unwrap().serve(t.listen("master").await.unwrap());
     let ticket =
-        Ticket { transport: "mem".into(), token: "tok".into(), addr: "master".into(), fingerprint: None };
+        // The kind is not read: the test hands the in-memory transport to the peer itself.
+        Ticket { transport: isin_transport::TransportKind::TcpInsecure, token: "tok".into(), addr: "master".into(), fingerprint: None };
 
     // A slave that is there before the viewer.
     let first = fake_slave(&t, &ticket, "first", 3).await;

@@ -2,13 +2,13 @@
 //! rendered stop between bands of rows, not at their end; and the tracer's
 //! banded rendering gives the bytes of one whole-tile render.
 
-use isin_actors::auth::Ticket;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, Renderer, SlaveOptions, Tracer};
-use isin_actors::transport::Transport;
-use isin_actors::transport::mem::MemTransport;
 use isin_actors::viewer;
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
+use isin_transport::Ticket;
+use isin_transport::Transport;
+use isin_transport::mem::MemTransport;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -81,10 +81,11 @@ fn settings(w: u32, h: u32) -> RenderSettings {
 async fn a_newer_frame_stops_the_tile_in_flight_of_the_superseded_one() {
     let t = MemTransport::new();
     let bundle = SceneBundle { name: "fake.toml".into(), source: "fake".into(), ..Default::default() };
-    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings(32, 32));
+    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings(32, 32)).unwrap();
     let master = Master::new(cfg).unwrap().serve(t.listen("master").await.unwrap());
     let ticket =
-        Ticket { transport: "mem".into(), token: "tok".into(), addr: "master".into(), fingerprint: None };
+        // The kind is not read: the test hands the in-memory transport to the peer itself.
+        Ticket { transport: isin_transport::TransportKind::TcpInsecure, token: "tok".into(), addr: "master".into(), fingerprint: None };
     let (started_tx, mut started) = mpsc::unbounded_channel();
     let stuck = Arc::new(Stuck { started: std::sync::Mutex::new(Some(started_tx)), ..Default::default() });
     // One render thread: the new frame's tile can only run once the stuck one stopped.

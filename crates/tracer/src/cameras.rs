@@ -92,8 +92,11 @@ impl Camera {
     /// about its centre until it has that aspect, the eye where it was. So
     /// an image of another shape than the scene's shows everything the
     /// scene's framing does, plus more at two sides, and nothing is
-    /// stretched. Aspects within 0.1 % of the plane's (a scene file's corners
-    /// written to three decimals) return the camera as it is.
+    /// stretched. Aspects within 10⁻³ of the plane's return the camera as it
+    /// is: a plane written with rounded corners (the paper room's 8 × 6.00007)
+    /// is the image's shape, not a reason to move every ray by a hair, which
+    /// would make the same scene render differently by a client that fits
+    /// and one that does not.
     pub fn fit_aspect(&self, aspect: f32) -> Camera {
         let current = self.aspect();
         if !(aspect > 0.0 && aspect.is_finite() && current.is_finite())

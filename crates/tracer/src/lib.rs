@@ -33,6 +33,7 @@ pub mod cameras;
 pub mod geometry;
 pub mod integrator;
 pub mod lights;
+pub mod limits;
 pub mod materials;
 pub mod math;
 pub mod memory;

@@ -460,7 +460,9 @@ fn nan_and_infinity_are_rejected_everywhere() {
             src.lines().position(|l| l.contains("nan") || l.contains("inf") || l.contains("e39")).unwrap()
                 + 1;
         let e = err(src, &mut Mem::default());
-        assert_mentions(&e, &[&format!("test.toml:{bad_line}:"), "finite"]);
+        // A finite number beyond f32 says it is too large, not that it is infinite.
+        let says = if src.contains("e39") { "too large" } else { "finite" };
+        assert_mentions(&e, &[&format!("test.toml:{bad_line}:"), says]);
         let field = src.lines().nth(bad_line - 1).unwrap().split('=').next().unwrap().trim();
         assert_mentions(&e, &[field]);
     }
@@ -1169,4 +1171,25 @@ fn scene_bundles_round_trip_through_messagepack() {
     broken.assets.remove("meshes/sub/thing.obj");
     let e = broken.load().expect_err("missing OBJ").to_string();
     assert_mentions(&e, &["bundle.toml:3", "meshes/sub/thing.obj", "not in the scene bundle"]);
+}
+
+#[test]
+fn settings_beyond_the_limits_are_refused_or_clamped_as_everywhere_else() {
+    // Refused before any work, naming the limit.
+    let e = err("[settings]\nlight_samples = 1000000000\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml", "light_samples", "above the limit of 4096"]);
+    let e = err("[settings]\nwidth = 100000\n", &mut Mem::default());
+    assert_mentions(&e, &["settings.width", "above the limit of 16384"]);
+    // Deeper than any frame is rendered: clamped, with one warning, so a
+    // cluster (sent the clamped settings) renders it as a local render does.
+    let src = "[settings]\nmax_depth = 1000000\n[[objects]]\nkind = \"sphere\"\n";
+    let parts = parse_scene("deep.toml", src, &mut Mem::default()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(parts.settings.max_depth, 64);
+    assert_eq!(parts.warnings.iter().filter(|w| w.contains("max_depth")).count(), 1, "{:?}", parts.warnings);
+}
+
+#[test]
+fn a_number_too_large_for_the_tracer_says_so() {
+    let e = err("[[lights]]\nkind = \"point\"\nposition = [0, 1, 0]\npower = 1e308\n", &mut Mem::default());
+    assert_mentions(&e, &["test.toml:4", "too large"]);
 }

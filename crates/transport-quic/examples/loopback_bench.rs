@@ -1,7 +1,9 @@
-//! Loopback micro-benchmark: 12 KB tiles (64×64 RGB8 `TileResult` frames)
-//! from a "slave" to a "master" over QUIC, TLS over TCP and plaintext TCP, both ends in this
-//! process. The master answers each tile with a `Heartbeat` frame as an
-//! acknowledgement; the slave keeps `WINDOW` tiles in flight.
+//! Loopback micro-benchmark: 12 KB tiles (the size of a 64×64 RGB8
+//! `TileResult` frame, sent [independent](Delivery::Independent)) from a
+//! "slave" to a "master" over QUIC, TLS over TCP and plaintext TCP, both ends
+//! in this process. The master answers each tile with a small ordered frame as
+//! an acknowledgement (a `Heartbeat`'s size); the slave keeps `WINDOW` tiles in
+//! flight.
 //!
 //! Prints tiles/s, process CPU time per tile (both ends together: user +
 //! system), the tile round-trip p50/p99, the interface's byte count per tile
@@ -19,10 +21,9 @@
 #[path = "../tests/relay/mod.rs"]
 mod relay;
 
-use isin_actors::protocol::{self, DEFAULT_MAX_FRAME, Message, TileResult};
-use isin_actors::transport::{Connection, Transport};
-use isin_transport_quic::QuicTransport;
+use isin_transport::{Connection, Delivery, Transport};
 use isin_transport_quic::tls::Identity;
+use isin_transport_quic::{QuicOptions, QuicTransport};
 use isin_transport_tcp::TcpTransport;
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -35,17 +36,19 @@ fn cpu_time() -> Duration {
     tv(u.ru_utime) + tv(u.ru_stime)
 }
 
+/// Largest frame either end accepts.
+const MAX_FRAME: usize = 1 << 20;
+/// Bytes of an encoded `TileResult` around its pixels.
+const TILE_HEADER: usize = 32;
+
+/// A tile-sized frame: 64×64 RGB8 pixels and a message header's worth of bytes.
 fn tile(id: u32) -> Vec<u8> {
-    let pixels: Vec<u8> = (0..64 * 64 * 3).map(|i| (i as u32 ^ id) as u8).collect();
-    protocol::encode(&Message::TileResult(TileResult {
-        frame: 1,
-        id,
-        tile: isin_tracer::Tile { x: 0, y: 0, w: 64, h: 64 },
-        render_micros: 0,
-        codec: Default::default(),
-        pixels: pixels.into(),
-    }))
-    .expect("encodable")
+    (0..TILE_HEADER + 64 * 64 * 3).map(|i| (i as u32 ^ id) as u8).collect()
+}
+
+/// A one-stream QUIC transport: every frame ordered, on the control stream.
+fn single_stream(t: &QuicTransport) -> QuicTransport {
+    t.clone().with_options(QuicOptions { single_stream: true, ..t.options().clone() })
 }
 
 struct Outcome {
@@ -81,10 +84,10 @@ async fn run(
     o
 }
 
-/// The master's side: answers every tile with a `Heartbeat`.
+/// The master's side: answers every tile with a small ordered frame.
 async fn echo(mut master: Connection) {
-    master.sender.set_max_frame(DEFAULT_MAX_FRAME);
-    let ack = protocol::encode(&Message::Heartbeat).expect("encodable");
+    master.sender.set_max_frame(MAX_FRAME);
+    let ack = vec![0u8; 4];
     while let Some(Ok(_)) = master.receiver.recv().await {
         if master.sender.send(ack.clone()).is_err() {
             break;
@@ -94,7 +97,7 @@ async fn echo(mut master: Connection) {
 
 /// The slave's side: `tiles` tiles, `window` in flight.
 async fn drive(mut slave: Connection, tiles: u32, window: usize) -> Outcome {
-    slave.sender.set_max_frame(DEFAULT_MAX_FRAME);
+    slave.sender.set_max_frame(MAX_FRAME);
     let frames: Vec<Vec<u8>> = (0..tiles).map(tile).collect();
     let (t0, c0) = (Instant::now(), cpu_time());
     let mut sent_at = VecDeque::with_capacity(window);
@@ -102,7 +105,7 @@ async fn drive(mut slave: Connection, tiles: u32, window: usize) -> Outcome {
     let mut next = 0usize;
     while rtts.len() < tiles as usize {
         while next < frames.len() && sent_at.len() < window {
-            slave.sender.send(frames[next].clone()).expect("send");
+            slave.sender.send_as(frames[next].clone(), Delivery::Independent).expect("send");
             sent_at.push_back(Instant::now());
             next += 1;
         }
@@ -156,11 +159,7 @@ fn two_process(args: &[String]) -> bool {
             let t: Box<dyn Transport> = match kind.as_str() {
                 "tcp" => Box::new(TcpTransport::client(fp).expect("client")),
                 "tcp-insecure" => Box::new(TcpTransport::insecure()),
-                "quic1" => Box::new(
-                    QuicTransport::client(fp)
-                        .expect("client")
-                        .with_classifier(isin_transport_quic::wire::all_ordered),
-                ),
+                "quic1" => Box::new(single_stream(&QuicTransport::client(fp).expect("client"))),
                 _ => Box::new(QuicTransport::client(fp).expect("client")),
             };
             let (tiles, window) = (tiles.parse().expect("tiles"), window.parse().expect("window"));
@@ -194,8 +193,7 @@ fn main() {
         let tcp = TcpTransport::both(&id, id.fingerprint()).expect("TLS over TCP");
         let plain = TcpTransport::insecure();
         // Same, but every frame on the control stream: the cost of a stream per tile.
-        let one_server = quic_server.clone().with_classifier(isin_transport_quic::wire::all_ordered);
-        let one_client = quic_client.clone().with_classifier(isin_transport_quic::wire::all_ordered);
+        let (one_server, one_client) = (single_stream(&quic_server), single_stream(&quic_client));
         println!(
             "{tiles} tiles of {} bytes, {window} in flight, loopback, one process, {:.1} % loss",
             tile(0).len(),

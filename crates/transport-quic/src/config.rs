@@ -41,6 +41,11 @@ pub struct QuicOptions {
     /// How long the server waits for a new connection's TLS handshake and
     /// control stream.
     pub handshake_timeout: Duration,
+    /// Send every frame on the one control stream, in send order, whatever
+    /// [`Delivery`](isin_transport::Delivery) its sender asked for: TCP-like
+    /// delivery over QUIC, to measure what a stream per tile costs or gains.
+    /// Only this side's sending is affected; the peer reads either way.
+    pub single_stream: bool,
 }
 
 impl Default for QuicOptions {
@@ -56,6 +61,7 @@ impl Default for QuicOptions {
             send_window: 32 << 20,
             linger: Duration::from_secs(5),
             handshake_timeout: Duration::from_secs(10),
+            single_stream: false,
         }
     }
 }

@@ -2,12 +2,15 @@
 //!
 //! Four tasks per connection:
 //! - the **writer** takes frames from the [`FrameSender`] queue in order and
-//!   puts ordered ones on the control stream and independent ones each on a
-//!   new unidirectional stream (see [`crate::wire`]);
+//!   puts [ordered](Delivery::Ordered) ones on the control stream and
+//!   [independent](Delivery::Independent) ones each on a new unidirectional
+//!   stream (see [`crate::wire`]), as the sender chose — or every frame on the
+//!   control stream with [`QuicOptions::single_stream`];
 //! - the **control reader** parses the peer's control stream;
 //! - the **acceptor** accepts the peer's frame streams and reads each in its
-//!   own task, checking the announced length against the connection's limit
-//!   before reading the body;
+//!   own task, admitting the announced length (the connection's maximum frame,
+//!   then its memory budget) before reading the body, and the body under the
+//!   connection's frame timeout (the control reader does the same);
 //! - the **sequencer** merges both, delivering a frame once everything it
 //!   depends on has been delivered, and ends the [`FrameReceiver`]'s stream.
 //!
@@ -23,8 +26,11 @@
 
 use crate::config::QuicOptions;
 use crate::stats::Registry;
-use crate::wire::{self, Classifier, Delivery};
-use isin_actors::transport::{ConnShared, Connection, FrameReceiver, FrameSender, Outgoing, TransportError};
+use crate::wire;
+use isin_transport::{
+    ConnShared, Connection, Delivery, FrameReceiver, FrameSender, Incoming, Outgoing, Reservation,
+    TransportError,
+};
 use quinn::{ConnectionError, ReadError, RecvStream, SendStream, VarInt};
 use std::collections::{BTreeMap, VecDeque};
 use std::io;
@@ -39,6 +45,10 @@ pub const CLOSE_DONE: u32 = 0;
 pub const CLOSE_PROTOCOL: u32 = 1;
 /// Application close code: the peer sent a frame above the limit.
 pub const CLOSE_TOO_LARGE: u32 = 2;
+/// Application close code: the peer's frame did not fit the memory budget.
+pub const CLOSE_OVER_BUDGET: u32 = 3;
+/// Application close code: the peer did not complete a frame in time.
+pub const CLOSE_FRAME_TIMEOUT: u32 = 4;
 
 /// Frames buffered between the sequencer and the consumer.
 const INBOUND_QUEUE: usize = 64;
@@ -58,9 +68,12 @@ const MAX_WAITING_BYTES: usize = 256 << 20;
 /// Largest allocation made ahead of the bytes actually arriving.
 const PREALLOC: usize = 1 << 20;
 
+/// A frame read and the budget it holds until the application takes it.
+type Frame = (Vec<u8>, Reservation);
+
 /// What the control reader found.
 enum Ctrl {
-    Frame { indep_before: u64, data: Vec<u8> },
+    Frame { indep_before: u64, frame: Frame },
     End { indep_total: u64 },
     Failed(TransportError, u32),
     Lost(String),
@@ -68,37 +81,36 @@ enum Ctrl {
 
 /// What the acceptor found.
 enum Indep {
-    Frame { ordered_before: u64, data: Vec<u8> },
+    Frame { ordered_before: u64, frame: Frame },
     Failed(TransportError, u32),
     NoMore,
 }
 
-/// Wraps an established connection and its control stream halves.
-/// `endpoint` is kept alive (and drained on close) for client connections,
-/// which own theirs.
+/// Wraps an established connection and its control stream halves, under the
+/// limits of `shared`. `endpoint` is kept alive (and drained on close) for
+/// client connections, which own theirs.
 pub fn spawn(
     conn: quinn::Connection,
     control_send: SendStream,
     control_recv: RecvStream,
     endpoint: Option<quinn::Endpoint>,
-    classify: Classifier,
+    shared: Arc<ConnShared>,
     opts: &QuicOptions,
     registry: Arc<Registry>,
 ) -> Connection {
     registry.add(&conn);
     let peer = conn.remote_address().to_string();
-    let shared = ConnShared::new(isin_actors::protocol::HANDSHAKE_MAX_FRAME);
     let (out_tx, out_rx) = mpsc::unbounded_channel();
     let (in_tx, in_rx) = mpsc::channel(INBOUND_QUEUE);
     let (ctrl_tx, ctrl_rx) = mpsc::channel(EVENT_QUEUE);
     let (indep_tx, indep_rx) = mpsc::channel(EVENT_QUEUE);
     tokio::spawn(control_reader(control_recv, shared.clone(), ctrl_tx));
     tokio::spawn(acceptor(conn.clone(), shared.clone(), indep_tx));
-    let linger = opts.linger;
+    let (linger, single_stream) = (opts.linger, opts.single_stream);
     let s = shared.clone();
     let p = peer.clone();
     tokio::spawn(async move {
-        let writer = write_loop(&conn, control_send, out_rx, &s, classify, linger);
+        let writer = write_loop(&conn, control_send, out_rx, &s, single_stream, linger);
         let reader = sequence(&conn, ctrl_rx, indep_rx, in_tx, &s);
         let (wrote, read) = tokio::join!(writer, reader);
         tracing::debug!(peer = %p, ?wrote, ?read, "QUIC connection done");
@@ -128,7 +140,7 @@ async fn write_loop(
     mut control: SendStream,
     mut rx: mpsc::UnboundedReceiver<Outgoing>,
     shared: &Arc<ConnShared>,
-    classify: Classifier,
+    single_stream: bool,
     linger: Duration,
 ) -> Wrote {
     let closed = conn.closed();
@@ -141,15 +153,16 @@ async fn write_loop(
             _ = &mut closed => return Wrote::Lost,
             item = rx.recv() => item,
         };
-        let frame = match item {
-            Some(Outgoing::Frame(f)) => f,
+        let (frame, delivery) = match item {
+            Some(Outgoing::Frame(f, _)) if single_stream => (f, Delivery::Ordered),
+            Some(Outgoing::Frame(f, d)) => (f, d),
             Some(Outgoing::Close) | None => break,
         };
         let Ok(len) = u32::try_from(frame.len()) else {
             tracing::error!(len = frame.len(), "frame too long for the wire; dropped");
             continue;
         };
-        match classify(&frame) {
+        match delivery {
             Delivery::Independent => {
                 let Ok(mut stream) = conn.open_uni().await else { return Wrote::Lost };
                 let header = wire::stream_header(ordered, len);
@@ -209,9 +222,9 @@ struct Sequencer {
     ordered_done: u64,
     indep_done: u64,
     /// Control frames in stream order, with the independent count each awaits.
-    ordered: VecDeque<(u64, Vec<u8>)>,
+    ordered: VecDeque<(u64, Frame)>,
     /// Independent frames keyed by the ordered count each awaits.
-    waiting: BTreeMap<u64, Vec<Vec<u8>>>,
+    waiting: BTreeMap<u64, Vec<Frame>>,
     ordered_bytes: usize,
     waiting_bytes: usize,
     end: Option<u64>,
@@ -219,34 +232,35 @@ struct Sequencer {
 }
 
 impl Sequencer {
-    fn push_ordered(&mut self, indep_before: u64, data: Vec<u8>) {
-        self.ordered_bytes += data.len();
-        self.ordered.push_back((indep_before, data));
+    fn push_ordered(&mut self, indep_before: u64, frame: Frame) {
+        self.ordered_bytes += frame.0.len();
+        self.ordered.push_back((indep_before, frame));
     }
 
-    fn push_indep(&mut self, ordered_before: u64, data: Vec<u8>) {
-        self.waiting_bytes += data.len();
-        self.waiting.entry(ordered_before).or_default().push(data);
+    fn push_indep(&mut self, ordered_before: u64, frame: Frame) {
+        self.waiting_bytes += frame.0.len();
+        self.waiting.entry(ordered_before).or_default().push(frame);
     }
 
     /// The next frame that may be delivered now.
-    fn pop(&mut self) -> Option<Vec<u8>> {
+    fn pop(&mut self) -> Option<Frame> {
         if let Some(mut entry) = self.waiting.first_entry()
             && *entry.key() <= self.ordered_done
         {
-            let data = entry.get_mut().pop().unwrap_or_default();
+            let frame = entry.get_mut().pop();
             if entry.get().is_empty() {
                 entry.remove();
             }
+            let frame = frame?;
             self.indep_done += 1;
-            self.waiting_bytes -= data.len();
-            return Some(data);
+            self.waiting_bytes -= frame.0.len();
+            return Some(frame);
         }
         if self.ordered.front().is_some_and(|(before, _)| *before <= self.indep_done) {
-            let (_, data) = self.ordered.pop_front()?;
+            let (_, frame) = self.ordered.pop_front()?;
             self.ordered_done += 1;
-            self.ordered_bytes -= data.len();
-            return Some(data);
+            self.ordered_bytes -= frame.0.len();
+            return Some(frame);
         }
         None
     }
@@ -290,7 +304,7 @@ async fn sequence(
     conn: &quinn::Connection,
     mut ctrl_rx: mpsc::Receiver<Ctrl>,
     mut indep_rx: mpsc::Receiver<Indep>,
-    tx: mpsc::Sender<Result<Vec<u8>, TransportError>>,
+    tx: mpsc::Sender<Incoming>,
     shared: &Arc<ConnShared>,
 ) -> Read {
     let mut seq = Sequencer::default();
@@ -327,7 +341,7 @@ async fn sequence(
             _ = shared.close_notify.notified() => return Read::Stopped,
             _ = tx.closed() => return Read::Stopped,
             ev = ctrl_rx.recv(), if seq.want_ordered() => match ev {
-                Some(Ctrl::Frame { indep_before, data }) => seq.push_ordered(indep_before, data),
+                Some(Ctrl::Frame { indep_before, frame }) => seq.push_ordered(indep_before, frame),
                 Some(Ctrl::End { indep_total }) => seq.end = Some(indep_total),
                 Some(Ctrl::Failed(err, code)) => return fail(err, code).await,
                 Some(Ctrl::Lost(why)) => {
@@ -337,7 +351,7 @@ async fn sequence(
                 None => return Read::Lost,
             },
             ev = indep_rx.recv(), if seq.want_independent() => match ev {
-                Some(Indep::Frame { ordered_before, data }) => seq.push_indep(ordered_before, data),
+                Some(Indep::Frame { ordered_before, frame }) => seq.push_indep(ordered_before, frame),
                 Some(Indep::Failed(err, code)) => return fail(err, code).await,
                 Some(Indep::NoMore) | None => seq.no_more_streams = true,
             },
@@ -390,9 +404,30 @@ async fn read_body(recv: &mut RecvStream, len: usize) -> Result<Vec<u8>, ReadFai
     Ok(buf)
 }
 
-fn too_large(len: u64, shared: &ConnShared) -> Option<TransportError> {
-    let max = shared.max_frame();
-    (len > max as u64).then_some(TransportError::FrameTooLarge { len, max })
+/// Admits a frame of `len` announced bytes ([`ConnShared::admit`]), or the
+/// error and close code refusing it.
+fn admit(len: u32, shared: &ConnShared) -> Result<Reservation, (TransportError, u32)> {
+    shared.admit(len as u64).map_err(|e| {
+        let code = match e {
+            TransportError::OverBudget { .. } => CLOSE_OVER_BUDGET,
+            _ => CLOSE_TOO_LARGE,
+        };
+        (e, code)
+    })
+}
+
+/// [`read_body`] within the connection's frame timeout: `Ok(Err)` if the peer
+/// was too slow.
+async fn read_body_in_time(
+    recv: &mut RecvStream,
+    len: usize,
+    shared: &ConnShared,
+) -> Result<Result<Vec<u8>, (TransportError, u32)>, ReadFail> {
+    let timeout = shared.frame_timeout();
+    match tokio::time::timeout(timeout, read_body(recv, len)).await {
+        Ok(body) => Ok(Ok(body?)),
+        Err(_) => Ok(Err((TransportError::FrameTimeout { len: len as u64, timeout }, CLOSE_FRAME_TIMEOUT))),
+    }
 }
 
 fn invalid(what: &str) -> TransportError {
@@ -460,12 +495,17 @@ async fn read_control_frame(
     let mut len = [0u8; 4];
     len.copy_from_slice(&h[8..]);
     let len = u32::from_be_bytes(len);
-    if let Some(err) = too_large(len as u64, shared) {
-        return Ok(Err((err, CLOSE_TOO_LARGE)));
-    }
-    let data = read_body(recv, len as usize).await?;
+    // Limit and budget first; only then the bytes.
+    let reservation = match admit(len, shared) {
+        Ok(r) => r,
+        Err(refused) => return Ok(Err(refused)),
+    };
+    let data = match read_body_in_time(recv, len as usize, shared).await? {
+        Ok(data) => data,
+        Err(late) => return Ok(Err(late)),
+    };
     shared.count_received((wire::CONTROL_HEADER + data.len()) as u64);
-    Ok(Ok(Ctrl::Frame { indep_before: u64::from_be_bytes(before), data }))
+    Ok(Ok(Ctrl::Frame { indep_before: u64::from_be_bytes(before), frame: (data, reservation) }))
 }
 
 async fn acceptor(conn: quinn::Connection, shared: Arc<ConnShared>, tx: mpsc::Sender<Indep>) {
@@ -504,16 +544,21 @@ async fn read_frame_stream(mut recv: RecvStream, shared: Arc<ConnShared>) -> Opt
             return Err(ReadFail::Truncated);
         }
         let (ordered_before, len) = wire::parse_stream_header(&h);
-        if let Some(err) = too_large(len as u64, &shared) {
-            return Ok(Indep::Failed(err, CLOSE_TOO_LARGE));
-        }
-        let data = read_body(&mut recv, len as usize).await?;
+        // Limit and budget first; only then the bytes.
+        let reservation = match admit(len, &shared) {
+            Ok(r) => r,
+            Err((err, code)) => return Ok(Indep::Failed(err, code)),
+        };
+        let data = match read_body_in_time(&mut recv, len as usize, &shared).await? {
+            Ok(data) => data,
+            Err((err, code)) => return Ok(Indep::Failed(err, code)),
+        };
         // The stream must end right after the frame.
         if recv.read_chunk(1, true).await?.is_some() {
             return Ok(Indep::Failed(invalid("bytes after the frame on a frame stream"), CLOSE_PROTOCOL));
         }
         shared.count_received((wire::STREAM_HEADER + data.len()) as u64);
-        Ok(Indep::Frame { ordered_before, data })
+        Ok(Indep::Frame { ordered_before, frame: (data, reservation) })
     };
     match r.await {
         Ok(ev) => Some(ev),
@@ -529,23 +574,31 @@ async fn read_frame_stream(mut recv: RecvStream, shared: Arc<ConnShared>) -> Opt
 mod tests {
     use super::*;
 
+    fn f(bytes: &[u8]) -> Frame {
+        (bytes.to_vec(), Reservation::unbudgeted(bytes.len()))
+    }
+
+    fn pop(s: &mut Sequencer) -> Option<Vec<u8>> {
+        s.pop().map(|(data, _)| data)
+    }
+
     #[test]
     fn frames_wait_exactly_for_what_was_sent_before_them() {
         let mut s = Sequencer::default();
         // Sent: I0, O0 (after 1 independent), I1 (after 1 ordered), I2 (after 1 ordered).
-        s.push_indep(1, b"I1".to_vec());
-        s.push_ordered(1, b"O0".to_vec());
-        assert_eq!(s.pop(), None, "O0 waits for I0, I1 waits for O0");
+        s.push_indep(1, f(b"I1"));
+        s.push_ordered(1, f(b"O0"));
+        assert_eq!(pop(&mut s), None, "O0 waits for I0, I1 waits for O0");
         assert!(s.want_independent() && s.want_ordered());
-        s.push_indep(0, b"I0".to_vec());
-        assert_eq!(s.pop().as_deref(), Some(&b"I0"[..]));
-        assert_eq!(s.pop().as_deref(), Some(&b"O0"[..]));
-        assert_eq!(s.pop().as_deref(), Some(&b"I1"[..]));
-        assert_eq!(s.pop(), None);
+        s.push_indep(0, f(b"I0"));
+        assert_eq!(pop(&mut s).as_deref(), Some(&b"I0"[..]));
+        assert_eq!(pop(&mut s).as_deref(), Some(&b"O0"[..]));
+        assert_eq!(pop(&mut s).as_deref(), Some(&b"I1"[..]));
+        assert_eq!(pop(&mut s), None);
         s.end = Some(3);
         assert_eq!(s.finished(), None, "I2 announced but not here yet");
-        s.push_indep(1, b"I2".to_vec());
-        assert_eq!(s.pop().as_deref(), Some(&b"I2"[..]));
+        s.push_indep(1, f(b"I2"));
+        assert_eq!(pop(&mut s).as_deref(), Some(&b"I2"[..]));
         assert_eq!(s.finished(), Some(Ok(())));
         assert_eq!((s.ordered_bytes, s.waiting_bytes), (0, 0));
     }
@@ -555,12 +608,12 @@ mod tests {
         let mut s = Sequencer::default();
         // A huge ordered frame waiting for a tile sent before it: keep taking
         // streams (the tile is among them), stop reading the control stream.
-        s.push_ordered(1, vec![0; MAX_PENDING_BYTES]);
+        s.push_ordered(1, f(&vec![0; MAX_PENDING_BYTES]));
         assert!(!s.want_ordered());
         assert!(s.want_independent());
         // Tiles waiting for an ordered frame not read yet: keep reading both.
         let mut s = Sequencer::default();
-        s.push_indep(1, vec![0; MAX_PENDING_BYTES]);
+        s.push_indep(1, f(&vec![0; MAX_PENDING_BYTES]));
         assert!(s.want_ordered());
         assert!(s.want_independent());
     }
@@ -570,12 +623,12 @@ mod tests {
         let s = Sequencer { end: Some(2), no_more_streams: true, ..Sequencer::default() };
         assert!(matches!(s.finished(), Some(Err(_))));
         let mut s = Sequencer::default();
-        s.push_indep(5, vec![1]);
+        s.push_indep(5, f(&[1]));
         s.end = Some(1);
         assert!(matches!(s.finished(), Some(Err(_))), "depends on ordered frames never sent");
         let mut s = Sequencer::default();
-        s.push_ordered(1, vec![]);
-        s.push_indep(9, vec![0; MAX_WAITING_BYTES + 1]);
+        s.push_ordered(1, f(&[]));
+        s.push_indep(9, f(&vec![0; MAX_WAITING_BYTES + 1]));
         assert!(matches!(s.finished(), Some(Err(_))), "flood");
     }
 }

@@ -16,8 +16,10 @@
 //! it: an ordered frame is delivered after everything sent before it, an
 //! independent frame after the ordered frames sent before it, and independent
 //! frames overtake only each other (details in [`wire`]). Which frames are
-//! independent is a [`wire::Classifier`]; the default,
-//! [`wire::protocol_classifier`], picks isin's two tile messages.
+//! independent is the sender's choice ([`Delivery`](isin_transport::Delivery),
+//! given to [`FrameSender::send_as`](isin_transport::FrameSender::send_as)):
+//! the transport never looks inside a frame. [`QuicOptions::single_stream`]
+//! puts everything on the control stream instead, for comparison.
 //!
 //! ## Why pinning
 //! The master has no certificate from an authority: it generates a
@@ -39,6 +41,14 @@
 //! for a peer to make this side buffer without limit), and a 5 ms ACK delay
 //! requested from the peer so a lost last packet is probed quickly.
 //!
+//! ## Limits
+//! As on every transport, an announced frame is checked against the maximum
+//! frame and reserved from the listener's memory budget before its bytes are
+//! read, and must arrive within the frame timeout; refusals close the
+//! connection with [`CLOSE_TOO_LARGE`], [`CLOSE_OVER_BUDGET`] or
+//! [`CLOSE_FRAME_TIMEOUT`]. Reservations are held while a frame waits in the
+//! sequencer, so frames held back for ordering count against the budget too.
+//!
 //! ## Counting
 //! Each connection counts frames and their framing like every transport
 //! (`ConnStats`); [`QuicTransport::wire_stats`] adds what QUIC itself put on
@@ -49,7 +59,7 @@
 //! ## Example
 //! ```no_run
 //! # async fn demo() -> Result<(), Box<dyn std::error::Error>> {
-//! use isin_actors::transport::Transport;
+//! use isin_transport::Transport;
 //! use isin_transport_quic::{QuicTransport, tls::Identity};
 //! let identity = Identity::generate()?;
 //! let fingerprint = identity.fingerprint(); // goes into the join ticket
@@ -67,19 +77,22 @@ pub mod stats;
 pub mod wire;
 
 pub use config::QuicOptions;
-pub use conn::{CLOSE_DONE, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
-/// The TLS identity and pinning shared with TCP (it lives in `isin-transport-tcp`).
-pub use isin_transport_tcp::tls;
+pub use conn::{CLOSE_DONE, CLOSE_FRAME_TIMEOUT, CLOSE_OVER_BUDGET, CLOSE_PROTOCOL, CLOSE_TOO_LARGE};
+/// The TLS identity and pinning shared with TCP (the `isin-transport-tls` crate).
+pub use isin_transport_tls as tls;
 pub use stats::WireStats;
 
-use isin_actors::transport::{BoxFuture, Connection, Listener, Transport, TransportError};
+use isin_transport::{
+    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, ListenerLimits, MemoryBudget, Transport,
+    TransportError,
+};
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use quinn::{Endpoint, EndpointConfig, TokioRuntime, VarInt};
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::time::Duration;
 use tls::{Fingerprint, Identity, TlsError};
 use tokio::sync::mpsc;
-use wire::Classifier;
 
 /// Connections accepted but not yet taken by [`Listener::accept`].
 const ACCEPT_QUEUE: usize = 64;
@@ -92,7 +105,6 @@ pub struct QuicTransport {
     pinned: Option<Fingerprint>,
     identity: Option<Fingerprint>,
     options: QuicOptions,
-    classify: Classifier,
     registry: Arc<stats::Registry>,
 }
 
@@ -130,7 +142,6 @@ impl QuicTransport {
             pinned: None,
             identity: Some(identity.fingerprint()),
             options: QuicOptions::default(),
-            classify: wire::protocol_classifier,
             registry: Arc::default(),
         })
     }
@@ -145,7 +156,6 @@ impl QuicTransport {
             pinned: Some(pinned),
             identity: None,
             options: QuicOptions::default(),
-            classify: wire::protocol_classifier,
             registry: Arc::default(),
         })
     }
@@ -160,13 +170,6 @@ impl QuicTransport {
     /// Replaces the tuning.
     pub fn with_options(mut self, options: QuicOptions) -> Self {
         self.options = options;
-        self
-    }
-
-    /// Replaces the rule deciding which frames may overtake each other
-    /// (default: [`wire::protocol_classifier`]).
-    pub fn with_classifier(mut self, classify: Classifier) -> Self {
-        self.classify = classify;
         self
     }
 
@@ -194,14 +197,9 @@ impl QuicTransport {
 /// The address to use for `HOST:PORT`: IPv4 when the name has both (a lost
 /// UDP handshake is only noticed after the idle timeout, so unlike TCP there
 /// is no quick trying of each address in turn; masters mostly listen on IPv4).
-async fn resolve(addr: &str) -> Result<SocketAddr, String> {
-    let addrs: Vec<SocketAddr> = tokio::net::lookup_host(addr).await.map_err(|e| e.to_string())?.collect();
-    addrs
-        .iter()
-        .find(|a| a.is_ipv4())
-        .or(addrs.first())
-        .copied()
-        .ok_or_else(|| "no address found".to_string())
+async fn resolve(addr: &str) -> Result<SocketAddr, TransportError> {
+    let addrs = isin_transport::resolve(addr).await?;
+    Ok(addrs.iter().find(|a| a.is_ipv4()).copied().unwrap_or(addrs[0]))
 }
 
 fn endpoint(
@@ -237,21 +235,22 @@ impl Transport for QuicTransport {
             let crypto = self.server.clone().ok_or_else(|| {
                 err("this QUIC transport has no certificate to serve (use QuicTransport::server)".into())
             })?;
-            let bind = resolve(addr).await.map_err(err)?;
+            let bind = resolve(addr).await?;
             let mut server = quinn::ServerConfig::with_crypto(crypto);
             server.transport_config(self.transport_config());
             let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
             let local = endpoint.local_addr().map_err(|e| err(e.to_string()))?.to_string();
             let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
+            let limits = ListenerLimits::new();
             let task = tokio::spawn(accept_loop(
                 endpoint.clone(),
                 tx,
-                self.classify,
                 self.options.clone(),
                 self.registry.clone(),
+                limits.clone(),
             ));
             tracing::debug!(addr = %local, "QUIC listening");
-            Ok(Box::new(QuicListener { endpoint, addr: local, rx, task }) as Box<dyn Listener>)
+            Ok(Box::new(QuicListener { endpoint, addr: local, rx, task, limits }) as Box<dyn Listener>)
         })
     }
 
@@ -262,7 +261,7 @@ impl Transport for QuicTransport {
                 err("no certificate fingerprint to pin (QUIC needs the one in the join ticket)".into())
             })?;
             let (crypto, verifier) = quic_client_config(pinned).map_err(|e| err(e.to_string()))?;
-            let target = resolve(addr).await.map_err(err)?;
+            let target = resolve(addr).await?;
             let bind: SocketAddr = if target.is_ipv6() { "[::]:0".parse() } else { "0.0.0.0:0".parse() }
                 .map_err(|_| err("".into()))?;
             let endpoint = endpoint(bind, None, &self.options).map_err(|e| err(e.to_string()))?;
@@ -275,15 +274,8 @@ impl Transport for QuicTransport {
                 .map_err(|e| describe(addr, &e, &verifier))?;
             let (mut send, recv) = conn.open_bi().await.map_err(|e| describe(addr, &e, &verifier))?;
             send.write_all(wire::PREAMBLE).await.map_err(|e| err(e.to_string()))?;
-            Ok(conn::spawn(
-                conn,
-                send,
-                recv,
-                Some(endpoint),
-                self.classify,
-                &self.options,
-                self.registry.clone(),
-            ))
+            let shared = ConnShared::new(INITIAL_MAX_FRAME);
+            Ok(conn::spawn(conn, send, recv, Some(endpoint), shared, &self.options, self.registry.clone()))
         })
     }
 }
@@ -295,6 +287,7 @@ struct QuicListener {
     addr: String,
     rx: mpsc::Receiver<Connection>,
     task: tokio::task::JoinHandle<()>,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Drop for QuicListener {
@@ -313,24 +306,33 @@ impl Listener for QuicListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move { self.rx.recv().await.ok_or(TransportError::Closed) })
     }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
+    }
 }
 
 async fn accept_loop(
     endpoint: Endpoint,
     tx: mpsc::Sender<Connection>,
-    classify: Classifier,
     opts: QuicOptions,
     registry: Arc<stats::Registry>,
+    limits: Arc<ListenerLimits>,
 ) {
     while let Some(incoming) = endpoint.accept().await {
         let tx = tx.clone();
+        let limits = limits.clone();
         let opts = opts.clone();
         let registry = registry.clone();
         tokio::spawn(async move {
             let remote = incoming.remote_address();
             match tokio::time::timeout(opts.handshake_timeout, establish(incoming)).await {
                 Ok(Ok((conn, send, recv))) => {
-                    let c = conn::spawn(conn, send, recv, None, classify, &opts, registry);
+                    let c = conn::spawn(conn, send, recv, None, limits.conn_shared(), &opts, registry);
                     // If nobody accepts any more, dropping `c` closes it.
                     let _ = tx.send(c).await;
                 }

@@ -21,12 +21,8 @@
 //!
 //! So the only reordering the application can observe is among independent
 //! frames sent since the last ordered one. Which frames are independent is the
-//! [`Classifier`]'s decision; [`protocol_classifier`] marks isin's tile
-//! messages (`TileResult`, `FrameTile`) and nothing else.
-
-use isin_actors::protocol::{self, FrameTile, Message, TileResult};
-use isin_tracer::Tile;
-use std::sync::OnceLock;
+//! sender's choice ([`isin_transport::Delivery`], given to
+//! `FrameSender::send_as`); this crate never looks inside a frame.
 
 /// First bytes the client writes on the control stream (makes the stream
 /// visible to the server and names the framing version).
@@ -42,73 +38,6 @@ pub const CONTROL_HEADER: usize = 1 + 8 + 4;
 pub const END_RECORD: usize = 1 + 8;
 /// Bytes of a frame stream before the payload.
 pub const STREAM_HEADER: usize = 8 + 4;
-
-/// How a frame travels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Delivery {
-    /// On the control stream, never overtaking nor overtaken by anything sent before it.
-    Ordered,
-    /// On its own stream; may overtake other independent frames.
-    Independent,
-}
-
-/// Decides how each outgoing frame travels.
-pub type Classifier = fn(&[u8]) -> Delivery;
-
-/// Every frame ordered: one stream, TCP-like delivery.
-pub fn all_ordered(_: &[u8]) -> Delivery {
-    Delivery::Ordered
-}
-
-/// isin's protocol: tile payloads (`TileResult` from slaves, `FrameTile` to
-/// viewers) are independent, every other message is ordered.
-///
-/// Both tile messages may overtake only each other: a tile still never arrives
-/// before the `Ready`/`FrameRequest` that preceded it, nor after the
-/// `FrameDone` that follows it.
-pub fn protocol_classifier(frame: &[u8]) -> Delivery {
-    let prefixes = tile_prefixes();
-    if prefixes.iter().any(|p| frame.starts_with(p)) { Delivery::Independent } else { Delivery::Ordered }
-}
-
-/// The encoded prefixes shared by every `TileResult` and every `FrameTile`
-/// frame, learnt from the protocol's own encoder (the common prefix of two
-/// messages of the kind that differ in their first field), so that a change of
-/// encoding cannot silently break the classification.
-fn tile_prefixes() -> &'static [Vec<u8>] {
-    static PREFIXES: OnceLock<Vec<Vec<u8>>> = OnceLock::new();
-    PREFIXES.get_or_init(|| {
-        let result = |frame| {
-            Message::TileResult(TileResult {
-                frame,
-                id: 0,
-                tile: Tile { x: 0, y: 0, w: 1, h: 1 },
-                render_micros: 0,
-                codec: Default::default(),
-                pixels: Default::default(),
-            })
-        };
-        let tile = |request| {
-            Message::FrameTile(FrameTile {
-                request,
-                slave: 0,
-                slave_name: String::new(),
-                tile: Tile { x: 0, y: 0, w: 1, h: 1 },
-                codec: Default::default(),
-                pixels: Default::default(),
-            })
-        };
-        [(result(1), result(2)), (tile(1), tile(2))]
-            .iter()
-            .filter_map(|(a, b)| {
-                let (a, b) = (protocol::encode(a).ok()?, protocol::encode(b).ok()?);
-                let n = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
-                // Version prefix plus at least a tag byte, or the rule is useless.
-                (n > 3).then(|| a[..n].to_vec())
-            })
-            .collect()
-    })
-}
 
 /// The header of a frame record on the control stream.
 pub fn control_header(indep_before: u64, len: u32) -> [u8; CONTROL_HEADER] {
@@ -147,66 +76,6 @@ pub fn parse_stream_header(h: &[u8; STREAM_HEADER]) -> (u64, u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isin_actors::protocol::{FrameStats, Hello, Role};
-    use isin_tracer::{Camera, RenderSettings};
-    use serde_bytes::ByteBuf;
-
-    #[test]
-    fn tiles_are_independent_and_everything_else_is_ordered() {
-        let independent = [
-            Message::TileResult(TileResult {
-                frame: 77,
-                id: 123_456,
-                tile: Tile { x: 64, y: 0, w: 64, h: 64 },
-                render_micros: 9,
-                codec: isin_actors::codec::Codec::Qoi,
-                pixels: ByteBuf::from(vec![1u8; 12_288]),
-            }),
-            Message::FrameTile(FrameTile {
-                request: u64::MAX,
-                slave: u64::MAX,
-                slave_name: "TileResult#9".into(),
-                tile: Tile { x: 64, y: 128, w: 64, h: 64 },
-                codec: isin_actors::codec::Codec::Lz4,
-                pixels: ByteBuf::from(vec![2u8; 12_288]),
-            }),
-        ];
-        let ordered = [
-            Message::Heartbeat,
-            Message::Challenge { nonce: [0; 32] },
-            Message::Hello(Hello {
-                role: Role::Slave,
-                name: "TileResult".into(),
-                threads: 1,
-                client_nonce: [0; 32],
-                proof: [0; 32],
-                cached_scene: None,
-                codecs: isin_actors::codec::offer(),
-            }),
-            Message::Ready { hash: [0; 32] },
-            Message::Cancel { frame: 1, tiles: vec![1] },
-            Message::FrameDone { request: 1, stats: FrameStats::default() },
-            Message::FrameRequest {
-                request: 1,
-                camera: Camera::default(),
-                settings: RenderSettings::default(),
-            },
-            Message::Error { message: "FrameTile".into() },
-        ];
-        for m in &independent {
-            assert_eq!(
-                protocol_classifier(&protocol::encode(m).unwrap()),
-                Delivery::Independent,
-                "{}",
-                m.kind()
-            );
-        }
-        for m in &ordered {
-            assert_eq!(protocol_classifier(&protocol::encode(m).unwrap()), Delivery::Ordered, "{}", m.kind());
-        }
-        assert_eq!(protocol_classifier(&[]), Delivery::Ordered);
-        assert_eq!(tile_prefixes().len(), 2);
-    }
 
     #[test]
     fn headers_round_trip() {

@@ -6,12 +6,12 @@
 
 mod relay;
 
-use isin_actors::auth::Ticket;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, Pattern, SlaveOptions};
-use isin_actors::transport::Transport;
 use isin_actors::viewer;
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::Ticket;
+use isin_transport::Transport;
 use isin_transport_quic::QuicTransport;
 use isin_transport_quic::tls::Identity;
 use relay::Relay;
@@ -43,7 +43,7 @@ async fn start_master() -> Setup {
     // Larger than a QUIC stream window: the scene crosses the control stream in pieces.
     assets.insert("mesh.bin".to_string(), (0..3_000_000u32).map(|i| (i % 251) as u8).collect());
     let bundle = SceneBundle { name: "fake.toml".into(), source: "fake scene".into(), assets };
-    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings(64, 48));
+    let cfg = MasterConfig::new("tok".into(), bundle, Camera::default(), settings(64, 48)).unwrap();
     let listener = server.listen("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr();
     let master = Master::new(cfg).unwrap().serve(listener);

@@ -2,7 +2,7 @@
 //! counters: placed under TLS, it counts what really crosses the socket
 //! (handshake, record headers, authentication tags), not just the frames.
 
-use isin_actors::transport::ConnShared;
+use isin_transport::ConnShared;
 use std::io;
 use std::pin::Pin;
 use std::sync::Arc;

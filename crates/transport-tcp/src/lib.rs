@@ -1,37 +1,43 @@
 //! # isin-transport-tcp — the cluster transport over TCP
 //!
 //! Length-delimited frames over tokio TCP streams, implementing the
-//! [`isin_actors::transport::Transport`] interface the actors use. By default
+//! [`isin_transport::Transport`] interface the actors use. By default
 //! the stream is TLS 1.3 ([`TcpTransport::server`] / [`TcpTransport::client`]):
 //! the master presents its self-signed [`tls::Identity`], the slave pins the
 //! certificate's SHA-256 from the join ticket (no "accept any certificate"),
-//! exactly as over QUIC — the [`tls`] module is shared by both transports
-//! (`isin-transport-quic` depends on this crate for it, so the actors crate
-//! stays free of cryptography and neither transport pulls in the other's
-//! network stack). Plaintext is [`TcpTransport::insecure`], a separate
-//! transport with its own name (`tcp-insecure`), so a ticket says which one a
-//! master speaks and a slave never falls back from one to the other.
+//! exactly as over QUIC — both use the `isin-transport-tls` crate (re-exported
+//! here as [`tls`]), so neither transport pulls in the other's network stack.
+//! Plaintext is [`TcpTransport::insecure`], a separate transport with its own
+//! kind ([`TransportKind::TcpInsecure`](isin_transport::TransportKind)), so a
+//! ticket says which one a master speaks and a slave never falls back from one
+//! to the other.
 //!
 //! Each connection sets `TCP_NODELAY` (tiles are latency-sensitive and the codec
 //! already batches writes), starts with the small handshake frame limit (raised
-//! by the master once the peer has authenticated), and reports the peer closing
-//! as the end of its frame stream. A TLS listener runs each handshake in its
+//! by the master once the peer has authenticated), reserves every announced
+//! frame from the listener's memory budget before allocating it and reads it
+//! under the frame timeout ([`Listener::set_budget`],
+//! [`Listener::set_frame_timeout`]), and reports the peer closing as the end of
+//! its frame stream. A TLS listener runs each handshake in its
 //! own task under a timeout, so a peer that stalls it holds up no one.
 //!
 //! ## Counting
-//! Over TLS, [`ConnStats`](isin_actors::transport::ConnStats) bytes are what
+//! Over TLS, [`ConnStats`](isin_transport::ConnStats) bytes are what
 //! crossed the socket — handshake, record headers and authentication tags
 //! included — counted by a wrapper under the TLS layer ([`counted`]). Over
 //! plaintext they are the frames and their 4-byte length prefixes, which is
 //! the same thing.
 
 pub mod counted;
-pub mod tls;
+/// The TLS identity and pinning shared with QUIC (the `isin-transport-tls` crate).
+pub use isin_transport_tls as tls;
 
 use counted::Counted;
-use isin_actors::protocol::HANDSHAKE_MAX_FRAME;
-use isin_actors::transport::stream::{self, Counting};
-use isin_actors::transport::{BoxFuture, ConnShared, Connection, Listener, Transport, TransportError};
+use isin_transport::stream::{self, Counting};
+use isin_transport::{
+    BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, ListenerLimits, MemoryBudget, Transport,
+    TransportError,
+};
 use std::sync::Arc;
 use std::time::Duration;
 use tls::{Fingerprint, Identity, PinnedServerVerifier, TlsError};
@@ -148,16 +154,17 @@ fn nodelay(sock: &TcpStream, peer: &str) {
     }
 }
 
-fn wrap_plain(sock: TcpStream, peer: String) -> Connection {
+fn wrap_plain(sock: TcpStream, peer: String, shared: Arc<ConnShared>) -> Connection {
     nodelay(&sock, &peer);
     let (r, w) = sock.into_split();
-    stream::spawn(r, w, peer, HANDSHAKE_MAX_FRAME)
+    stream::spawn_with(r, w, peer, shared, Counting::Frames)
 }
 
 /// Plaintext listener: connections are ready as soon as accepted.
 struct PlainListener {
     inner: TcpListener,
     addr: String,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Listener for PlainListener {
@@ -168,8 +175,16 @@ impl Listener for PlainListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move {
             let (sock, peer) = self.inner.accept().await?;
-            Ok(wrap_plain(sock, peer.to_string()))
+            Ok(wrap_plain(sock, peer.to_string(), self.limits.conn_shared()))
         })
+    }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
     }
 }
 
@@ -179,6 +194,7 @@ struct TlsListener {
     addr: String,
     rx: mpsc::Receiver<Connection>,
     task: tokio::task::JoinHandle<()>,
+    limits: Arc<ListenerLimits>,
 }
 
 impl Drop for TlsListener {
@@ -197,9 +213,22 @@ impl Listener for TlsListener {
     fn accept(&mut self) -> BoxFuture<'_, Result<Connection, TransportError>> {
         Box::pin(async move { self.rx.recv().await.ok_or(TransportError::Closed) })
     }
+
+    fn set_budget(&mut self, budget: Arc<MemoryBudget>) {
+        self.limits.set_budget(budget);
+    }
+
+    fn set_frame_timeout(&mut self, timeout: Duration) {
+        self.limits.set_frame_timeout(timeout);
+    }
 }
 
-async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc::Sender<Connection>) {
+async fn tls_accept_loop(
+    listener: TcpListener,
+    acceptor: TlsAcceptor,
+    tx: mpsc::Sender<Connection>,
+    limits: Arc<ListenerLimits>,
+) {
     loop {
         let (sock, peer) = match listener.accept().await {
             Ok(s) => s,
@@ -211,9 +240,12 @@ async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc:
             }
         };
         let (acceptor, tx) = (acceptor.clone(), tx.clone());
+        let shared = limits.conn_shared();
         tokio::spawn(async move {
             let peer = peer.to_string();
-            match tokio::time::timeout(TLS_HANDSHAKE_TIMEOUT, tls_accept(sock, &peer, &acceptor)).await {
+            match tokio::time::timeout(TLS_HANDSHAKE_TIMEOUT, tls_accept(sock, &peer, &acceptor, shared))
+                .await
+            {
                 Ok(Ok(conn)) => {
                     // If nobody accepts any more, dropping `conn` closes it.
                     let _ = tx.send(conn).await;
@@ -225,9 +257,13 @@ async fn tls_accept_loop(listener: TcpListener, acceptor: TlsAcceptor, tx: mpsc:
     }
 }
 
-async fn tls_accept(sock: TcpStream, peer: &str, acceptor: &TlsAcceptor) -> Result<Connection, String> {
+async fn tls_accept(
+    sock: TcpStream,
+    peer: &str,
+    acceptor: &TlsAcceptor,
+    shared: Arc<ConnShared>,
+) -> Result<Connection, String> {
     nodelay(&sock, peer);
-    let shared = ConnShared::new(HANDSHAKE_MAX_FRAME);
     let tls = acceptor
         .accept(Counted::new(sock, shared.clone()))
         .await
@@ -278,12 +314,13 @@ impl Transport for TcpTransport {
             };
             let inner = TcpListener::bind(addr).await.map_err(err)?;
             let local = inner.local_addr().map_err(err)?.to_string();
+            let limits = ListenerLimits::new();
             Ok(match acceptor {
-                None => Box::new(PlainListener { inner, addr: local }) as Box<dyn Listener>,
+                None => Box::new(PlainListener { inner, addr: local, limits }) as Box<dyn Listener>,
                 Some(acceptor) => {
                     let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
-                    let task = tokio::spawn(tls_accept_loop(inner, acceptor, tx));
-                    Box::new(TlsListener { addr: local, rx, task })
+                    let task = tokio::spawn(tls_accept_loop(inner, acceptor, tx, limits.clone()));
+                    Box::new(TlsListener { addr: local, rx, task, limits })
                 }
             })
         })
@@ -301,9 +338,10 @@ impl Transport for TcpTransport {
                     ));
                 }
             };
-            let sock = TcpStream::connect(addr).await.map_err(|e| err(e.to_string()))?;
+            let addrs = isin_transport::resolve(addr).await?;
+            let sock = TcpStream::connect(&addrs[..]).await.map_err(|e| err(e.to_string()))?;
             let Some(pinned) = pinned else {
-                return Ok(wrap_plain(sock, addr.to_string()));
+                return Ok(wrap_plain(sock, addr.to_string(), ConnShared::new(INITIAL_MAX_FRAME)));
             };
             nodelay(&sock, addr);
             let verifier = Arc::new(PinnedServerVerifier::new(pinned, &tls::provider()));
@@ -311,7 +349,7 @@ impl Transport for TcpTransport {
                 .map_err(|e| err(e.to_string()))?;
             let name = tokio_rustls::rustls::pki_types::ServerName::try_from(tls::SERVER_NAME)
                 .map_err(|e| err(e.to_string()))?;
-            let shared = ConnShared::new(HANDSHAKE_MAX_FRAME);
+            let shared = ConnShared::new(INITIAL_MAX_FRAME);
             let tls = TlsConnector::from(Arc::new(cfg))
                 .connect(name, Counted::new(sock, shared.clone()))
                 .await

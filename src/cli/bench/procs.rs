@@ -3,7 +3,7 @@
 
 use crate::netlab::{self, CpuCgroup};
 use anyhow::Context;
-use isin_actors::auth::Ticket;
+use isin_transport::Ticket;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::mpsc;

@@ -3,8 +3,8 @@
 //! frame as the viewer sees it.
 
 use anyhow::Context;
-use isin_actors::protocol::FrameStats;
 use isin_actors::viewer::{self, ViewerActor, ViewerEvent};
+use isin_cluster::protocol::FrameStats;
 use isin_tracer::{Camera, RenderSettings};
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -148,6 +148,7 @@ pub async fn replay(
                     next += 1;
                 }
             }
+            ViewerEvent::Notice(m) => tracing::warn!("master: {m}"),
             ViewerEvent::Error(e) | ViewerEvent::Closed(e) => anyhow::bail!("master: {e}"),
         }
     }

@@ -8,6 +8,7 @@ use super::subdivide::{self, MAX_SUBDIVIDE};
 use super::{AssetSource, gltf, obj};
 use crate::cameras::Camera;
 use crate::lights::Light;
+use crate::limits;
 use crate::materials::{Albedo, Material};
 use crate::meshes::{self, Mesh, Transform};
 use crate::scene::{Environment, SceneParts, TriangleShading};
@@ -29,8 +30,6 @@ pub const LARGE_TRIANGLES: usize = 10_000_000;
 pub const BYTES_PER_TRIANGLE: usize = 184;
 /// Textures with more texels than this (8192²) get a warning.
 pub const LARGE_TEXTURE_TEXELS: u64 = 8192 * 8192;
-/// Largest image resolution a scene may ask to render.
-const MAX_RESOLUTION: u32 = 65_536;
 
 /// Who needs something: a scene-file entry (for error messages).
 #[derive(Clone, Debug)]
@@ -448,15 +447,23 @@ impl<'a> Builder<'a> {
     fn settings(&mut self, s: &Spanned<crate::render::RenderSettings>) -> Result<(), SceneError> {
         let span = s.span();
         let v = *s.get_ref();
-        let bad = |key: &str, message: String| self.invalid_field(&span, "settings", key, message);
-        if v.width == 0 || v.width > MAX_RESOLUTION {
-            return Err(bad("width", format!("must be between 1 and {MAX_RESOLUTION}, got {}", v.width)));
+        let mut v = v;
+        if u64::from(v.max_depth) > limits::DEPTH.max {
+            // What the integrator does anyway: said once, and the same for a
+            // cluster, which is sent the clamped settings.
+            let max = limits::DEPTH.max as u32;
+            self.warn(format!("settings.max_depth {} is above {max}: rendering with {max}", v.max_depth));
+            v.max_depth = max;
         }
-        if v.height == 0 || v.height > MAX_RESOLUTION {
-            return Err(bad("height", format!("must be between 1 and {MAX_RESOLUTION}, got {}", v.height)));
-        }
-        if v.spp == 0 {
-            return Err(bad("spp", "must be at least 1".into()));
+        if let Err(e) = limits::check_settings(&v) {
+            let key = match e.name {
+                "samples per pixel" => "spp",
+                "light samples" => "light_samples",
+                "image pixels" => "width × height",
+                _ if u64::from(v.width) == e.value => "width",
+                _ => "height",
+            };
+            return Err(self.invalid_field(&span, "settings", key, e.to_string()));
         }
         self.parts.settings = v;
         Ok(())

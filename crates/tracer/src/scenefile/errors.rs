@@ -156,15 +156,42 @@ impl<'a> SourceMap<'a> {
         SceneError::Syntax {
             at: Location { file: self.file.to_owned(), line },
             column,
-            message: e.message().trim().replace('\n', ": "),
-            snippet: self.line_text(line).to_owned(),
+            message: excerpt(&e.message().trim().replace('\n', ": ")),
+            snippet: excerpt(self.line_text(line)),
         }
     }
+}
+
+/// Longest excerpt of a scene's text an error message quotes, in characters.
+pub const EXCERPT_CHARS: usize = 120;
+
+/// At most [`EXCERPT_CHARS`] of `text` (then `…`), control characters shown
+/// as `�`: a one-line 200 MB file of zeros is quoted in a line, not echoed.
+pub fn excerpt(text: &str) -> String {
+    let mut out: String = text
+        .chars()
+        .take(EXCERPT_CHARS)
+        .map(|c| if c.is_control() && c != '\t' { '\u{FFFD}' } else { c })
+        .collect();
+    if text.chars().nth(EXCERPT_CHARS).is_some() {
+        out.push('…');
+    }
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_huge_line_of_zeros_is_quoted_short() {
+        let text = "\0".repeat(10_000_000);
+        let e = crate::parse_scene("zeros.toml", &text, &mut crate::SceneBundle::default()).unwrap_err();
+        let shown = e.to_string();
+        assert!(shown.len() < 2 * EXCERPT_CHARS * 4, "{} bytes", shown.len());
+        assert!(!shown.contains('\0'), "{shown}");
+        assert!(shown.starts_with("zeros.toml:1"), "{shown}");
+    }
 
     #[test]
     fn offsets_map_to_lines_and_columns() {

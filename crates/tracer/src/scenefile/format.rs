@@ -79,8 +79,10 @@ impl Num {
     fn check<E: de::Error>(x: f64) -> Result<Num, E> {
         if x.is_nan() {
             Err(E::custom("NaN is not allowed: numbers must be finite"))
-        } else if !x.is_finite() || x.abs() > f32::MAX as f64 {
+        } else if !x.is_finite() {
             Err(E::custom(format!("{x} is not allowed: numbers must be finite")))
+        } else if x.abs() > f32::MAX as f64 {
+            Err(E::custom(format!("{x:e} is too large: numbers are at most {:e} in magnitude", f32::MAX)))
         } else {
             Ok(Num(x as f32))
         }

@@ -125,6 +125,16 @@ pub enum CodecError {
     },
 }
 
+/// The most bytes any codec of this build can encode a `w × h` tile to (QOI's
+/// worst case, four bytes a pixel plus its header and end marker, is the
+/// largest). A slave's tile message is bounded by it before it is read.
+pub fn max_encoded_len(w: u32, h: u32) -> usize {
+    let pixels = w as usize * h as usize;
+    let raw = pixels * 3;
+    let qoi = 14 + 8 + pixels * 4;
+    raw.max(lz4_flex::block::get_maximum_output_size(raw)).max(qoi)
+}
+
 /// Encodes `rgb` (`w * h * 3` bytes, row-major) with `codec`. An empty tile
 /// encodes to nothing; if a codec cannot take a tile (QOI and a length that is
 /// not whole rows) the result is raw — which the decoder, knowing the tile's
@@ -212,6 +222,25 @@ mod tests {
             assert!(decode_into(codec, w, h, &data[..data.len() / 2], &mut out).is_err(), "{codec}");
         }
     }
+    #[test]
+    fn no_codec_encodes_noise_beyond_the_bound() {
+        let mut x = 0x9e37_79b9_u32;
+        for (w, h) in [(1, 1), (7, 3), (32, 32), (64, 17)] {
+            let rgb: Vec<u8> = (0..w * h * 3)
+                .map(|_| {
+                    x ^= x << 13;
+                    x ^= x >> 17;
+                    x ^= x << 5;
+                    x as u8
+                })
+                .collect();
+            for codec in Codec::ALL {
+                let n = encode(codec, w, &rgb).len();
+                assert!(n <= max_encoded_len(w, h), "{codec} {w}x{h}: {n} > {}", max_encoded_len(w, h));
+            }
+        }
+    }
+
     use proptest::prelude::*;
 
     /// A tile with gradients, flat areas and noise, like a rendered one.

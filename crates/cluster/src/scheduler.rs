@@ -41,7 +41,22 @@
 //!   connection closed, and its tiles go back to the front of the queue.
 //! - **Superseding.** A newer frame ([`Scheduler::submit_frame`]) replaces the
 //!   open ones; the old frames' tiles are cancelled and their late results are
-//!   reported [`ResultOutcome::Stale`].
+//!   reported [`ResultOutcome::Stale`]. Frames opened for a client
+//!   ([`Scheduler::open_for`]) supersede only that client's own.
+//! - **Interactive before batch.** Frames are interactive (a viewer waits) or
+//!   batch (stills and animations): interactive tiles go out first, but one
+//!   tile in [`BATCH_FLOOR`] goes to batch work when both are queued, and
+//!   batch tiles go only to idle threads, never into a slave's queue, so an
+//!   interactive frame arriving waits for no batch tiles but those being
+//!   rendered.
+//! - **Fair share between clients.** Several clients (viewers) may have frames
+//!   open at once. Each client is charged the pixel-samples (pixels × samples
+//!   per pixel) delivered to it; the next tile goes to the least charged
+//!   client with a tile queued, its oldest frame first. So clients that all
+//!   keep work queued share the cluster evenly whatever their frame sizes, a
+//!   client that asks for less gets all it asks for, and none starves. A
+//!   client returning after a pause starts level with the least charged one
+//!   still at work, without credit for the pause.
 //! - **Pipelining.** A frame queued with [`Scheduler::queue_frame`] waits behind
 //!   the open ones instead: its tiles go out as soon as the older frames have
 //!   none left to hand out, so no slave idles through the end of one frame
@@ -62,6 +77,44 @@ use std::time::Duration;
 /// Identifies a slave (assigned by the master at join).
 pub type SlaveId = u64;
 
+/// Identifies a client (a viewer, a render job): its frames are one stream,
+/// and a new frame of its supersedes only its own.
+pub type ClientId = u64;
+
+/// What kind of work a frame is (a client says so when it joins).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
+pub enum Work {
+    /// Someone is waiting at a window: latency first.
+    #[default]
+    Interactive,
+    /// A still or an animation nobody watches tile by tile: fills what
+    /// interactive work leaves.
+    Batch,
+}
+
+/// One tile in this many goes to batch work while interactive work is
+/// queued too, so a batch job finishes even while people fly.
+pub const BATCH_FLOOR: u64 = 10;
+
+/// A frame as a client asks for it ([`Scheduler::open`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameOrder {
+    /// Whose frame.
+    pub client: ClientId,
+    /// Its kind of work.
+    pub work: Work,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Samples per pixel: what each pixel costs the client's share.
+    pub samples: u32,
+    /// Wait behind the client's open frames instead of superseding them.
+    pub queue: bool,
+}
+
 /// Scheduling knobs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SchedulerConfig {
@@ -78,6 +131,14 @@ pub struct SchedulerConfig {
     /// Most frames open at once: the one being rendered plus those queued
     /// behind it with [`Scheduler::queue_frame`].
     pub max_open_frames: u32,
+}
+
+impl FrameOrder {
+    /// One interactive client's frame (the [`Scheduler::submit_frame`] and
+    /// [`Scheduler::queue_frame`] streams).
+    fn single(width: u32, height: u32, queue: bool) -> Self {
+        Self { client: 0, work: Work::Interactive, width, height, samples: 1, queue }
+    }
 }
 
 impl Default for SchedulerConfig {
@@ -159,6 +220,29 @@ pub enum ResultOutcome {
     Stale,
     /// No such tile in the frame (or it was split after being handed out): drop it.
     Unknown,
+    /// `slave` was never handed this tile: refused, nothing changed.
+    Foreign,
+}
+
+/// Whether a slave's result for a tile may be taken, asked before its pixels
+/// are looked at ([`Scheduler::check_result`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResultCheck {
+    /// The slave was handed this tile, which is still outstanding: decode
+    /// the pixels (they must cover this rectangle) and pass them to
+    /// [`Scheduler::handle_result`].
+    Held {
+        /// The tile's rectangle.
+        tile: Tile,
+    },
+    /// The slave was handed this tile, but it is already delivered (another
+    /// copy won) or split: drop the result.
+    Finished,
+    /// The frame is no longer known (superseded or long completed): drop it.
+    Stale,
+    /// The frame is known but this slave was never handed this tile (or no
+    /// such tile exists): a result that is not the slave's to give.
+    Foreign,
 }
 
 /// Why a frame could not be started.
@@ -236,14 +320,32 @@ struct TileRec {
     tile: Tile,
     state: TileState,
     holders: Vec<SlaveId>,
+    /// Every slave this tile was ever handed to in this frame (holders past
+    /// and present): only their results are the tile's.
+    assigned: Vec<SlaveId>,
     assigned_at: Duration,
     /// Put back in the queue by a death and not handed out since.
     requeued: bool,
 }
 
+impl TileRec {
+    /// Hands the tile to `slave` (as a holder, and for good as an assignee).
+    fn hand_to(&mut self, slave: SlaveId) {
+        self.holders.push(slave);
+        if !self.assigned.contains(&slave) {
+            self.assigned.push(slave);
+        }
+    }
+}
+
 #[derive(Debug)]
 struct FrameState {
     id: FrameId,
+    client: ClientId,
+    work: Work,
+    /// Samples per pixel: a pixel of this frame costs this much of its
+    /// client's share.
+    samples: u64,
     width: u32,
     height: u32,
     tiles: Vec<TileRec>,
@@ -268,6 +370,10 @@ pub struct Scheduler {
     outputs: VecDeque<Output>,
     /// Render cost per pixel measured so far, for ordering new frames' tiles.
     costs: cost::CostMap,
+    /// Pixel-samples delivered to each client with open frames (fair share).
+    served: BTreeMap<ClientId, u64>,
+    /// Tiles handed out, for [`BATCH_FLOOR`].
+    handed: u64,
 }
 
 impl Scheduler {
@@ -284,6 +390,8 @@ impl Scheduler {
             last_frame: None,
             outputs: VecDeque::new(),
             costs: cost::CostMap::default(),
+            served: BTreeMap::new(),
+            handed: 0,
         }
     }
 
@@ -312,9 +420,28 @@ impl Scheduler {
         f.tiles.get(id as usize).map(|r| r.tile)
     }
 
+    /// Whether a result from `slave` for tile `id` of `frame` may be taken:
+    /// only a slave that was handed the tile may deliver it. Changes nothing.
+    pub fn check_result(&self, slave: SlaveId, frame: FrameId, id: TileId) -> ResultCheck {
+        let Some(f) = self.frames.iter().find(|f| f.id == frame) else { return ResultCheck::Stale };
+        let Some(rec) = f.tiles.get(id as usize) else { return ResultCheck::Foreign };
+        if !rec.assigned.contains(&slave) {
+            return ResultCheck::Foreign;
+        }
+        match rec.state {
+            TileState::Queued | TileState::InFlight => ResultCheck::Held { tile: rec.tile },
+            TileState::Done | TileState::Split => ResultCheck::Finished,
+        }
+    }
+
     /// Whether `slave` is alive in the scheduler's eyes.
     pub fn has_slave(&self, slave: SlaveId) -> bool {
         self.slaves.contains_key(&slave)
+    }
+
+    /// How many slaves are alive.
+    pub fn slave_count(&self) -> usize {
+        self.slaves.len()
     }
 
     /// The live slaves, by id.
@@ -380,7 +507,7 @@ impl Scheduler {
     }
 
     /// Starts a frame of `width × height`, superseding every open frame (the
-    /// one being rendered and any queued behind it).
+    /// one being rendered and any queued behind it), whoever's it was.
     pub fn submit_frame(
         &mut self,
         now: Duration,
@@ -390,10 +517,7 @@ impl Scheduler {
     ) -> Result<(), SchedulerError> {
         self.check_new(frame, width, height)?;
         self.abandon_frame();
-        let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
-        let edge = frame_tile_size(&self.config, width, height, threads);
-        self.push_frame(now, frame, width, height, edge);
-        Ok(())
+        self.open(now, frame, FrameOrder::single(width, height, false))
     }
 
     /// Queues a frame of `width × height` behind the open ones instead of
@@ -409,16 +533,58 @@ impl Scheduler {
         width: u32,
         height: u32,
     ) -> Result<(), SchedulerError> {
+        self.open(now, frame, FrameOrder::single(width, height, true))
+    }
+
+    /// Starts frame `frame` as `order` says. It supersedes the client's own
+    /// open frames (other clients' frames go on), or with
+    /// [`FrameOrder::queue`] waits behind them, as [`Scheduler::queue_frame`]
+    /// does; a client may have at most [`SchedulerConfig::max_open_frames`]
+    /// open. Between clients, tiles go out by kind of work and fair share
+    /// (see [`Scheduler::served`]).
+    pub fn open(&mut self, now: Duration, frame: FrameId, order: FrameOrder) -> Result<(), SchedulerError> {
+        let FrameOrder { client, width, height, queue, .. } = order;
         self.check_new(frame, width, height)?;
-        let open = self.frames.iter().filter(|f| !f.done).count();
-        if open >= self.config.max_open_frames as usize {
+        let mine: Vec<FrameId> =
+            self.frames.iter().filter(|f| !f.done && f.client == client).map(|f| f.id).collect();
+        if queue && mine.len() >= self.config.max_open_frames as usize {
             return Err(SchedulerError::TooManyFrames(self.config.max_open_frames));
         }
+        if !queue {
+            for id in mine {
+                self.abandon(id);
+            }
+        }
         self.frames.retain(|f| !f.done);
-        // Full-size tiles: the cluster-sized edge is for the end of a frame,
-        // which the next queued frame fills (and the last one is split at its end).
-        self.push_frame(now, frame, width, height, self.config.tile_size);
+        // A client coming back to work starts level with the least served
+        // one still at work: no credit for the time it was away.
+        if !self.frames.iter().any(|f| f.client == client) {
+            let floor =
+                self.frames.iter().filter_map(|f| self.served.get(&f.client)).min().copied().unwrap_or(0);
+            let served = self.served.entry(client).or_default();
+            *served = (*served).max(floor);
+        }
+        // A frame that waits behind others keeps full-size tiles: its end
+        // is filled by the next frame's tiles (and the last one is split at
+        // its end). Otherwise the edge suits the cluster's size.
+        let edge = if queue {
+            self.config.tile_size
+        } else {
+            let threads: u32 = self.slaves.values().map(|s| s.threads).sum();
+            frame_tile_size(&self.config, width, height, threads)
+        };
+        self.push_frame(now, frame, order, edge);
         Ok(())
+    }
+
+    /// Pixel-samples delivered so far to each client that has open frames.
+    /// The next tile goes to interactive work before batch work (but one in
+    /// [`BATCH_FLOOR`] to batch work when both are queued), and within a
+    /// kind to the least served client with a tile queued; a client whose
+    /// frames all completed leaves the table, and returns level with the
+    /// least served client then at work.
+    pub fn served(&self) -> &BTreeMap<ClientId, u64> {
+        &self.served
     }
 
     /// Drops every open frame (its requester went away, or a newer request
@@ -442,6 +608,14 @@ impl Scheduler {
             if !tiles.is_empty() {
                 self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
             }
+        }
+        self.forget_if_idle(f.client);
+    }
+
+    /// Drops `client` from the fair-share table once it has no open frame.
+    fn forget_if_idle(&mut self, client: ClientId) {
+        if !self.frames.iter().any(|f| !f.done && f.client == client) {
+            self.served.remove(&client);
         }
     }
 
@@ -473,6 +647,9 @@ impl Scheduler {
             self.waste(slave);
             return ResultOutcome::Stale;
         };
+        if f.tiles.get(tile as usize).is_some_and(|rec| !rec.assigned.contains(&slave)) {
+            return ResultOutcome::Foreign;
+        }
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.in_flight.remove(&(frame, tile));
         }
@@ -510,6 +687,10 @@ impl Scheduler {
         }
         f.remaining_pixels -= pixels.min(f.remaining_pixels);
         f.stats.tiles += 1;
+        let client = f.client;
+        if let Some(served) = self.served.get_mut(&client) {
+            *served += pixels * f.samples;
+        }
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.tiles_done += 1;
             s.pixels_done += pixels;
@@ -529,6 +710,7 @@ impl Scheduler {
             // Keep a completed frame only while it is the newest one.
             let newest = self.frames.back().map(|f| f.id);
             self.frames.retain(|f| !f.done || Some(f.id) == newest);
+            self.forget_if_idle(client);
         }
         ResultOutcome::Accepted { tile: rect }
     }
@@ -555,13 +737,15 @@ impl Scheduler {
         Ok(())
     }
 
-    fn push_frame(&mut self, now: Duration, frame: FrameId, width: u32, height: u32, edge: u32) {
+    fn push_frame(&mut self, now: Duration, frame: FrameId, order: FrameOrder, edge: u32) {
+        let FrameOrder { client, work, width, height, samples, .. } = order;
         let tiles: Vec<TileRec> = Tile::grid(width, height, edge)
             .into_iter()
             .map(|tile| TileRec {
                 tile,
                 state: TileState::Queued,
                 holders: Vec::new(),
+                assigned: Vec::new(),
                 assigned_at: now,
                 requeued: false,
             })
@@ -572,6 +756,9 @@ impl Scheduler {
         self.costs.order(&mut queue, &rects, width, height);
         self.frames.push_back(FrameState {
             id: frame,
+            client,
+            work,
+            samples: u64::from(samples.max(1)),
             width,
             height,
             queue: queue.into(),
@@ -639,13 +826,22 @@ impl Scheduler {
                 if s.in_flight.len() >= (s.threads + depth) as usize {
                     continue;
                 }
-                let Some((fi, tile)) = next_open_tile(&mut self.frames, cfg, total_threads) else {
-                    break 'rounds;
+                // Batch tiles only to idle threads, never queued behind busy
+                // ones: interactive work arriving waits for no batch queue.
+                let batch = s.in_flight.len() < s.threads as usize;
+                let next =
+                    next_open_tile(&mut self.frames, cfg, total_threads, &self.served, self.handed, batch);
+                let Some((fi, tile)) = next else {
+                    if batch {
+                        break 'rounds;
+                    }
+                    continue;
                 };
+                self.handed += 1;
                 let f = &mut self.frames[fi];
                 let rec = &mut f.tiles[tile as usize];
                 rec.state = TileState::InFlight;
-                rec.holders.push(*id);
+                rec.hand_to(*id);
                 rec.assigned_at = now;
                 if std::mem::take(&mut rec.requeued) {
                     *reassigned.entry((*id, f.id)).or_default() += 1;
@@ -693,7 +889,7 @@ impl Scheduler {
                     let Some((_, fi, tile)) = straggler else { break };
                     let f = &mut self.frames[fi];
                     let rec = &mut f.tiles[tile as usize];
-                    rec.holders.push(*id);
+                    rec.hand_to(*id);
                     s.in_flight.insert((f.id, tile));
                     f.stats.duplicated += 1;
                     batches.entry((*id, f.id)).or_default().push(TileJob { id: tile, tile: rec.tile });
@@ -766,7 +962,8 @@ fn move_waiting_tiles(
             outputs.push_back(Output::Cancel { slave: victim, frame, tiles: vec![tile] });
             let f = &mut frames[fi];
             let rec = &mut f.tiles[tile as usize];
-            rec.holders = vec![*id];
+            rec.holders.clear();
+            rec.hand_to(*id);
             rec.assigned_at = now;
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
@@ -776,28 +973,38 @@ fn move_waiting_tiles(
     }
 }
 
-/// Takes the next tile to hand out: from the oldest open frame that has one
-/// queued. Returns the frame's index in `frames` and the tile.
+/// Takes the next tile to hand out: interactive work first (but see
+/// [`BATCH_FLOOR`]; `handed` counts the tiles handed out so far), then the
+/// least served client (see [`Scheduler::served`]) that has a tile queued,
+/// its oldest frame first (so with one client, the oldest open frame that
+/// has one); batch work only if `batch`. Returns the frame's index in
+/// `frames` and the tile.
 fn next_open_tile(
     frames: &mut VecDeque<FrameState>,
     cfg: &SchedulerConfig,
     total_threads: usize,
+    served: &BTreeMap<ClientId, u64>,
+    handed: u64,
+    batch: bool,
 ) -> Option<(usize, TileId)> {
-    // Tiles queued in frames behind each one: with enough of them, the end of
-    // a frame is not the end of the work, and its tiles need no splitting.
-    let mut behind = 0usize;
-    let mut after: Vec<usize> = vec![0; frames.len()];
-    for (i, f) in frames.iter().enumerate().rev() {
-        after[i] = behind;
-        if !f.done {
-            behind += f.queue.len();
-        }
-    }
-    for (i, f) in frames.iter_mut().enumerate() {
-        if f.done {
-            continue;
-        }
-        if let Some(tile) = next_tile(f, cfg, total_threads, after[i]) {
+    // Tiles queued in the other frames: with enough of them, the end of a
+    // frame is not the end of the work, and its tiles need no splitting.
+    let queued: usize = frames.iter().filter(|f| !f.done).map(|f| f.queue.len()).sum();
+    let mut order: Vec<usize> = (0..frames.len())
+        .filter(|&i| {
+            !frames[i].done && !frames[i].queue.is_empty() && (batch || frames[i].work != Work::Batch)
+        })
+        .collect();
+    // Interactive first, but one tile in BATCH_FLOOR to batch when both wait.
+    let batch_turn = handed % BATCH_FLOOR == BATCH_FLOOR - 1;
+    order.sort_by_key(|&i| {
+        let f = &frames[i];
+        let kind = if batch_turn { f.work != Work::Batch } else { f.work != Work::Interactive };
+        (kind, served.get(&f.client).copied().unwrap_or(0), i)
+    });
+    for i in order {
+        let behind = queued - frames[i].queue.len();
+        if let Some(tile) = next_tile(&mut frames[i], cfg, total_threads, behind) {
             return Some((i, tile));
         }
     }
@@ -834,6 +1041,7 @@ fn next_tile(
                     tile: c,
                     state: TileState::Queued,
                     holders: Vec::new(),
+                    assigned: Vec::new(),
                     assigned_at: Duration::ZERO,
                     requeued,
                 });

@@ -5,20 +5,7 @@ use super::*;
 use std::collections::HashMap;
 
 const MS: Duration = Duration::from_millis(1);
-
-/// Tiny xorshift so runs are reproducible without a dependency.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-}
+use crate::testing::Rng;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Mode {
@@ -179,6 +166,9 @@ impl Sim {
                     self.log.accepted.entry(frame).or_default().push(tile);
                 }
                 ResultOutcome::Duplicate | ResultOutcome::Stale | ResultOutcome::Unknown => {}
+                ResultOutcome::Foreign => {
+                    panic!("slave {slave} refused for tile {} of frame {frame}", job.id)
+                }
             }
             self.drain();
         }
@@ -464,11 +454,30 @@ fn duplicate_result_is_reported_and_not_delivered_twice() {
     s.handle_join(Duration::ZERO, 1, "a", 1);
     s.submit_frame(Duration::ZERO, 1, 8, 8).unwrap();
     while s.poll_output(Duration::ZERO).is_some() {}
-    // Slave 2 returns the tile although only slave 1 got it: still the first.
-    s.handle_join(Duration::ZERO, 2, "b", 1);
-    assert!(matches!(s.handle_result(MS, 2, 1, 0), ResultOutcome::Accepted { .. }));
+    assert!(matches!(s.handle_result(MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
     assert_eq!(s.handle_result(2 * MS, 1, 1, 0), ResultOutcome::Duplicate);
     assert_eq!(s.handle_result(2 * MS, 1, 1, 99), ResultOutcome::Unknown);
+}
+
+#[test]
+fn a_result_from_a_slave_never_handed_the_tile_is_foreign_and_changes_nothing() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.submit_frame(Duration::ZERO, 1, 8, 8).unwrap();
+    while s.poll_output(Duration::ZERO).is_some() {}
+    s.handle_join(Duration::ZERO, 2, "b", 1);
+    let rect = s.tile(1, 0).unwrap();
+    assert_eq!(s.check_result(2, 1, 0), ResultCheck::Foreign);
+    assert_eq!(s.check_result(2, 1, 99), ResultCheck::Foreign);
+    assert_eq!(s.check_result(1, 1, 0), ResultCheck::Held { tile: rect });
+    assert_eq!(s.check_result(1, 7, 0), ResultCheck::Stale);
+    assert_eq!(s.handle_result(MS, 2, 1, 0), ResultOutcome::Foreign);
+    // Still outstanding: the holder's result is the one delivered.
+    assert_eq!(s.open_frame(), Some(1));
+    assert!(matches!(s.handle_result(2 * MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
+    assert_eq!(s.check_result(1, 1, 0), ResultCheck::Finished);
+    assert_eq!(s.check_result(2, 1, 0), ResultCheck::Foreign);
+    assert_eq!(s.slaves().iter().map(|i| i.tiles_done).collect::<Vec<_>>(), vec![1, 0]);
 }
 
 #[test]
@@ -793,4 +802,57 @@ fn pipelined_frames_with_a_hot_spot_keep_slaves_busier_once_costs_are_known() {
     let (blind, learnt) = (run(false), run(true));
     println!("pipelined, 8 frames: grid order {blind:?}, expensive first {learnt:?} (time, idle lane-ms)");
     assert!(learnt.0 < blind.0 && learnt.1 < blind.1, "{learnt:?} vs {blind:?}");
+}
+
+fn order(client: ClientId, width: u32, height: u32, samples: u32) -> FrameOrder {
+    FrameOrder { client, work: Work::Interactive, width, height, samples, queue: false }
+}
+
+#[test]
+fn a_client_returning_after_a_pause_starts_level_with_the_least_served() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.open(Duration::ZERO, 1, order(7, 8, 8, 4)).unwrap();
+    s.open(Duration::ZERO, 2, order(9, 64, 64, 1)).unwrap();
+    while s.poll_output(Duration::ZERO).is_some() {}
+    // Client 7's frame (one 8x8 tile at 4 samples) completes: 256 served, then it leaves the table.
+    assert!(matches!(s.handle_result(MS, 1, 1, 0), ResultOutcome::Accepted { .. }));
+    assert!(!s.served().contains_key(&7));
+    let nine = s.served()[&9];
+    s.open(2 * MS, 3, order(7, 8, 8, 1)).unwrap();
+    assert_eq!(s.served()[&7], nine, "level with the one still at work");
+    // Superseding its own frame leaves client 9's alone.
+    s.open(3 * MS, 4, order(7, 8, 8, 1)).unwrap();
+    assert_eq!(s.open_frames(), vec![2, 4]);
+}
+
+#[test]
+fn batch_work_gets_its_floor_while_interactive_work_is_backlogged() {
+    let mut s = Scheduler::new(SchedulerConfig { duplicate_stragglers: false, queue_depth: 0, ..cfg() });
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    let interactive = FrameOrder { queue: true, ..order(1, 256, 256, 1) };
+    let batch = FrameOrder { client: 2, work: Work::Batch, ..interactive };
+    let mut next = 1;
+    let mut work: BTreeMap<FrameId, Work> = BTreeMap::new();
+    let (mut to_batch, mut handed) = (0u32, 0u32);
+    while handed < 1000 {
+        // Both clients always have work waiting: two interactive frames, one batch frame.
+        for (o, want) in [(interactive, 2), (batch, 1)] {
+            while s.open_frames().iter().filter(|f| work[f] == o.work).count() < want {
+                s.open(Duration::ZERO, next, o).unwrap();
+                work.insert(next, o.work);
+                next += 1;
+            }
+        }
+        let Some(out) = s.poll_output(Duration::ZERO) else { panic!("no work handed out") };
+        if let Output::Assign { frame, tiles, .. } = out {
+            for t in tiles {
+                handed += 1;
+                to_batch += u32::from(work[&frame] == Work::Batch);
+                s.handle_result(Duration::ZERO, 1, frame, t.id);
+            }
+        }
+    }
+    let share = f64::from(to_batch) / f64::from(handed);
+    assert!((0.09..=0.11).contains(&share), "batch got {share:.3} of the tiles");
 }

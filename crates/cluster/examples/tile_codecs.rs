@@ -1,9 +1,9 @@
 //! Measures lossless tile codecs on real rendered tiles: bytes, and CPU time to
-//! encode and decode, per tile. This is how [`isin_actors::codec`]'s default
+//! encode and decode, per tile. This is how [`isin_cluster::codec`]'s default
 //! was chosen (BENCHMARKS.md, "Tile compression").
 //!
 //! ```text
-//! cargo run --release -p isin-actors --example tile_codecs [-- SCENE.toml…]
+//! cargo run --release -p isin-cluster --example tile_codecs [-- SCENE.toml…]
 //! ```
 //!
 //! Renders each scene at 640×480 with the viewer's two kinds of pass —
@@ -13,7 +13,7 @@
 //! Markdown table: compression ratio against raw RGB8, mean bytes per tile,
 //! encode and decode microseconds per tile.
 
-use isin_actors::codec::{self, Codec};
+use isin_cluster::codec::{self, Codec};
 use isin_tracer::{AssetSource, RenderSettings, Tile};
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -1,13 +1,19 @@
 //! Length-delimited frames over any byte stream: `[len: u32 big-endian][len bytes]`.
 //!
 //! [`spawn`] turns a reader and a writer into a [`Connection`] by running two
-//! tokio tasks. The reader checks every announced length against the
-//! connection's maximum *before* allocating, and reports an oversized one as
-//! [`TransportError::FrameTooLarge`] and stops. The writer batches: it writes
-//! every frame already queued before flushing, so a burst of tiles costs one
-//! system call, not one each.
+//! tokio tasks. The reader admits every announced length
+//! ([`ConnShared::admit`]: the maximum frame, then the memory budget) *before*
+//! allocating, and reads the body under the connection's frame timeout. A
+//! frame refused or late ([`TransportError::FrameTooLarge`],
+//! [`TransportError::OverBudget`], [`TransportError::FrameTimeout`]) or a
+//! broken stream fails the connection: the error is the receiver's last item,
+//! and the writer closes the stream. The writer batches: it writes every frame
+//! already queued before flushing, so a burst of tiles costs one system call,
+//! not one each.
 
-use super::{ConnShared, Connection, FrameReceiver, FrameSender, Outgoing, TransportError};
+use super::{
+    ConnShared, Connection, FrameReceiver, FrameSender, Incoming, Outgoing, Reservation, TransportError,
+};
 use std::sync::Arc;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, BufWriter};
 use tokio::sync::mpsc;
@@ -51,8 +57,11 @@ where
 {
     let (out_tx, out_rx) = mpsc::unbounded_channel();
     let (in_tx, in_rx) = mpsc::channel(INBOUND_QUEUE);
+    // The reader closes the writer when the connection fails; a weak handle,
+    // so that dropping every FrameSender still ends the writer.
+    let closer = out_tx.downgrade();
     tokio::spawn(write_loop(writer, out_rx, shared.clone(), counting));
-    tokio::spawn(read_loop(reader, in_tx, shared.clone(), counting));
+    tokio::spawn(read_loop(reader, in_tx, closer, shared.clone(), counting));
     Connection { peer, sender: FrameSender::new(out_tx, shared), receiver: FrameReceiver::new(in_rx) }
 }
 
@@ -67,7 +76,7 @@ async fn write_loop<W: AsyncWrite + Unpin>(
         let mut next = Some(first);
         while let Some(item) = next.take() {
             match item {
-                Outgoing::Frame(frame) => {
+                Outgoing::Frame(frame, _) => {
                     let Ok(len) = u32::try_from(frame.len()) else {
                         tracing::error!(len = frame.len(), "frame too long for the wire; dropped");
                         continue;
@@ -94,7 +103,8 @@ async fn write_loop<W: AsyncWrite + Unpin>(
 
 async fn read_loop<R: AsyncRead + Unpin>(
     mut reader: R,
-    tx: mpsc::Sender<Result<Vec<u8>, TransportError>>,
+    tx: mpsc::Sender<Incoming>,
+    closer: mpsc::WeakUnboundedSender<Outgoing>,
     shared: Arc<ConnShared>,
     counting: Counting,
 ) {
@@ -115,6 +125,13 @@ async fn read_loop<R: AsyncRead + Unpin>(
             }
             Ok(None) => return,
             Err(e) => {
+                tracing::info!("closing the connection: {e}");
+                // Nothing more is read, so nothing more is sent: close now
+                // (queued frames are still flushed first).
+                if let Some(out) = closer.upgrade() {
+                    let _ = out.send(Outgoing::Close);
+                }
+                shared.close();
                 let _ = tx.send(Err(e)).await;
                 return;
             }
@@ -122,12 +139,12 @@ async fn read_loop<R: AsyncRead + Unpin>(
     }
 }
 
-/// One frame, `None` on a clean end of stream between frames.
+/// One frame and its reservation, `None` on a clean end of stream between frames.
 async fn read_frame<R: AsyncRead + Unpin>(
     reader: &mut R,
     shared: &ConnShared,
     counting: Counting,
-) -> Result<Option<Vec<u8>>, TransportError> {
+) -> Result<Option<(Vec<u8>, Reservation)>, TransportError> {
     let mut len = [0u8; 4];
     let mut got = 0;
     while got < 4 {
@@ -148,17 +165,19 @@ async fn read_frame<R: AsyncRead + Unpin>(
         got += n;
     }
     let len = u32::from_be_bytes(len) as u64;
-    let max = shared.max_frame();
-    if len > max as u64 {
-        return Err(TransportError::FrameTooLarge { len, max });
-    }
-    let mut buf = vec![0u8; len as usize];
-    reader.read_exact(&mut buf).await?;
+    // Limit and budget first; only then the allocation.
+    let reservation = shared.admit(len)?;
+    let mut buf = vec![0u8; reservation.len()];
+    let timeout = shared.frame_timeout();
+    match tokio::time::timeout(timeout, reader.read_exact(&mut buf)).await {
+        Ok(read) => read?,
+        Err(_) => return Err(TransportError::FrameTimeout { len, timeout }),
+    };
     match counting {
         Counting::Frames => shared.count_received(4 + len),
         Counting::External => shared.count_frame_received(),
     }
-    Ok(Some(buf))
+    Ok(Some((buf, reservation)))
 }
 
 #[cfg(test)]

@@ -1,20 +1,27 @@
-//! The master's TLS identity and certificate pinning, for TLS over TCP and
-//! QUIC alike (`isin-transport-quic` re-exports this module).
+//! # isin-transport-tls — the master's TLS identity and certificate pinning
+//!
+//! One TLS layer under both encrypted transports: TLS over TCP
+//! (`isin-transport-tcp`, through `tokio-rustls`) and QUIC
+//! (`isin-transport-quic`, through quinn). It lives in a crate of its own so
+//! that neither transport depends on the other, and the actors and the
+//! cluster core stay free of cryptography.
 //!
 //! The master generates a self-signed certificate ([`Identity::generate`]); the
-//! SHA-256 of its DER encoding, the [`Fingerprint`], travels in the join
-//! ticket. A peer trusts exactly that certificate: [`PinnedServerVerifier`]
-//! accepts the handshake only if the server's end-entity certificate hashes to
-//! the pinned fingerprint, and checks the handshake signatures with the ring
-//! provider's algorithms, so the server must also hold the certificate's
-//! private key. There is no certificate authority and no "accept anything"
-//! mode; the server name is not checked (the fingerprint names the server more
-//! precisely than any host name could).
+//! SHA-256 of its DER encoding, the [`Fingerprint`] ([`fingerprint_of`]),
+//! travels in the join ticket (`isin_transport::ticket`). A peer trusts
+//! exactly that certificate: [`PinnedServerVerifier`] accepts the handshake
+//! only if the server's end-entity certificate hashes to the pinned
+//! fingerprint, and checks the handshake signatures with the ring provider's
+//! algorithms, so the server must also hold the certificate's private key.
+//! There is no certificate authority and no "accept anything" mode; the server
+//! name is not checked (the fingerprint names the server more precisely than
+//! any host name could).
 //!
 //! [`server_config`] and [`client_config`] build plain rustls configurations
 //! (TLS 1.3 only, ring provider) with the ALPN protocol chosen by the caller:
 //! the TCP transport wraps them in `tokio-rustls`, QUIC hands them to quinn.
 
+pub use isin_transport::ticket::Fingerprint;
 use rustls::client::danger::{HandshakeSignatureValid, ServerCertVerified, ServerCertVerifier};
 use rustls::crypto::{CryptoProvider, WebPkiSupportedAlgorithms};
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer, ServerName, UnixTime};
@@ -42,61 +49,11 @@ pub enum TlsError {
     /// The configuration does not suit QUIC (e.g. no TLS 1.3 initial cipher suite).
     #[error("TLS configuration unusable for QUIC: {0}")]
     Quic(String),
-    /// A fingerprint string is not 64 hex digits.
-    #[error("malformed certificate fingerprint `{0}`: expected 64 hex digits (SHA-256)")]
-    BadFingerprint(String),
 }
 
-/// SHA-256 of a certificate's DER encoding.
-#[derive(Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Fingerprint(pub [u8; 32]);
-
-impl Fingerprint {
-    /// The fingerprint of a DER-encoded certificate.
-    pub fn of(cert_der: &[u8]) -> Self {
-        Self(Sha256::digest(cert_der).into())
-    }
-
-    /// Constant-time comparison (the fingerprint is not secret, but this costs
-    /// nothing).
-    pub fn matches(&self, other: &Fingerprint) -> bool {
-        self.0.iter().zip(&other.0).fold(0u8, |acc, (a, b)| acc | (a ^ b)) == 0
-    }
-}
-
-impl fmt::Display for Fingerprint {
-    /// Lower-case hex, 64 digits: the form join tickets carry.
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        for b in self.0 {
-            write!(f, "{b:02x}")?;
-        }
-        Ok(())
-    }
-}
-
-impl fmt::Debug for Fingerprint {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "Fingerprint({self})")
-    }
-}
-
-impl std::str::FromStr for Fingerprint {
-    type Err = TlsError;
-
-    /// Parses 64 hex digits (either case; `:` separators allowed, as tools print them).
-    fn from_str(s: &str) -> Result<Self, TlsError> {
-        let bad = || TlsError::BadFingerprint(s.chars().take(100).collect());
-        let digits: Vec<u8> = s.bytes().filter(|&b| b != b':').collect();
-        if digits.len() != 64 {
-            return Err(bad());
-        }
-        let mut out = [0u8; 32];
-        for (o, pair) in out.iter_mut().zip(digits.chunks_exact(2)) {
-            let hex = std::str::from_utf8(pair).map_err(|_| bad())?;
-            *o = u8::from_str_radix(hex, 16).map_err(|_| bad())?;
-        }
-        Ok(Self(out))
-    }
+/// The fingerprint of a DER-encoded certificate: its SHA-256.
+pub fn fingerprint_of(cert_der: &[u8]) -> Fingerprint {
+    Fingerprint(Sha256::digest(cert_der).into())
 }
 
 /// A certificate and its private key: what a TLS server presents.
@@ -133,7 +90,7 @@ impl Identity {
     /// loaded from files so the fingerprint survives restarts). Whether the key
     /// matches the certificate is checked by [`server_config`].
     pub fn from_der(cert: CertificateDer<'static>, key: PrivatePkcs8KeyDer<'static>) -> Self {
-        let fingerprint = Fingerprint::of(&cert);
+        let fingerprint = fingerprint_of(&cert);
         Self { cert, key, fingerprint }
     }
 
@@ -245,7 +202,7 @@ impl ServerCertVerifier for PinnedServerVerifier {
         _ocsp_response: &[u8],
         _now: UnixTime,
     ) -> Result<ServerCertVerified, rustls::Error> {
-        let got = Fingerprint::of(end_entity);
+        let got = fingerprint_of(end_entity);
         if got.matches(&self.pinned) {
             Ok(ServerCertVerified::assertion())
         } else {
@@ -288,20 +245,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn fingerprints_print_and_parse() {
+    fn fingerprints_are_the_certificates_sha256_and_survive_the_ticket_form() {
         let id = Identity::generate().unwrap();
         let fp = id.fingerprint();
-        let text = fp.to_string();
-        assert_eq!(text.len(), 64);
-        assert_eq!(text.parse::<Fingerprint>().unwrap(), fp);
-        assert_eq!(text.to_uppercase().parse::<Fingerprint>().unwrap(), fp);
-        let colons: String =
-            text.as_bytes().chunks(2).map(|c| std::str::from_utf8(c).unwrap()).collect::<Vec<_>>().join(":");
-        assert_eq!(colons.parse::<Fingerprint>().unwrap(), fp);
-        assert_eq!(Fingerprint::of(id.cert_der()), fp);
-        for bad in ["", "abc", &text[..62], &format!("{}zz", &text[..62]), &format!("{text}00")] {
-            assert!(bad.parse::<Fingerprint>().is_err(), "{bad}");
-        }
+        assert_eq!(fingerprint_of(id.cert_der()), fp);
+        let expected: [u8; 32] = Sha256::digest(id.cert_der()).into();
+        assert_eq!(fp.as_bytes(), &expected);
+        assert_eq!(fp.to_string().parse::<Fingerprint>().unwrap(), fp);
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //! fields to rmp-serde, which checks declared lengths against the bytes present.
 
 use crate::codec::{self, Codec, CodecError};
+use crate::scheduler::Work;
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
@@ -18,8 +19,10 @@ use std::collections::BTreeMap;
 /// Version of the protocol spoken by this build; peers must match exactly.
 /// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may
 /// queue frames behind the open one, [`Message::QueueFrame`]. 4: the master
-/// tells viewers its slaves, [`Message::Slaves`].)
-pub const PROTOCOL_VERSION: u16 = 4;
+/// tells viewers its slaves, [`Message::Slaves`]. 5: every viewer is a client
+/// of its own, interactive or batch ([`Hello::work`]), whose requests
+/// supersede only its own frames.)
+pub const PROTOCOL_VERSION: u16 = 5;
 
 /// Most slaves a [`Message::Slaves`] may list; a longer list is refused while
 /// it is decoded, before it is allocated.
@@ -74,6 +77,9 @@ pub struct Hello {
     /// (unknown names are ignored; absent or empty: raw only).
     #[serde(default)]
     pub codecs: Vec<String>,
+    /// Viewers: what kind of work their frames are (slaves: ignored).
+    #[serde(default)]
+    pub work: Work,
 }
 
 /// What a viewer needs to know about the scene being served.
@@ -271,9 +277,9 @@ pub struct FrameStats {
     pub moved: u32,
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
-    /// Bytes the master received from all peers while the frame was open
-    /// (tiles, framing and heartbeats, as the transport counts them — over TLS,
-    /// what crossed the socket): the frame's cost on the slaves' links.
+    /// Bytes of the messages the master received from all peers while the
+    /// frame was open (tiles and heartbeats; the transport's framing and
+    /// encryption not counted): the frame's cost on the slaves' links.
     pub bytes_in: u64,
 }
 
@@ -366,6 +372,13 @@ pub enum Message {
         /// Resolution, samples and the rest.
         settings: RenderSettings,
     },
+    /// Master → viewer: something worth telling the user that is not an
+    /// error — its frames wait because no slave is connected, say. Said
+    /// once, not per frame.
+    Notice {
+        /// Human-readable text.
+        message: String,
+    },
 }
 
 impl Message {
@@ -388,6 +401,7 @@ impl Message {
             Message::Heartbeat => "Heartbeat",
             Message::Error { .. } => "Error",
             Message::QueueFrame { .. } => "QueueFrame",
+            Message::Notice { .. } => "Notice",
         }
     }
 }
@@ -465,12 +479,29 @@ pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
 /// Content hash of a scene bundle (name, text and every asset, length-prefixed
 /// so that no two different bundles hash the same input).
 pub fn scene_hash(bundle: &SceneBundle) -> SceneHash {
+    scene_hash_named(&bundle.name, bundle)
+}
+
+/// What peers are told a scene is called: the last component of its path
+/// (in either separator), never the path on the master's disk.
+pub fn served_name(name: &str) -> &str {
+    name.rsplit(['/', '\\']).next().unwrap_or(name)
+}
+
+/// The hash of `bundle` as a master serves it (under its [`served_name`]): a
+/// client compares it with the master's [`SceneInfo::hash`] to know whether
+/// the master serves the scene it means.
+pub fn served_scene_hash(bundle: &SceneBundle) -> SceneHash {
+    scene_hash_named(served_name(&bundle.name), bundle)
+}
+
+fn scene_hash_named(name: &str, bundle: &SceneBundle) -> SceneHash {
     let mut h = Sha256::new();
     let mut put = |bytes: &[u8]| {
         h.update((bytes.len() as u64).to_le_bytes());
         h.update(bytes);
     };
-    put(bundle.name.as_bytes());
+    put(name.as_bytes());
     put(bundle.source.as_bytes());
     for (path, bytes) in &bundle.assets {
         put(path.as_bytes());
@@ -502,6 +533,7 @@ mod tests {
                 proof: [2; 32],
                 cached_scene: Some([3; 32]),
                 codecs: codec::offer(),
+                work: Work::Batch,
             }),
             Message::Welcome(Welcome {
                 id: 9,

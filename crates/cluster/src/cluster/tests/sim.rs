@@ -1,0 +1,665 @@
+//! Simulated peers and the transport between them and the core.
+//!
+//! Peers are driven by the messages they receive and by the virtual clock:
+//! slaves answer the challenge, load the scene, render their tiles in
+//! `threads` lanes at a chosen speed (pixels from [`shade`], so any slave
+//! renders any pixel to the same bytes) and heartbeat; viewers request
+//! frames and assemble the tiles they get. Hostile [`Behaviour`]s speak the
+//! same protocol and lie in it.
+
+use super::super::*;
+use super::MS;
+use crate::protocol::{SceneHash, TileId, TileJob};
+use isin_tracer::Tile;
+
+/// The token honest peers know.
+pub const TOKEN: &str = "secret";
+
+/// Heartbeat period of simulated peers.
+const HEARTBEAT: Duration = Duration::from_millis(500);
+
+/// A core around a small fake scene.
+pub fn config() -> ClusterConfig {
+    let mut assets = BTreeMap::new();
+    assets.insert("mesh.bin".to_string(), vec![42u8; 5000]);
+    let scene = SceneBundle { name: "fake.toml".into(), source: "fake scene".into(), assets };
+    ClusterConfig::new(TOKEN.into(), scene, Camera::default(), RenderSettings::default(), [7; 32])
+}
+
+/// The "render" every slave agrees on: a hash of the frame's seed and the pixel.
+pub fn shade(seed: u64, x: u32, y: u32) -> [u8; 3] {
+    let mut h = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (u64::from(x) << 32 | u64::from(y));
+    h ^= h >> 29;
+    h = h.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h ^= h >> 32;
+    [h as u8, (h >> 8) as u8, (h >> 16) as u8]
+}
+
+fn render(seed: u64, t: Tile) -> Vec<u8> {
+    let mut rgb = Vec::with_capacity(t.pixel_count() * 3);
+    for y in t.y..t.y + t.h {
+        for x in t.x..t.x + t.w {
+            rgb.extend_from_slice(&shade(seed, x, y));
+        }
+    }
+    rgb
+}
+
+pub use crate::testing::Rng;
+
+/// How a simulated peer behaves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Behaviour {
+    /// Does what the protocol says.
+    Honest,
+    /// Connected, never says anything again (a hung process, a cut cable).
+    Silent,
+    /// Renders its own tiles, and sends white results for every other tile
+    /// of each frame it hears of.
+    Forger,
+    /// Logs in, then says nothing: no `Ready`, no heartbeat.
+    StallBeforeReady,
+    /// Logs in and heartbeats, but never says `Ready`.
+    HeartbeatNeverReady,
+    /// Logs in, then announces a frame longer than its limit.
+    Oversized,
+    /// Returns its first tile with another rectangle.
+    WrongRect,
+}
+
+/// A simulated slave.
+#[derive(Clone, Debug)]
+pub struct SlaveSpec {
+    /// The token it proves.
+    pub token: String,
+    /// Render lanes.
+    pub threads: u32,
+    /// Virtual microseconds a pixel.
+    pub us_per_pixel: u64,
+    /// What it does.
+    pub behaviour: Behaviour,
+    /// The scene it holds already.
+    pub cached: Option<SceneHash>,
+}
+
+impl Default for SlaveSpec {
+    fn default() -> Self {
+        Self { token: TOKEN.into(), threads: 2, us_per_pixel: 5, behaviour: Behaviour::Honest, cached: None }
+    }
+}
+
+type Job = (FrameId, TileJob, u64);
+
+#[derive(Debug, Default)]
+struct SlaveSim {
+    threads: u32,
+    us_per_pixel: u64,
+    cached: Option<SceneHash>,
+    codec: Codec,
+    queue: VecDeque<Job>,
+    lanes: Vec<Option<(Job, Duration)>>,
+    syncs: u32,
+    assignments: u32,
+    cancels: u32,
+    forged: BTreeSet<FrameId>,
+}
+
+#[derive(Debug)]
+struct ViewFrame {
+    settings: RenderSettings,
+    requested: Duration,
+    took: Option<Duration>,
+    image: Vec<u8>,
+    writes: Vec<u8>,
+    done: bool,
+}
+
+#[derive(Debug, Default)]
+struct ViewerSim {
+    next_request: u64,
+    frames: BTreeMap<u64, ViewFrame>,
+    errors: Vec<String>,
+    notices: Vec<String>,
+}
+
+#[derive(Debug)]
+enum Kind {
+    Slave(SlaveSim),
+    Viewer(ViewerSim),
+    /// Says only what the test makes it say.
+    Raw,
+}
+
+#[derive(Debug)]
+struct SimPeer {
+    kind: Kind,
+    work: Work,
+    behaviour: Behaviour,
+    token: String,
+    logged_in: bool,
+    received: Vec<Message>,
+    outbox: Vec<Vec<u8>>,
+    /// Closed by the core (with its reason).
+    closed: Option<String>,
+    /// Disconnected by the test.
+    gone: bool,
+    rejection: Option<String>,
+    limit: Option<usize>,
+    next_heartbeat: Duration,
+}
+
+/// The core, its peers and the virtual clock.
+pub struct Net {
+    /// The master's state machine under test.
+    pub core: Cluster,
+    /// Virtual time.
+    pub now: Duration,
+    peers: BTreeMap<PeerId, SimPeer>,
+    next_peer: PeerId,
+    /// Lane-milliseconds of live slaves, and of those the busy ones.
+    lane_ms: u64,
+    busy_lane_ms: u64,
+}
+
+impl Net {
+    /// A core for `cfg` with no peers, at time zero.
+    pub fn new(cfg: ClusterConfig) -> Self {
+        Self {
+            core: Cluster::new(cfg).expect("scene encodes"),
+            now: Duration::ZERO,
+            peers: BTreeMap::new(),
+            next_peer: 1,
+            lane_ms: 0,
+            busy_lane_ms: 0,
+        }
+    }
+
+    fn add(&mut self, kind: Kind, behaviour: Behaviour, token: String, work: Work) -> PeerId {
+        let id = self.next_peer;
+        self.next_peer += 1;
+        let peer = SimPeer {
+            kind,
+            work,
+            behaviour,
+            token,
+            logged_in: false,
+            received: Vec::new(),
+            outbox: Vec::new(),
+            closed: None,
+            gone: false,
+            rejection: None,
+            limit: None,
+            next_heartbeat: self.now + HEARTBEAT,
+        };
+        self.peers.insert(id, peer);
+        self.core.handle_connected(self.now, id, &format!("sim:{id}"));
+        self.pump();
+        id
+    }
+
+    /// Connects a slave.
+    pub fn slave(&mut self, spec: SlaveSpec) -> PeerId {
+        let sim = SlaveSim {
+            threads: spec.threads,
+            us_per_pixel: spec.us_per_pixel,
+            cached: spec.cached,
+            lanes: vec![None; spec.threads as usize],
+            ..SlaveSim::default()
+        };
+        self.add(Kind::Slave(sim), spec.behaviour, spec.token, Work::Interactive)
+    }
+
+    /// Connects an honest interactive viewer.
+    pub fn viewer(&mut self) -> PeerId {
+        self.viewer_of(Work::Interactive)
+    }
+
+    /// Connects an honest viewer whose frames are `work`.
+    pub fn viewer_of(&mut self, work: Work) -> PeerId {
+        self.add(Kind::Viewer(ViewerSim::default()), Behaviour::Honest, TOKEN.into(), work)
+    }
+
+    /// Connects a peer that says nothing unless told to.
+    pub fn raw_peer(&mut self) -> PeerId {
+        self.add(Kind::Raw, Behaviour::Honest, TOKEN.into(), Work::Interactive)
+    }
+
+    /// Has `peer` send `frame` as it is.
+    pub fn send_raw(&mut self, peer: PeerId, frame: Vec<u8>) {
+        self.peers.get_mut(&peer).expect("known peer").outbox.push(frame);
+        self.pump();
+    }
+
+    /// Has viewer `v` request (or queue) a frame; returns its request number.
+    pub fn request(&mut self, v: PeerId, settings: RenderSettings, queue: bool) -> u64 {
+        let p = self.peers.get_mut(&v).expect("known peer");
+        let Kind::Viewer(sim) = &mut p.kind else { panic!("{v} is not a viewer") };
+        sim.next_request += 1;
+        let request = sim.next_request;
+        let n = (settings.width * settings.height) as usize;
+        let requested = self.now;
+        let frame = ViewFrame {
+            settings,
+            requested,
+            took: None,
+            image: vec![0; n * 3],
+            writes: vec![0; n],
+            done: false,
+        };
+        sim.frames.insert(request, frame);
+        let camera = Camera::default();
+        let msg = if queue {
+            Message::QueueFrame { request, camera, settings }
+        } else {
+            Message::FrameRequest { request, camera, settings }
+        };
+        p.outbox.push(protocol::encode(&msg).expect("encodes"));
+        self.pump();
+        request
+    }
+
+    /// Closes `peer`'s connection from its side.
+    pub fn disconnect(&mut self, peer: PeerId) {
+        self.peers.get_mut(&peer).expect("known peer").gone = true;
+        self.core.handle_closed(self.now, peer);
+        self.pump();
+    }
+
+    /// Changes how `peer` behaves from now on.
+    pub fn set_behaviour(&mut self, peer: PeerId, behaviour: Behaviour) {
+        self.peers.get_mut(&peer).expect("known peer").behaviour = behaviour;
+    }
+
+    /// Moves frames both ways until nothing is left to move.
+    pub fn pump(&mut self) {
+        loop {
+            let mut progressed = false;
+            let ids: Vec<PeerId> = self.peers.keys().copied().collect();
+            for id in ids {
+                let p = self.peers.get_mut(&id).expect("listed");
+                let outbox = std::mem::take(&mut p.outbox);
+                if p.gone || p.closed.is_some() {
+                    continue;
+                }
+                for frame in outbox {
+                    progressed = true;
+                    let limit = self.peers[&id].limit.unwrap_or(HANDSHAKE_MAX_FRAME);
+                    if frame.len() > limit {
+                        // What the transport does: refused before it is read.
+                        let error = format!("frame of {} bytes too large (max {limit})", frame.len());
+                        self.core.handle_transport_error(self.now, id, &error);
+                    } else {
+                        self.core.handle_frame(self.now, id, &frame);
+                    }
+                    if self.peers[&id].closed.is_some() {
+                        break;
+                    }
+                    self.drain_core();
+                }
+            }
+            progressed |= self.drain_core();
+            if !progressed {
+                return;
+            }
+        }
+    }
+
+    /// Carries out the core's transmissions; true if there were any.
+    fn drain_core(&mut self) -> bool {
+        let mut any = false;
+        while let Some(t) = self.core.poll_transmit() {
+            any = true;
+            match t {
+                Transmit::Send { peer, message, .. } => {
+                    // Through the codec, as on a real wire.
+                    let frame = protocol::encode(&message).expect("the core's messages encode");
+                    let decoded = protocol::decode(&frame, usize::MAX).expect("and decode");
+                    self.deliver(peer, decoded);
+                }
+                Transmit::SendEncoded { peer, frame } => {
+                    let decoded = protocol::decode(&frame, usize::MAX).expect("pre-encoded frames decode");
+                    self.deliver(peer, decoded);
+                }
+                Transmit::Limit { peer, max_frame } => {
+                    if let Some(p) = self.peers.get_mut(&peer) {
+                        p.limit = Some(max_frame);
+                    }
+                }
+                Transmit::Close { peer, reason } => {
+                    if let Some(p) = self.peers.get_mut(&peer) {
+                        assert!(p.closed.is_none(), "peer {peer} closed twice");
+                        p.closed = Some(reason);
+                    }
+                }
+            }
+        }
+        any
+    }
+
+    fn deliver(&mut self, id: PeerId, msg: Message) {
+        let now = self.now;
+        let Some(p) = self.peers.get_mut(&id) else { panic!("message to unknown peer {id}") };
+        assert!(p.closed.is_none(), "{} sent to peer {id} after closing it", msg.kind());
+        p.received.push(msg.clone());
+        if p.gone {
+            return;
+        }
+        let behaviour = p.behaviour;
+        let mut out: Vec<Message> = Vec::new();
+        match (&mut p.kind, msg) {
+            (_, Message::Reject { reason }) => p.rejection = Some(reason),
+            (Kind::Raw, _) => {}
+            (Kind::Slave(_) | Kind::Viewer(_), Message::Challenge { nonce }) => {
+                let (role, threads, cached, codecs) = match &p.kind {
+                    Kind::Slave(s) => (Role::Slave, s.threads, s.cached, codec::offer()),
+                    _ => (Role::Viewer, 0, None, codec::offer()),
+                };
+                let client_nonce = [id as u8; 32];
+                let proof = auth::client_proof(&p.token, role, &nonce, &client_nonce);
+                let name = format!("sim{id}");
+                out.push(Message::Hello(Hello {
+                    role,
+                    name,
+                    threads,
+                    client_nonce,
+                    proof,
+                    cached_scene: cached,
+                    codecs,
+                    work: p.work,
+                }));
+            }
+            (Kind::Slave(s), Message::Welcome(w)) => {
+                p.logged_in = true;
+                s.codec = w.codec;
+                if s.cached == Some(w.scene.hash) {
+                    out.extend(ready(behaviour, w.scene.hash));
+                }
+            }
+            (Kind::Viewer(_), Message::Welcome(_)) => p.logged_in = true,
+            (Kind::Slave(s), Message::SceneSync { hash, bundle }) => {
+                s.syncs += 1;
+                assert_eq!(
+                    protocol::scene_hash(&SceneBundle::from(bundle)),
+                    hash,
+                    "the scene matches its hash"
+                );
+                out.extend(ready(behaviour, hash));
+            }
+            (Kind::Slave(s), Message::TileAssignment(a)) => {
+                s.assignments += 1;
+                let seed = a.settings.seed;
+                match behaviour {
+                    Behaviour::Forger if s.forged.insert(a.frame) => {
+                        let edge = a.tiles.first().map_or(32, |t| t.tile.w.max(t.tile.h));
+                        let mine: BTreeSet<TileId> = a.tiles.iter().map(|t| t.id).collect();
+                        let grid = Tile::grid(a.settings.width, a.settings.height, edge);
+                        for (i, tile) in grid.into_iter().enumerate() {
+                            let id = i as TileId;
+                            if !mine.contains(&id) {
+                                let pixels = ByteBuf::from(vec![255u8; tile.pixel_count() * 3]);
+                                let r = TileResult {
+                                    frame: a.frame,
+                                    id,
+                                    tile,
+                                    render_micros: 1,
+                                    codec: Codec::Raw,
+                                    pixels,
+                                };
+                                out.push(Message::TileResult(r));
+                            }
+                        }
+                    }
+                    Behaviour::WrongRect => {
+                        if let Some(job) = a.tiles.first() {
+                            let mut tile = job.tile;
+                            tile.w += 1;
+                            let pixels = ByteBuf::from(vec![0u8; tile.pixel_count() * 3]);
+                            out.push(Message::TileResult(TileResult {
+                                frame: a.frame,
+                                id: job.id,
+                                tile,
+                                render_micros: 1,
+                                codec: Codec::Raw,
+                                pixels,
+                            }));
+                        }
+                    }
+                    Behaviour::Oversized => {
+                        let huge = "x".repeat(p.limit.unwrap_or(HANDSHAKE_MAX_FRAME) + 1);
+                        out.push(Message::Error { message: huge });
+                    }
+                    _ => {}
+                }
+                s.queue.extend(a.tiles.into_iter().map(|t| (a.frame, t, seed)));
+            }
+            (Kind::Slave(s), Message::Cancel { frame, tiles }) => {
+                s.cancels += 1;
+                s.queue.retain(|(f, job, _)| !(*f == frame && tiles.contains(&job.id)));
+            }
+            (Kind::Viewer(v), Message::FrameTile(t)) => {
+                let f = v
+                    .frames
+                    .get_mut(&t.request)
+                    .unwrap_or_else(|| panic!("tile for unknown request {}", t.request));
+                assert!(!f.done, "tile after FrameDone");
+                let rgb = t.decoded_pixels().expect("forwarded tiles decode");
+                let w = f.settings.width;
+                for (row, y) in (t.tile.y..t.tile.y + t.tile.h).enumerate() {
+                    for (col, x) in (t.tile.x..t.tile.x + t.tile.w).enumerate() {
+                        let i = (y * w + x) as usize;
+                        let s = (row * t.tile.w as usize + col) * 3;
+                        f.image[i * 3..i * 3 + 3].copy_from_slice(&rgb[s..s + 3]);
+                        f.writes[i] += 1;
+                    }
+                }
+            }
+            (Kind::Viewer(v), Message::FrameDone { request, .. }) => {
+                let f = v.frames.get_mut(&request).expect("done for a known request");
+                f.done = true;
+                f.took = Some(now - f.requested);
+            }
+            (Kind::Viewer(v), Message::Error { message }) => v.errors.push(message),
+            (Kind::Viewer(v), Message::Notice { message }) => v.notices.push(message),
+            _ => {}
+        }
+        let p = self.peers.get_mut(&id).expect("still here");
+        p.outbox.extend(out.iter().map(|m| protocol::encode(m).expect("encodes")));
+    }
+
+    /// One millisecond: peers heartbeat and render, the core keeps time.
+    pub fn step(&mut self) {
+        self.now += MS;
+        let now = self.now;
+        for p in self.peers.values_mut().filter(|p| !p.gone && p.closed.is_none()) {
+            let speaks = !matches!(p.behaviour, Behaviour::Silent | Behaviour::StallBeforeReady);
+            if p.logged_in && speaks && now >= p.next_heartbeat {
+                p.next_heartbeat = now + HEARTBEAT;
+                p.outbox.push(protocol::encode(&Message::Heartbeat).expect("encodes"));
+            }
+            let Kind::Slave(s) = &mut p.kind else { continue };
+            if !speaks {
+                continue;
+            }
+            self.lane_ms += s.lanes.len() as u64;
+            self.busy_lane_ms += s.lanes.iter().filter(|l| l.is_some()).count() as u64;
+            for lane in 0..s.lanes.len() {
+                if let Some(((frame, job, seed), at)) = s.lanes[lane]
+                    && at <= now
+                {
+                    let pixels = codec::encode(s.codec, job.tile.w, &render(seed, job.tile));
+                    let r = TileResult {
+                        frame,
+                        id: job.id,
+                        tile: job.tile,
+                        render_micros: job.tile.pixel_count() as u64 * s.us_per_pixel,
+                        codec: s.codec,
+                        pixels: ByteBuf::from(pixels),
+                    };
+                    p.outbox.push(protocol::encode(&Message::TileResult(r)).expect("encodes"));
+                    s.lanes[lane] = None;
+                }
+                if s.lanes[lane].is_none()
+                    && let Some(job) = s.queue.pop_front()
+                {
+                    let took = Duration::from_micros(job.1.tile.pixel_count() as u64 * s.us_per_pixel);
+                    s.lanes[lane] = Some((job, now + took.max(MS)));
+                }
+            }
+        }
+        self.pump();
+        self.core.handle_timeout(now);
+        self.pump();
+    }
+
+    /// Steps until `done` holds (at most ten virtual minutes).
+    pub fn run_until(&mut self, mut done: impl FnMut(&Net) -> bool) {
+        for _ in 0..600_000 {
+            if done(self) {
+                return;
+            }
+            self.step();
+        }
+        panic!("condition never held; now {:?}, status {:?}", self.now, self.core.status());
+    }
+
+    /// Steps for `d`.
+    pub fn run_for(&mut self, d: Duration) {
+        let end = self.now + d;
+        while self.now < end {
+            self.step();
+        }
+    }
+
+    fn viewer_sim(&self, v: PeerId) -> &ViewerSim {
+        match &self.peers[&v].kind {
+            Kind::Viewer(sim) => sim,
+            _ => panic!("{v} is not a viewer"),
+        }
+    }
+
+    fn slave_sim(&self, s: PeerId) -> &SlaveSim {
+        match &self.peers[&s].kind {
+            Kind::Slave(sim) => sim,
+            _ => panic!("{s} is not a slave"),
+        }
+    }
+
+    /// Whether viewer `v` got `FrameDone` for `request`.
+    pub fn viewer_done(&self, v: PeerId, request: u64) -> bool {
+        self.viewer_sim(v).frames.get(&request).is_some_and(|f| f.done)
+    }
+
+    /// Lane-milliseconds of live slaves so far, and how many of them were busy.
+    pub fn lanes(&self) -> (u64, u64) {
+        (self.lane_ms, self.busy_lane_ms)
+    }
+
+    /// The mean time viewer `v`'s requests took, from request to
+    /// `FrameDone`, among those done.
+    pub fn mean_frame_time(&self, v: PeerId) -> Duration {
+        let took: Vec<Duration> = self.viewer_sim(v).frames.values().filter_map(|f| f.took).collect();
+        took.iter().sum::<Duration>() / took.len().max(1) as u32
+    }
+
+    /// Requests of viewer `v` done so far.
+    pub fn done_requests(&self, v: PeerId) -> usize {
+        self.viewer_sim(v).frames.values().filter(|f| f.done).count()
+    }
+
+    /// Requests of viewer `v` not yet done.
+    pub fn open_requests(&self, v: PeerId) -> usize {
+        self.viewer_sim(v).frames.values().filter(|f| !f.done).count()
+    }
+
+    /// Pixels delivered to viewer `v`, over all its requests.
+    pub fn delivered(&self, v: PeerId) -> u64 {
+        self.viewer_sim(v).frames.values().map(|f| f.writes.iter().map(|&n| u64::from(n)).sum::<u64>()).sum()
+    }
+
+    /// Asserts that `request`'s image is every slave's render, each pixel
+    /// delivered exactly once.
+    pub fn assert_exact(&self, v: PeerId, request: u64) {
+        let f = &self.viewer_sim(v).frames[&request];
+        assert!(f.done, "request {request} not done");
+        let s = f.settings;
+        let want = render(s.seed, Tile { x: 0, y: 0, w: s.width, h: s.height });
+        if let Some(i) = f.writes.iter().position(|&n| n != 1) {
+            panic!("request {request}: pixel {i} delivered {} times", f.writes[i]);
+        }
+        assert!(f.image == want, "request {request}: the image is not the render");
+    }
+
+    /// Whether `peer`'s connection is closed (by the core or by the peer).
+    pub fn is_closed(&self, peer: PeerId) -> bool {
+        let p = &self.peers[&peer];
+        p.gone || p.closed.is_some()
+    }
+
+    /// Why the core refused `peer`, if it did.
+    pub fn rejection(&self, peer: PeerId) -> Option<String> {
+        self.peers[&peer].rejection.clone()
+    }
+
+    /// The frame limit the core set for `peer`, if any.
+    pub fn limit(&self, peer: PeerId) -> Option<usize> {
+        self.peers[&peer].limit
+    }
+
+    /// Every message `peer` received.
+    pub fn received(&self, peer: PeerId) -> &[Message] {
+        &self.peers[&peer].received
+    }
+
+    /// The `Error` messages viewer `v` got.
+    pub fn errors(&self, v: PeerId) -> Vec<String> {
+        self.viewer_sim(v).errors.clone()
+    }
+
+    /// The `Notice` messages viewer `v` got.
+    pub fn notices(&self, v: PeerId) -> Vec<String> {
+        self.viewer_sim(v).notices.clone()
+    }
+
+    /// How many times slave `s` was sent the scene.
+    pub fn scene_syncs(&self, s: PeerId) -> u32 {
+        self.slave_sim(s).syncs
+    }
+
+    /// How many assignments slave `s` got.
+    pub fn assignments(&self, s: PeerId) -> u32 {
+        self.slave_sim(s).assignments
+    }
+
+    /// How many cancels slave `s` got.
+    pub fn cancels(&self, s: PeerId) -> u32 {
+        self.slave_sim(s).cancels
+    }
+
+    fn honest(&self) -> Vec<PeerId> {
+        self.peers
+            .iter()
+            .filter(|(_, p)| matches!(p.kind, Kind::Slave(_)) && p.behaviour == Behaviour::Honest)
+            .filter(|(_, p)| !p.gone && p.closed.is_none())
+            .map(|(&id, _)| id)
+            .collect()
+    }
+
+    /// Connected honest slaves.
+    pub fn honest_slaves(&self) -> usize {
+        self.honest().len()
+    }
+
+    /// One connected honest slave, at random.
+    pub fn live_honest_slave(&self, rng: &mut Rng) -> Option<PeerId> {
+        let honest = self.honest();
+        (!honest.is_empty()).then(|| honest[rng.below(honest.len() as u64) as usize])
+    }
+}
+
+/// What a slave says once it holds the scene.
+fn ready(behaviour: Behaviour, hash: SceneHash) -> Option<Message> {
+    match behaviour {
+        Behaviour::StallBeforeReady | Behaviour::HeartbeatNeverReady => None,
+        _ => Some(Message::Ready { hash }),
+    }
+}
