@@ -351,7 +351,7 @@ async fn names_resolve_ipv4_first() {
     let mut s = timeout(BOUND, l.accept()).await.unwrap().unwrap();
     assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 4);
     let err = client.connect("no-such-host.invalid:1").await.unwrap_err();
-    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    assert!(matches!(err, TransportError::Unresolvable { .. }), "{err:?}");
 }
 
 #[tokio::test]
@@ -360,7 +360,7 @@ async fn dropping_the_listener_refuses_newcomers_but_keeps_established_connectio
     let addr = l.local_addr();
     drop(l);
     let err = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap_err();
-    assert!(matches!(err, TransportError::Connect { .. }), "{err:?}");
+    assert!(matches!(err, TransportError::Unresolvable { .. }), "{err:?}");
     c.sender.send(frame(0, 1, 100)).unwrap();
     assert_eq!(check_payload(&timeout(BOUND, s.receiver.recv()).await.unwrap().unwrap().unwrap()), 1);
     send(&s.sender, frame(1, 2, 100));

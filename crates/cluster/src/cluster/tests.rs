@@ -518,3 +518,45 @@ fn a_batch_job_takes_at_least_90_percent_of_the_cluster_while_nobody_moves() {
     assert!(utilisation >= 0.9, "utilisation {utilisation:.3}");
     assert!(net.done_requests(job) > 5);
 }
+
+/// A batch client that vanishes mid-job takes its frames with it: slaves
+/// drop its tiles, and a viewer's frame beside it completes as if it had
+/// never been there.
+#[test]
+fn a_batch_client_that_vanishes_mid_job_leaves_nothing_behind() {
+    let mut net = Net::new(sim::config());
+    let s = net.slave(SlaveSpec { threads: 2, us_per_pixel: 40, ..SlaveSpec::default() });
+    let (viewer, job) = (net.viewer(), net.viewer_of(Work::Batch));
+    net.run_until(|n| n.core.status().slaves.len() == 1 && n.limit(job).is_some());
+    for seed in 1..=3 {
+        net.request(job, settings(160, 120, seed), true);
+    }
+    net.run_for(20 * MS);
+    let cancels = net.cancels(s);
+    net.disconnect(job);
+    assert!(net.cancels(s) > cancels, "the slave was told to drop the job's tiles");
+    let r = net.request(viewer, settings(64, 48, 9), false);
+    net.run_until(|n| n.viewer_done(viewer, r));
+    net.assert_exact(viewer, r);
+    assert_eq!(net.core.sched.open_frames(), Vec::<FrameId>::new(), "no frame of the job is left open");
+}
+
+/// A slave joining in the middle of a batch job is handed its tiles at once.
+#[test]
+fn a_slave_joining_mid_job_is_used_at_once() {
+    let mut net = Net::new(sim::config());
+    net.slave(SlaveSpec { threads: 1, us_per_pixel: 100, ..SlaveSpec::default() });
+    let job = net.viewer_of(Work::Batch);
+    net.run_until(|n| n.core.status().slaves.len() == 1 && n.limit(job).is_some());
+    let frames: Vec<u64> = (1..=3).map(|seed| net.request(job, settings(160, 120, seed), true)).collect();
+    net.run_for(30 * MS);
+    let late = net.slave(SlaveSpec { threads: 2, ..SlaveSpec::default() });
+    net.run_until(|n| n.core.status().slaves.len() == 2);
+    let joined = net.now;
+    net.run_until(|n| n.assignments(late) > 0);
+    assert!(net.now - joined <= MS, "waited {:?}", net.now - joined);
+    net.run_until(|n| frames.iter().all(|&r| n.viewer_done(job, r)));
+    for r in frames {
+        net.assert_exact(job, r);
+    }
+}
