@@ -511,7 +511,7 @@ impl<'a> Integrator<'a> {
         sample: &SampleId,
         counts: &mut RayCounts,
     ) -> Vec3 {
-        let sp = SurfacePoint::new(self.scene, ray, hit);
+        let sp = self.surface(ray, hit, cone);
         let bounce = self.bounce(ray, hit, &sp, cone, depth, weight);
         let mut found = [Vec3::ZERO; 2];
         for (k, branch) in bounce.branches.iter().enumerate() {
@@ -590,6 +590,58 @@ impl<'a> Integrator<'a> {
         bounce
     }
 
+    /// The shading data of `hit` on `ray` ([`SurfacePoint::new`]), its
+    /// shading normal bent by the material's normal map if it has one.
+    #[inline]
+    fn surface(&self, ray: &Ray, hit: &Hit, cone: RayCone) -> SurfacePoint {
+        let mut sp = SurfacePoint::new(self.scene, ray, hit);
+        if let Some(Material::Pbr(p)) = self.scene.materials.get(sp.material as usize)
+            && let Some(map) = &p.normal_texture
+        {
+            self.bend_normal(&mut sp, map, p.normal_scale, ray, hit, cone);
+        }
+        sp
+    }
+
+    /// Bends `sp`'s shading normal by the tangent-space normal map `map`
+    /// (glTF: red along +u, green along −v, blue along the normal; `scale`
+    /// multiplies red and green). The tangent frame comes from the
+    /// triangle's texture-coordinate gradients, made orthogonal to the
+    /// shading normal. A bent normal that would face away from the viewer
+    /// or below the surface is not used.
+    fn bend_normal(
+        &self,
+        sp: &mut SurfacePoint,
+        map: &TextureMap,
+        scale: f32,
+        ray: &Ray,
+        hit: &Hit,
+        cone: RayCone,
+    ) {
+        let scene = self.scene;
+        let (Some([gu, gv]), Some(texture)) =
+            (scene.uv_gradients(hit.prim), scene.textures.get(map.texture as usize))
+        else {
+            return;
+        };
+        let n = sp.ns;
+        let t = (gu - n * n.dot(gu)).normalize_or_zero();
+        let b = -gv;
+        let b = (b - n * n.dot(b) - t * t.dot(b)).normalize_or_zero();
+        if t == Vec3::ZERO || b == Vec3::ZERO {
+            return;
+        }
+        let v = &scene.triangles[hit.prim as usize].v;
+        let fp = sp.uv_footprint_from(Some([gu, gv]), v, ray.dir, cone.width_at(hit.t));
+        let uv = scene.uv_of_set(map.set, hit.prim, hit.u, hit.v, sp.uv);
+        let (uv, fp) = map.apply(uv, fp);
+        let c = texture.eval_rect_clamped(uv, fp, map.clamped()) * 2.0 - Vec3::ONE;
+        let bent = (t * (c.x * scale) + b * (c.y * scale) + n * c.z).normalize_or_zero();
+        if bent.dot(ray.dir) < 0.0 && bent.dot(sp.ng) > 0.0 {
+            sp.ns = bent;
+        }
+    }
+
     /// A glTF material at `hit`: its textures looked up over the hit's ray
     /// cone footprint, the vertex colour interpolated, mapped to Phong terms.
     #[inline]
@@ -606,7 +658,8 @@ impl<'a> Integrator<'a> {
             .and_then(|m| Some((m, scene.textures.get(m.texture as usize)?)))
         {
             Some((m, t)) => {
-                let (uv, fp) = m.apply(sp.uv, fp);
+                let uv = scene.uv_of_set(m.set, hit.prim, hit.u, hit.v, sp.uv);
+                let (uv, fp) = m.apply(uv, fp);
                 t.eval_rect_clamped(uv, fp, m.clamped())
             }
             None => Vec3::ONE,
@@ -728,7 +781,7 @@ impl<'a> Integrator<'a> {
         }
         for l in lanes(active) {
             if let Some(hit) = &hits[l] {
-                let sp = SurfacePoint::new(self.scene, &rays[l], hit);
+                let sp = self.surface(&rays[l], hit, cones[l]);
                 bounces[l] = self.bounce(&rays[l], hit, &sp, cones[l], depth, weights[l]);
                 sps[l] = Some(sp);
             }

@@ -93,12 +93,14 @@ pub struct TextureMap {
     pub transform: [Vec2; 3],
     /// Wrap modes along `u` and `v`.
     pub wrap: [Wrap; 2],
+    /// The texture coordinate set it reads: 0 (`TEXCOORD_0`) or 1.
+    pub set: u8,
 }
 
 impl TextureMap {
     /// The identity map onto `texture`, repeating.
     pub fn plain(texture: u32) -> Self {
-        TextureMap { texture, transform: [Vec2::X, Vec2::Y, Vec2::ZERO], wrap: [Wrap::Repeat; 2] }
+        TextureMap { texture, transform: [Vec2::X, Vec2::Y, Vec2::ZERO], wrap: [Wrap::Repeat; 2], set: 0 }
     }
 
     /// The axes that do not wrap around (clamped, or mirrored into `0..=1`).
@@ -139,6 +141,10 @@ pub struct Pbr {
     pub emissive: Vec3,
     /// `emissiveTexture` (sRGB), multiplied by `emissive`.
     pub emissive_texture: Option<TextureMap>,
+    /// `normalTexture` (linear, tangent space), with its `scale`.
+    pub normal_texture: Option<TextureMap>,
+    /// `normalTexture.scale`: multiplies the map's red and green.
+    pub normal_scale: f32,
     /// `alphaMode` `MASK`: the `alphaCutoff` below which the surface is cut
     /// out — camera, reflected and shadow rays pass through it. `None` for
     /// opaque surfaces.
@@ -160,6 +166,8 @@ impl Default for Pbr {
             metallic_roughness: None,
             emissive: Vec3::ZERO,
             emissive_texture: None,
+            normal_texture: None,
+            normal_scale: 1.0,
             alpha_cutoff: None,
             alpha: 1.0,
             alpha_texture: None,
@@ -241,7 +249,9 @@ impl Pbr {
 
     /// The material's textures.
     pub fn textures(&self) -> impl Iterator<Item = &TextureMap> {
-        [&self.base_texture, &self.metallic_roughness, &self.emissive_texture].into_iter().flatten()
+        [&self.base_texture, &self.metallic_roughness, &self.emissive_texture, &self.normal_texture]
+            .into_iter()
+            .flatten()
     }
 }
 

@@ -26,6 +26,9 @@ pub struct Mesh {
     /// Vertex colours (linear RGB), parallel to `positions`; empty when the
     /// mesh has none.
     pub colours: Vec<Vec3>,
+    /// A second set of texture coordinates (glTF `TEXCOORD_1`), parallel to
+    /// `positions`; empty when the mesh has none.
+    pub uvs1: Vec<Vec2>,
 }
 
 impl Mesh {
@@ -70,6 +73,7 @@ impl Mesh {
             uvs: self.uvs.clone(),
             indices,
             colours: self.colours.clone(),
+            uvs1: self.uvs1.clone(),
         }
     }
 }

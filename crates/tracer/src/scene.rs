@@ -10,12 +10,39 @@ use crate::geometry::{Aabb, Ray};
 use crate::integrator::uv_gradients;
 use crate::lights::Light;
 use crate::materials::Material;
+use crate::math;
 use crate::render::RenderSettings;
 use crate::shadows::{CellAnswer, CellIndex, ShadowCells};
 use crate::shapes::{Hit, Triangle};
-use crate::textures::Texture;
+use crate::textures::{MipMap, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+
+/// An equirectangular environment image seen by rays that leave the scene.
+///
+/// Straight up (+Y) is the image's top row, straight down its bottom; the
+/// image's centre column is seen looking along −Z (turned by `rotation`
+/// about +Y), and `u` grows towards +X.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Environment {
+    /// The image (linear RGB).
+    pub map: MipMap,
+    /// Multiplier of the image's radiance.
+    pub strength: f32,
+    /// Turn about +Y, radians (counter-clockwise seen from above).
+    pub rotation: f32,
+}
+
+impl Environment {
+    /// The radiance arriving from unit direction `dir` (bilinear, unfiltered).
+    pub fn radiance(&self, dir: Vec3) -> Vec3 {
+        let phi = math::atan2(dir.x, -dir.z) - self.rotation;
+        let u = 0.5 + phi * (0.5 / std::f32::consts::PI);
+        let v = math::acos(dir.y.clamp(-1.0, 1.0)) * (1.0 / std::f32::consts::PI);
+        // Around the horizon the image wraps; at the poles it stops.
+        self.map.eval_clamped(Vec2::new(u, v), 0.0, [false, true]) * self.strength
+    }
+}
 
 /// Per-triangle data needed only once a hit has been found.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -50,6 +77,9 @@ pub struct SceneParts {
     /// A sky's colour straight up (+Y): rays that leave the scene see
     /// `background` blended towards it by the height of their direction.
     pub zenith: Option<Vec3>,
+    /// An environment image, seen by rays that leave the scene (instead of
+    /// `background` and `zenith`).
+    pub environment: Option<Environment>,
     /// The camera the scene file defines.
     pub camera: Camera,
     /// The render settings the scene file defines.
@@ -57,6 +87,10 @@ pub struct SceneParts {
     /// What the loader found worth telling the user (each was also logged
     /// with `tracing::warn!`): no light at all, huge textures, huge meshes.
     pub warnings: Vec<String>,
+    /// Second texture coordinates (glTF `TEXCOORD_1`) per triangle: empty
+    /// when no mesh has them, else parallel to `triangles` (zero where a mesh
+    /// has none).
+    pub uvs1: Vec<[Vec2; 3]>,
     /// Vertex colours (linear RGB, glTF `COLOR_0`) per triangle, multiplying
     /// the base colour of [`Material::Pbr`] surfaces: empty when no mesh has
     /// any, else parallel to `triangles` (white where a mesh has none).
@@ -82,12 +116,16 @@ pub struct Scene {
     pub background: Vec3,
     /// A sky's zenith colour, see [`SceneParts::zenith`].
     pub zenith: Option<Vec3>,
+    /// An environment image, see [`SceneParts::environment`].
+    pub environment: Option<Environment>,
     /// The scene file's camera.
     pub camera: Camera,
     /// The scene file's render settings.
     pub settings: RenderSettings,
     /// Vertex colours, see [`SceneParts::colours`].
     pub colours: Vec<[Vec3; 3]>,
+    /// Second texture coordinates, see [`SceneParts::uvs1`].
+    pub uvs1: Vec<[Vec2; 3]>,
     /// True when some material is alpha-masked ([`crate::materials::Pbr::alpha_cutoff`]):
     /// ray queries then look through its cut-out parts.
     pub(crate) cutouts: bool,
@@ -132,6 +170,10 @@ impl Scene {
             parts.colours.is_empty() || parts.colours.len() == parts.triangles.len(),
             "vertex colours for every triangle or none"
         );
+        assert!(
+            parts.uvs1.is_empty() || parts.uvs1.len() == parts.triangles.len(),
+            "TEXCOORD_1 for all or none"
+        );
         let cutouts =
             parts.materials.iter().any(|m| matches!(m, Material::Pbr(p) if p.alpha_cutoff.is_some()));
         let bvh = Bvh::build(&parts.triangles);
@@ -170,9 +212,11 @@ impl Scene {
             ambient: parts.ambient,
             background: parts.background,
             zenith: parts.zenith,
+            environment: parts.environment,
             camera: parts.camera,
             settings: parts.settings,
             colours: parts.colours,
+            uvs1: parts.uvs1,
             cutouts,
             bounds,
             bvh,
@@ -183,6 +227,9 @@ impl Scene {
     /// What a ray leaving the scene along unit `dir` sees.
     #[inline]
     pub fn background(&self, dir: Vec3) -> Vec3 {
+        if let Some(env) = &self.environment {
+            return env.radiance(dir);
+        }
         match self.zenith {
             None => self.background,
             Some(zenith) => {
@@ -199,6 +246,17 @@ impl Scene {
         match self.colours.get(prim as usize) {
             Some(c) => c[0] * (1.0 - u - v) + c[1] * u + c[2] * v,
             None => Vec3::ONE,
+        }
+    }
+
+    /// Texture coordinates of set `set` (0, or 1 for `TEXCOORD_1`) of
+    /// triangle `prim` at barycentric `(u, v)`, given set 0's `uv0` there.
+    #[inline]
+    pub fn uv_of_set(&self, set: u8, prim: u32, u: f32, v: f32, uv0: Vec2) -> Vec2 {
+        match (set, self.uvs1.get(prim as usize)) {
+            (1, Some(t)) => t[0] * (1.0 - u - v) + t[1] * u + t[2] * v,
+            (1, None) => Vec2::ZERO,
+            _ => uv0,
         }
     }
 
@@ -255,6 +313,7 @@ impl Scene {
         {
             let w = 1.0 - hit.u - hit.v;
             let uv = sh.uvs[0] * w + sh.uvs[1] * hit.u + sh.uvs[2] * hit.v;
+            let uv = self.uv_of_set(m.set, hit.prim, hit.u, hit.v, uv);
             let (uv, _) = m.apply(uv, Vec2::ZERO);
             alpha *= t.eval_rect_clamped(uv, Vec2::ZERO, m.clamped()).x;
         }

@@ -369,6 +369,66 @@ fn an_alpha_mask_cuts_out_what_camera_and_shadow_rays_pass_through() {
 }
 
 #[test]
+fn a_normal_map_changes_the_shading() {
+    let with_map = |rgb: [u8; 3]| {
+        let extra = format!(
+            r#""textures": [{{"source": 0}}], "images": [{{"uri": "{}"}}],"#,
+            png_uri(4, 4, |_, _| [rgb[0], rgb[1], rgb[2], 255])
+        );
+        let material = r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1], "metallicFactor": 0}, "normalTexture": {"index": 0}}"#;
+        render(&square_gltf(material, &extra))
+    };
+    let plain = render(&square_gltf(
+        r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1], "metallicFactor": 0}}"#,
+        "",
+    ));
+    let diff =
+        |a: &Frame, b: &Frame| a.rgb.iter().zip(&b.rgb).map(|(x, y)| x.abs_diff(*y) as u32).max().unwrap();
+    let flat = with_map([128, 128, 255]);
+    assert!(diff(&flat, &plain) <= 3, "a flat normal map is (nearly) no map: {}", diff(&flat, &plain));
+    let (left, right) = (with_map([38, 128, 217]), with_map([217, 128, 217]));
+    let (up, down) = (with_map([128, 217, 217]), with_map([128, 38, 217]));
+    for (name, f) in [("left", &left), ("right", &right), ("up", &up), ("down", &down)] {
+        assert!(diff(f, &plain) > 20, "tilted {name}: the shading changes ({})", diff(f, &plain));
+    }
+    assert!(diff(&left, &right) > 20 && diff(&up, &down) > 20, "opposite tilts differ");
+    // The key light stands above and to the left: normals tilted towards it
+    // (red low: −u, to the left; green high: −v, up) catch more of it.
+    let light = |f: &Frame| f.rgb.iter().map(|&c| c as u64).sum::<u64>();
+    assert!(light(&left) > light(&right), "left {} vs right {}", light(&left), light(&right));
+    assert!(light(&up) > light(&down), "up {} vs down {}", light(&up), light(&down));
+}
+
+#[test]
+fn textures_may_read_the_second_texture_coordinates() {
+    // TEXCOORD_0 pins the square to the texture's red left edge; TEXCOORD_1 spans it.
+    let mut b = Builder::default();
+    let pos = b.floats(&[-0.5, -0.5, 0.0, 0.5, -0.5, 0.0, 0.5, 0.5, 0.0, -0.5, 0.5, 0.0], 3);
+    let uv0 = b.floats(&[0.1, 0.5].repeat(4), 2);
+    let uv1 = b.floats(&[0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], 2);
+    let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()).collect();
+    let idx = b.accessor(&idx, 5123, 6, "SCALAR", "");
+    let json = |set: u32| {
+        b.json(&format!(
+            r#""scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0, "translation": [0, 0.6, 0]}}],
+  "meshes": [{{"primitives": [{{"attributes": {{"POSITION": {pos}, "TEXCOORD_0": {uv0}, "TEXCOORD_1": {uv1}}}, "indices": {idx}, "material": 0}}]}}],
+  "materials": [{{"pbrMetallicRoughness": {{"metallicFactor": 0, "baseColorTexture": {{"index": 0, "texCoord": {set}}}}}}}], {}"#,
+            halves_texture()
+        ))
+    };
+    let blue = |f: &Frame| pixels(f).filter(|&p| dominant(p, 2)).count();
+    let red = |f: &Frame| pixels(f).filter(|&p| dominant(p, 0)).count();
+    let (first, second) = (render(&json(0)), render(&json(1)));
+    assert!(red(&first) > 200 && blue(&first) == 0, "set 0: all red");
+    assert!(
+        red(&second) > 100 && blue(&second) > 100,
+        "set 1: both halves ({}, {})",
+        red(&second),
+        blue(&second)
+    );
+}
+
+#[test]
 fn unsupported_required_extensions_are_refused_by_name() {
     let json = cube_gltf(
         "{}",
@@ -382,10 +442,14 @@ fn unsupported_required_extensions_are_refused_by_name() {
         assert!(e.contains(part), "{part} missing from: {e}");
     }
     assert!(!e.contains("EXT_foo"), "only the required ones: {e}");
-    // Only used, not required: the file loads.
+    // Only used, not required: the file loads, with one warning naming it.
     let json = cube_gltf("{}", r#""extensionsUsed": ["EXT_foo"],"#, None);
     assets.0.insert("model.gltf".into(), json.into_bytes());
-    assert!(mesh_scene("model.gltf", &mut assets).is_ok());
+    let text = mesh_scene("model.gltf", &mut assets).unwrap();
+    let parts = isin_tracer::parse_scene("made.toml", &text, &mut assets).unwrap();
+    let named: Vec<_> = parts.warnings.iter().filter(|w| w.contains("EXT_foo")).collect();
+    assert_eq!(named.len(), 1, "{:?}", parts.warnings);
+    assert_eq!(parts.warnings.len(), 1, "the made scene has lights: {:?}", parts.warnings);
 }
 
 /// The bounds of the mesh in `json`.
@@ -551,9 +615,9 @@ fn corpus_renders_are_identical_across_tilings_and_threads() {
     let extra = format!(
         r#""textures": [{{"source": 0, "sampler": 0}}], "images": [{{"uri": "{uri}"}}], "samplers": [{{"wrapS": 33648}}],"#
     );
-    let masked = r#"{"alphaMode": "MASK", "pbrMetallicRoughness": {"roughnessFactor": 0.2, "baseColorTexture": {"index": 0}}}"#;
+    let masked = r#"{"alphaMode": "MASK", "pbrMetallicRoughness": {"roughnessFactor": 0.2, "baseColorTexture": {"index": 0}}, "normalTexture": {"index": 0, "scale": 0.5}}"#;
     let masked = scene_of(&square_gltf(masked, &extra));
-    for (name, scene) in [("textured cube", textured), ("cut-out square", masked)] {
+    for (name, scene) in [("textured cube", textured), ("cut-out, normal-mapped square", masked)] {
         let s = RenderSettings { spp: 2, ..settings(&scene) };
         let (w, h) = (s.width, s.height);
         let whole = render_tile(&scene, &scene.camera, &s, Tile { x: 0, y: 0, w, h });
@@ -576,4 +640,27 @@ fn corpus_renders_are_identical_across_tilings_and_threads() {
         assert_eq!(single.rgb, whole, "{name}: single rays as packets");
         assert!(whole.iter().any(|&b| b != whole[0]));
     }
+}
+
+#[test]
+fn a_scene_made_around_a_mesh_travels_as_a_bundle_and_renders_the_same_bytes() {
+    let json = cube_gltf(r#"{"pbrMetallicRoughness": {"baseColorFactor": [0.2, 0.6, 0.9, 1]}}"#, "", None);
+    let mut assets = Mem::default();
+    assets.0.insert("m/model.gltf".into(), json.into_bytes());
+    let text = mesh_scene("m/model.gltf", &mut assets).unwrap();
+    let local = load_scene("made", &text, &mut assets.clone()).unwrap();
+    // What a slave gets: the text and the bytes, serialised.
+    let bundle = isin_tracer::SceneBundle {
+        name: "made".into(),
+        source: text,
+        assets: assets.0.into_iter().collect(),
+    };
+    let shipped: isin_tracer::SceneBundle =
+        rmp_serde::from_slice(&rmp_serde::to_vec(&bundle).unwrap()).unwrap();
+    let remote = shipped.load().unwrap();
+    let s = settings(&local);
+    let tile = Tile { x: 0, y: 0, w: s.width, h: s.height };
+    let a = render_tile(&local, &local.camera, &s, tile);
+    assert_eq!(a, render_tile(&remote, &remote.camera, &s, tile));
+    assert!(a.iter().any(|&b| b != a[0]));
 }

@@ -244,6 +244,28 @@ fn mesh_scene_loads_its_obj_and_gltf() {
     ));
 }
 
+#[test]
+fn the_shipped_materials_gltf_opens_alone() {
+    let mut assets = Dir { base: scenes_dir(), read: BTreeMap::new() };
+    let text = isin_tracer::scenefile::mesh_scene("meshes/materials.gltf", &mut assets).unwrap();
+    let p = parse_scene("made.toml", &text, &mut assets).unwrap();
+    check_scene(&p, "materials.gltf");
+    assert_eq!(p.materials.iter().filter(|m| matches!(m, Material::Pbr(_))).count(), 5);
+    assert!(p.materials.iter().any(|m| matches!(m, Material::Pbr(g) if g.base_texture.is_some())));
+    assert_eq!(p.colours.len(), p.triangles.len(), "the vertex-coloured sphere");
+    assert!(p.warnings.is_empty(), "{:?}", p.warnings);
+}
+
+#[test]
+fn shipped_cameras_are_left_alone_at_their_own_aspect() {
+    // Corners written to three decimals are not exactly 4:3; the image must not change for that.
+    for name in ["paper.toml", "cornell.toml", "mesh.toml"] {
+        let (p, _) = load_shipped(name);
+        let aspect = p.settings.width as f32 / p.settings.height as f32;
+        assert_eq!(p.camera.fit_aspect(aspect), p.camera, "{name}");
+    }
+}
+
 /// The shipped scenes' geometry, lights and cameras.
 #[test]
 fn shipped_scene_layouts() {
@@ -476,12 +498,25 @@ fn missing_asset_files_are_named_with_the_referring_line() {
     let e = err(src, &mut Mem::default());
     assert_mentions(&e, &["test.toml:3", "textures/gone.png", "textures.t"]);
 
-    // A texture named by an MTL library: resolved against the library's directory.
+    // A texture named by an MTL library, resolved against the library's
+    // directory: missing, it is a warning naming that path (exporters often
+    // leave textures out), and the material keeps its Kd.
     let obj = "mtllib lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n";
     let src = "[[objects]]\nkind = \"obj\"\npath = \"m/tri.obj\"\n";
-    let mut assets = Mem::default().with("m/tri.obj", obj).with("m/lib.mtl", "newmtl a\nmap_Kd tex/a.png\n");
-    let e = err(src, &mut assets);
-    assert_mentions(&e, &["test.toml:3", "m/tex/a.png", "map_Kd"]);
+    let mut assets = Mem::default()
+        .with("m/tri.obj", obj)
+        .with("m/lib.mtl", "newmtl a\nKd 0.2 0.4 0.6\nmap_Kd tex/a.png\n");
+    let p = load(src, &mut assets).unwrap();
+    assert!(p.warnings.iter().any(|w| w.contains("m/tex/a.png") && w.contains("map_Kd")), "{:?}", p.warnings);
+    assert!(
+        matches!(p.materials[0], Material::Phong { albedo: Albedo::Constant(c), .. } if c == Vec3::new(0.2, 0.4, 0.6))
+    );
+    // `Tr` is 1 − d: with an index of refraction, a mostly transparent material is glass.
+    let mut glass = Mem::default().with("m/tri.obj", obj).with("m/lib.mtl", "newmtl a\nNi 1.4\nTr 0.9\n");
+    assert!(matches!(load(src, &mut glass).unwrap().materials[0], Material::Dielectric { .. }));
+    // An undecodable one is still an error.
+    let mut assets = assets.with("m/tex/a.png", b"not a png".to_vec());
+    assert_mentions(&err(src, &mut assets), &["test.toml:3", "m/tex/a.png"]);
 
     let gltf = r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":12,"uri":"data/buf.bin"}]}"#;
     let src = "[[objects]]\nkind = \"gltf\"\npath = \"g/a.gltf\"\n";
@@ -738,6 +773,47 @@ fn a_scene_without_any_light_is_warned_about() {
         "[materials.lamp]\nkind = \"emissive\"\nradiance = 2\n\n{QUAD}material = \"lamp\"\n"
     ));
     assert_eq!(glowing.warnings, Vec::<String>::new(), "an emissive surface lights the scene");
+}
+
+/// A 16 × 8 Radiance HDR: the top half bright green (3), the bottom half
+/// red on the left (u < ½) and blue on the right.
+fn hdr_sky() -> Vec<u8> {
+    let img = image::Rgb32FImage::from_fn(16, 8, |x, y| match (x < 8, y < 4) {
+        (_, true) => image::Rgb([0.0, 3.0, 0.0]),
+        (true, false) => image::Rgb([1.0, 0.0, 0.0]),
+        (false, false) => image::Rgb([0.0, 0.0, 1.0]),
+    });
+    let mut out = Vec::new();
+    image::DynamicImage::ImageRgb32F(img)
+        .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Hdr)
+        .unwrap();
+    out
+}
+
+#[test]
+fn an_equirectangular_hdr_background_is_seen_by_escaping_rays() {
+    let src = |extra: &str| {
+        format!("background = {{ image = \"sky/env.hdr\"{extra} }}\n{QUAD}translate = [0, -50, 0]\n")
+    };
+    let mut assets = Mem::default().with("sky/env.hdr", hdr_sky());
+    let scene = isin_tracer::load_scene("env.toml", &src(""), &mut assets).unwrap();
+    assert!(
+        close(scene.background(Vec3::Y), Vec3::new(0.0, 3.0, 0.0)),
+        "up: the top rows, radiance above 1 kept"
+    );
+    // Looking along −Z the centre column; a little towards +X is the right half.
+    let down_right = Vec3::new(0.3, -0.5, -1.0).normalize();
+    let down_left = Vec3::new(-0.3, -0.5, -1.0).normalize();
+    assert!(close(scene.background(down_right), Vec3::Z), "{}", scene.background(down_right));
+    assert!(close(scene.background(down_left), Vec3::X), "{}", scene.background(down_left));
+    // Turned half a turn and twice as strong: the halves swap.
+    let turned =
+        isin_tracer::load_scene("env.toml", &src(", rotate = 180, strength = 2"), &mut assets).unwrap();
+    assert!(close(turned.background(down_right), Vec3::X * 2.0), "{}", turned.background(down_right));
+    let e = err(&src(""), &mut Mem::default().with("sky/env.hdr", b"#?RADIANCE\nbroken".to_vec()));
+    assert_mentions(&e, &["test.toml:1", "background", "sky/env.hdr"]);
+    let e = err(&src(""), &mut Mem::default());
+    assert_mentions(&e, &["test.toml:1", "sky/env.hdr"]);
 }
 
 #[test]

@@ -11,7 +11,7 @@ use crate::lights::Light;
 use crate::limits;
 use crate::materials::{Albedo, Material};
 use crate::meshes::{self, Mesh, Transform};
-use crate::scene::{SceneParts, TriangleShading};
+use crate::scene::{Environment, SceneParts, TriangleShading};
 use crate::shapes::Triangle;
 use crate::textures::{MipMap, Texture};
 use glam::{Vec2, Vec3};
@@ -93,6 +93,7 @@ pub(crate) struct Builder<'a> {
     images: HashMap<String, u32>,
     default_material: Option<u32>,
     degenerate: usize,
+    quiet: bool,
 }
 
 /// Joins `rel` (as written inside `base`, a path relative to the scene file)
@@ -131,6 +132,16 @@ pub(crate) fn decode_image(bytes: &[u8]) -> Result<MipMap, String> {
 
 /// Decodes a PNG or JPEG image to 8-bit RGBA, within [`MAX_IMAGE_SIDE`].
 fn decode_rgba8(bytes: &[u8]) -> Result<image::RgbaImage, String> {
+    use image::ImageFormat::{Jpeg, Png};
+    Ok(decode_any(bytes, &[Png, Jpeg], "not a PNG or JPEG image")?.to_rgba8())
+}
+
+/// Decodes an image in one of the `formats`, within [`MAX_IMAGE_SIDE`].
+fn decode_any(
+    bytes: &[u8],
+    formats: &[image::ImageFormat],
+    other: &str,
+) -> Result<image::DynamicImage, String> {
     let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())?;
@@ -138,12 +149,11 @@ fn decode_rgba8(bytes: &[u8]) -> Result<image::RgbaImage, String> {
     limits.max_image_width = Some(MAX_IMAGE_SIDE);
     limits.max_image_height = Some(MAX_IMAGE_SIDE);
     reader.limits(limits);
-    if reader.format().is_none() {
-        return Err("not a PNG or JPEG image".into());
+    if !reader.format().is_some_and(|f| formats.contains(&f)) {
+        return Err(other.into());
     }
-    let img = reader.decode().map_err(|e| e.to_string())?.to_rgba8();
-    let (w, h) = img.dimensions();
-    if w == 0 || h == 0 {
+    let img = reader.decode().map_err(|e| e.to_string())?;
+    if img.width() == 0 || img.height() == 0 {
         return Err("image has no pixels".into());
     }
     Ok(img)
@@ -171,6 +181,23 @@ fn large_texture_warning(name: &str, w: u32, h: u32, bytes: usize) -> Option<Str
     (w as u64 * h as u64 > LARGE_TEXTURE_TEXELS).then(|| {
         format!("texture {name} is {w}×{h}, larger than 8192²: it takes {:.0} MB", bytes as f64 / 1e6)
     })
+}
+
+/// Decodes an environment image: Radiance HDR as linear radiance, PNG and
+/// JPEG as sRGB colour.
+fn decode_environment(bytes: &[u8]) -> Result<MipMap, String> {
+    use image::ImageFormat::{Hdr, Jpeg, Png};
+    let img = decode_any(bytes, &[Hdr, Png, Jpeg], "not a Radiance HDR, PNG or JPEG image")?;
+    if !matches!(img, image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)) {
+        return decode_image(bytes);
+    }
+    let img = img.to_rgb32f();
+    let finite = |c: Vec3| if c.is_finite() { c.max(Vec3::ZERO) } else { Vec3::ZERO };
+    Ok(MipMap::from_linear(
+        img.width(),
+        img.height(),
+        img.pixels().map(|p| finite(Vec3::from(p.0))).collect(),
+    ))
 }
 
 /// Decodes the alpha channel of a PNG or JPEG image (0..1, in every
@@ -217,6 +244,7 @@ impl<'a> Builder<'a> {
             images: HashMap::new(),
             default_material: None,
             degenerate: 0,
+            quiet: false,
         }
     }
 
@@ -225,11 +253,27 @@ impl<'a> Builder<'a> {
         let file: SceneFile = toml::from_str(self.map.text).map_err(|e| self.map.syntax(&e))?;
         let whole = 0..self.map.text.len();
         self.parts.ambient = self.colour(file.ambient, Vec3::ZERO, &whole, "ambient", "ambient")?;
-        match file.background {
+        match &file.background {
             None => {}
+            Some(BackgroundDef::Image(env)) => {
+                let origin = Origin { at: self.map.field(&whole, "background"), what: "background".into() };
+                let strength = env.strength.map_or(1.0, |n| n.0);
+                if strength < 0.0 {
+                    return Err(origin.invalid(format!("strength must not be negative, got {strength}")));
+                }
+                let path = join("", &env.image);
+                let bytes = self.read_asset(&path, &origin)?;
+                let map = decode_environment(&bytes).map_err(|e| origin.bad_asset(&path, e))?;
+                let (w, h) = map.level_size(0);
+                if let Some(warning) = large_texture_warning(&path, w, h, map.memory_bytes()) {
+                    self.warn(warning);
+                }
+                let rotation = env.rotate.map_or(0.0, |n| n.0).to_radians();
+                self.parts.environment = Some(Environment { map, strength, rotation });
+            }
             Some(BackgroundDef::Colour(c)) => {
                 self.parts.background =
-                    self.colour(Some(c), Vec3::ZERO, &whole, "background", "background")?;
+                    self.colour(Some(*c), Vec3::ZERO, &whole, "background", "background")?;
             }
             Some(BackgroundDef::Sky(sky)) => {
                 let zenith = self.colour(Some(sky.zenith), Vec3::ZERO, &whole, "background", "background")?;
@@ -278,10 +322,21 @@ impl<'a> Builder<'a> {
         Ok(self.parts)
     }
 
-    /// Records (and logs) a warning for the user.
+    /// Records a warning for the user, and logs it unless the builder is
+    /// [`Builder::quiet`].
     pub fn warn(&mut self, message: String) {
-        tracing::warn!(file = self.map.file, "{message}");
+        if !self.quiet {
+            tracing::warn!(file = self.map.file, "{message}");
+        }
         self.parts.warnings.push(message);
+    }
+
+    /// A builder that keeps its warnings to itself (in
+    /// [`SceneParts::warnings`]): for a look at a mesh before the scene
+    /// around it is loaded, and warns, for real.
+    pub fn quiet(mut self) -> Self {
+        self.quiet = true;
+        self
     }
 
     /// Warnings about the finished scene: nothing to light it, its size.
@@ -843,6 +898,11 @@ impl<'a> Builder<'a> {
             self.parts.colours = vec![[Vec3::ONE; 3]; self.parts.triangles.len()];
         }
         let colours = has_colours || !self.parts.colours.is_empty();
+        let has_uvs1 = mesh.uvs1.len() == n;
+        if has_uvs1 && self.parts.uvs1.is_empty() {
+            self.parts.uvs1 = vec![[Vec2::ZERO; 3]; self.parts.triangles.len()];
+        }
+        let uvs1 = has_uvs1 || !self.parts.uvs1.is_empty();
         for &idx in &mesh.indices {
             if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
                 return Err(origin.invalid(format!("mesh index {bad} is out of range ({n} vertices)")));
@@ -882,6 +942,12 @@ impl<'a> Builder<'a> {
             if colours {
                 let c = if has_colours { idx.map(|i| mesh.colours[i as usize]) } else { [Vec3::ONE; 3] };
                 self.parts.colours.push(c);
+            }
+            if uvs1 {
+                let t = if has_uvs1 { idx.map(|i| mesh.uvs1[i as usize]) } else { [Vec2::ZERO; 3] };
+                self.parts
+                    .uvs1
+                    .push(t.map(|uv| if uv.is_finite() { uv * placement.uv_scale } else { Vec2::ZERO }));
             }
         }
         Ok(())

@@ -8,6 +8,7 @@
 //! ambient = [0.05, 0.05, 0.05]     # linear RGB added to every diffuse surface
 //! background = [0.0, 0.0, 0.0]     # colour of rays that leave the scene, or a sky:
 //! # background = { zenith = [0.2, 0.35, 0.7], horizon = [0.7, 0.75, 0.8] }
+//! # background = { image = "sky.hdr", strength = 1, rotate = 0 }   # equirectangular
 //!
 //! [settings]                       # crate::RenderSettings; every key optional
 //! width = 640
@@ -219,13 +220,31 @@ pub struct SceneFile {
 }
 
 /// `background`: a colour, or a two-colour sky gradient.
-#[derive(Clone, Copy, Debug, Deserialize)]
-#[serde(untagged, expecting = "a colour [r, g, b] or a sky { zenith = [r, g, b], horizon = [r, g, b] }")]
+#[derive(Clone, Debug, Deserialize)]
+#[serde(
+    untagged,
+    expecting = "a colour [r, g, b], a sky { zenith = [r, g, b], horizon = [r, g, b] } or an image { image = \"sky.hdr\" }"
+)]
 pub enum BackgroundDef {
     /// The same colour in every direction.
     Colour(Triple),
     /// A gradient from the horizon to the zenith.
     Sky(SkyDef),
+    /// An equirectangular image.
+    Image(EnvironmentDef),
+}
+
+/// An environment image: `{ image = "sky.hdr", strength = 1, rotate = 0 }`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentDef {
+    /// Equirectangular image, relative to the scene file: Radiance `.hdr`
+    /// (linear), or PNG / JPEG (sRGB).
+    pub image: String,
+    /// Multiplier of its radiance; default 1.
+    pub strength: Option<Num>,
+    /// Turn about +Y in degrees; default 0 (the image's centre seen along −Z).
+    pub rotate: Option<Num>,
 }
 
 /// A two-colour sky: `zenith` straight up (+Y), `horizon` at and below the horizon.

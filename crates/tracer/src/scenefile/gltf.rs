@@ -49,12 +49,16 @@
 //! below 1, makes a dielectric instead (index from `KHR_materials_ior`, else
 //! 1.5; tinted by the base colour). Textures honour `KHR_texture_transform`
 //! and their sampler's wrap modes (repeat, clamp, mirrored repeat); filtering
-//! is always isin's mip-mapped one, and only `TEXCOORD_0` is read (a
-//! texture on another set warns and uses it). `alphaMode` `MASK` cuts the
+//! is always isin's mip-mapped one (a texture on `TEXCOORD_1` is filtered
+//! over `TEXCOORD_0`'s footprint); `TEXCOORD_0` and `TEXCOORD_1` are read (a
+//! texture on another set warns and uses the first). `alphaMode` `MASK` cuts the
 //! surface out where alpha (`baseColorFactor`'s × the base texture's,
 //! unfiltered) is below `alphaCutoff` (default ½): camera, reflected,
-//! refracted and shadow rays pass through there. Not supported:
-//! `normalTexture`, `occlusionTexture`, `COLOR_0`'s alpha.
+//! refracted and shadow rays pass through there. `normalTexture` bends the
+//! shading normal in a tangent frame made per triangle from its texture
+//! coordinates (not from a `TANGENT` attribute, not MikkTSpace: seams of
+//! curved, normal-mapped meshes may show). Not supported:
+//! `occlusionTexture`, `COLOR_0`'s alpha.
 
 use super::SceneError;
 use super::build::{Builder, Origin, Placement, decode_image, decode_image_alpha, decode_image_linear, join};
@@ -80,7 +84,10 @@ pub(crate) fn load(
 ) -> Result<(), SceneError> {
     let bytes = b.read_asset(path, origin)?;
     let bad = |m: String| origin.bad_asset(path, m);
-    let file = parse(&bytes, path).map_err(bad)?;
+    let (file, warnings) = parse(&bytes).map_err(bad)?;
+    for w in warnings {
+        b.warn(format!("{path}: {w}"));
+    }
     let doc = &file.document;
     let quantized = doc.extensions_used().any(|e| e == "KHR_mesh_quantization");
 
@@ -158,8 +165,9 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
 
 /// Parses and validates a glTF or GLB file. Unsupported extensions in
 /// `extensionsRequired` are an error naming them all; unsupported ones in
-/// `extensionsUsed` are a warning each (the file still renders, without them).
-fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
+/// `extensionsUsed` are a warning each (the file still renders, without
+/// them), returned with the file.
+fn parse(bytes: &[u8]) -> Result<(gltf::Gltf, Vec<String>), String> {
     check_glb_header(bytes)?;
     let file = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| format!("glTF: {e}"))?;
     let root = file.document.as_json();
@@ -176,9 +184,12 @@ fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
             SUPPORTED_EXTENSIONS.join(", ")
         ));
     }
-    for ext in root.extensions_used.iter().filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str())) {
-        tracing::warn!(file = path, extension = %ext, "glTF extension not supported; rendering without it");
-    }
+    let warnings = root
+        .extensions_used
+        .iter()
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str()))
+        .map(|e| format!("glTF extension {e} is not supported: rendering without it"))
+        .collect();
     let mut errors = Vec::new();
     use gltf::json::validation::Validate;
     root.validate(root, gltf::json::Path::new, &mut |at: &dyn Fn() -> gltf::json::Path, e| {
@@ -191,13 +202,14 @@ fn parse(bytes: &[u8], path: &str) -> Result<gltf::Gltf, String> {
     if !errors.is_empty() {
         return Err(format!("glTF: invalid file: {}", errors.join("; ")));
     }
-    Ok(file)
+    Ok((file, warnings))
 }
 
 /// The first perspective camera and every punctual light of the default
 /// scene of a glTF or GLB file, in world space.
 pub(crate) fn cameras_and_lights(bytes: &[u8]) -> Result<(Option<FileCamera>, Vec<FileLight>), String> {
-    let file = parse(bytes, "")?;
+    // The file's warnings are the loader's to give: it reads the file too.
+    let (file, _) = parse(bytes)?;
     let doc = &file.document;
     let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
         return Ok((None, Vec::new()));
@@ -518,6 +530,10 @@ fn read_primitive(
         Some(a) => read_floats(&a, buffers, 2, quantized)?.chunks_exact(2).map(Vec2::from_slice).collect(),
         None => Vec::new(),
     };
+    let uvs1: Vec<Vec2> = match prim.get(&gltf::Semantic::TexCoords(1)) {
+        Some(a) => read_floats(&a, buffers, 2, quantized)?.chunks_exact(2).map(Vec2::from_slice).collect(),
+        None => Vec::new(),
+    };
     let colours: Vec<Vec3> = match prim.get(&gltf::Semantic::Colors(0)) {
         Some(a) => {
             let dims = if a.dimensions() == Dimensions::Vec4 { 4 } else { 3 };
@@ -531,6 +547,7 @@ fn read_primitive(
     if normals.len() != n && !normals.is_empty()
         || uvs.len() != n && !uvs.is_empty()
         || colours.len() != n && !colours.is_empty()
+        || uvs1.len() != n && !uvs1.is_empty()
     {
         return Err("attribute counts differ".into());
     }
@@ -554,7 +571,7 @@ fn read_primitive(
     if let Some(bad) = order.iter().find(|&&i| i as usize >= n) {
         return Err(format!("index {bad} out of range ({n} vertices)"));
     }
-    Ok(Some(Mesh { positions, normals, uvs, indices, colours }))
+    Ok(Some(Mesh { positions, normals, uvs, indices, colours, uvs1 }))
 }
 
 /// Maps a glTF material to an isin material (see the module docs).
@@ -600,6 +617,20 @@ fn convert(
         true => map(pbr.base_color_texture(), Decode::Alpha, "baseColorTexture")?,
         false => None,
     };
+    let normal_texture = match m.normal_texture() {
+        Some(n) => {
+            let texture = n.texture();
+            let index = image_texture(b, &texture.source(), Decode::Linear, path, buffers, origin)?;
+            let sampler = texture.sampler();
+            Some(TextureMap {
+                wrap: [wrap_mode(sampler.wrap_s()), wrap_mode(sampler.wrap_t())],
+                set: u8::from(n.tex_coord() == 1),
+                ..TextureMap::plain(index)
+            })
+        }
+        None => None,
+    };
+    let normal_scale = m.normal_texture().map_or(1.0, |n| n.scale()).clamp(-100.0, 100.0);
     let alpha_cutoff = masked.then(|| m.alpha_cutoff().unwrap_or(0.5)).filter(|c| c.is_finite());
     Ok(Material::Pbr(Pbr {
         base_color: colour,
@@ -609,6 +640,8 @@ fn convert(
         metallic_roughness,
         emissive,
         emissive_texture,
+        normal_texture,
+        normal_scale: if normal_scale.is_finite() { normal_scale } else { 1.0 },
         alpha_cutoff,
         alpha: base[3],
         alpha_texture,
@@ -652,17 +685,22 @@ fn texture_map(
         map.transform = [Vec2::new(cos * sx, -sin * sx), Vec2::new(sin * sy, cos * sy), Vec2::new(ox, oy)];
         set = t.tex_coord().unwrap_or(set);
     }
-    if set != 0 {
-        tracing::warn!(file = path, texture = what, set, "only TEXCOORD_0 is supported; using it instead");
+    if set > 1 {
+        b.warn(format!("{path}: {what} reads TEXCOORD_{set}: only TEXCOORD_0 and _1 are read; using _0"));
     }
-    let wrap = |mode| match mode {
+    map.set = u8::from(set == 1);
+    let sampler = texture.sampler();
+    map.wrap = [wrap_mode(sampler.wrap_s()), wrap_mode(sampler.wrap_t())];
+    Ok(map)
+}
+
+/// A glTF sampler wrap mode.
+fn wrap_mode(mode: gltf::texture::WrappingMode) -> Wrap {
+    match mode {
         gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
         gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
         gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
-    };
-    let sampler = texture.sampler();
-    map.wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
-    Ok(map)
+    }
 }
 
 /// The scene texture for a glTF image (embedded in a buffer view, a data URI

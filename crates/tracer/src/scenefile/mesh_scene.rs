@@ -102,7 +102,7 @@ fn vec(v: Vec3) -> String {
 /// Loads only the mesh at `path` (as a scene of that one object).
 fn load_mesh(path: &str, format: MeshFormat, assets: &mut dyn AssetSource) -> Result<SceneParts, SceneError> {
     let probe = format!("[[objects]]\nkind = \"{}\"\npath = {}\n", format.kind(), toml_string(path));
-    Builder::new(path, &probe, assets).build()
+    Builder::new(path, &probe, assets).quiet().build()
 }
 
 /// The world-space bounding box of the mesh file at `path` (read through

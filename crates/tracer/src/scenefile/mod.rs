@@ -2,7 +2,10 @@
 //! primitives, Wavefront OBJ + MTL, glTF 2.0).
 //!
 //! The format is described in [`format`](mod@format); `scenes/paper.toml` opens with a
-//! commented example of every section.
+//! commented example of every section. A mesh file alone (`.gltf`, `.glb`,
+//! `.obj`) becomes a scene through [`mesh_scene`](mod@mesh_scene), which writes
+//! the scene file's text around it; meshes without normals can be smoothed
+//! ([`smooth`]).
 //!
 //! Loading never touches the file system: files a scene refers to (meshes,
 //! textures, MTL libraries, glTF buffers) are requested from an [`AssetSource`].

@@ -4,11 +4,12 @@
 //! relative to the MTL file; everything is read through the scene's
 //! [`super::AssetSource`]. A missing MTL library is only a warning (many OBJ
 //! files name one that was never shipped): its materials become the default
-//! grey. A missing texture or a malformed library is an error. OBJ counts texture `v` upwards from the bottom of the
+//! grey. A missing texture is a warning too (the material keeps its `Kd`
+//! colour); a malformed library or texture is an error. OBJ counts texture `v` upwards from the bottom of the
 //! image, the tracer downwards from the top, so `v` is flipped.
 //!
 //! MTL materials map to the nearest Whitted material: `Ke` → emissive;
-//! `illum` 4, 6, 7 or `d` < 1 with `Ni` → dielectric (`Ni` as the index,
+//! `illum` 4, 6, 7 or `d` < 1 (or `Tr` > 0) with `Ni` → dielectric (`Ni` as the index,
 //! `Tf` as the tint); `illum` 3 with a black `Kd` → mirror tinted by `Ks`;
 //! otherwise Phong with `Kd` (or `map_Kd` tinted by `Kd`), `Ks`, `Ns` and, for
 //! `illum` 3, a mirror reflection weighted by `Ks`.
@@ -44,10 +45,9 @@ pub(crate) fn load(
                 failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
             }),
             Err(reason) => {
-                // Real-world OBJ files often name a library that was never
-                // shipped (the shared dragon does): warn and use defaults.
-                tracing::warn!(obj = path, mtl = %rel, %reason, "MTL library not found; using default materials");
-                missing.borrow_mut().push(rel.clone());
+                missing.borrow_mut().push(format!(
+                    "{path}: MTL library {rel} cannot be read ({reason}); using default materials"
+                ));
                 Err(tobj::LoadError::OpenFileFailed)
             }
         };
@@ -62,10 +62,16 @@ pub(crate) fn load(
     if let Some(e) = failure.into_inner() {
         return Err(e);
     }
+    // Real-world OBJ files often name a library that was never shipped (the
+    // shared dragon does): a warning, and the default materials.
+    let missing = missing.into_inner();
+    for w in &missing {
+        b.warn(w.clone());
+    }
     let (models, materials) = loaded.map_err(|e| origin.bad_asset(path, format!("OBJ: {e}")))?;
     let materials = match materials {
         Ok(m) => m,
-        Err(_) if !missing.borrow().is_empty() => Vec::new(),
+        Err(_) if !missing.is_empty() => Vec::new(),
         Err(e) => return Err(origin.bad_asset(path, format!("MTL: {e}"))),
     };
     // Which library each material index came from, to resolve its textures.
@@ -78,7 +84,7 @@ pub(crate) fn load(
     let total: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
     let groups = smoothing_groups(&bytes, total);
     if groups.is_none() && bytes.split(|&c| c == b'\n').any(|l| l.starts_with(b"s ")) {
-        tracing::warn!(obj = path, "could not match the smoothing groups to the faces; ignoring them");
+        b.warn(format!("{path}: could not match the smoothing groups (s) to the faces; ignoring them"));
     }
     let mut first = 0;
     let mut mapped: HashMap<usize, u32> = HashMap::new();
@@ -171,7 +177,7 @@ fn to_mesh(m: &tobj::Mesh) -> Result<Mesh, String> {
     if let Some(bad) = m.indices.iter().find(|&&i| i as usize >= n) {
         return Err(format!("vertex index {bad} out of range ({n} vertices)"));
     }
-    Ok(Mesh { positions, normals, uvs, indices, colours: Vec::new() })
+    Ok(Mesh { positions, normals, uvs, indices, ..Mesh::default() })
 }
 
 fn rgb(c: Option<[f32; 3]>) -> Option<Vec3> {
@@ -212,7 +218,9 @@ fn convert(
     }
     let ns = m.shininess.unwrap_or(1.0);
     let ni = m.optical_density.unwrap_or(1.5);
-    let d = m.dissolve.unwrap_or(1.0);
+    // `Tr` (transparency) is the complement of `d`, which wins when both are given.
+    let tr = m.unknown_param.get("Tr").and_then(|t| t.trim().parse::<f32>().ok());
+    let d = m.dissolve.or(tr.map(|t| 1.0 - t)).unwrap_or(1.0);
     if !(ns.is_finite() && ni.is_finite() && d.is_finite()) {
         return Err(bad("Ns, Ni and d must be finite"));
     }
@@ -228,7 +236,19 @@ fn convert(
             let tex_path = join(library, texture_file(spec));
             let tex_origin =
                 Origin { at: origin.at.clone(), what: format!("{} (map_Kd of `{}`)", origin.what, m.name) };
-            Some(b.image_texture(&tex_path, &tex_origin)?)
+            match b.image_texture(&tex_path, &tex_origin) {
+                Ok(t) => Some(t),
+                // Exporters often reference textures that were never shipped:
+                // the material keeps its Kd colour.
+                Err(SceneError::MissingAsset { reason, .. }) => {
+                    b.warn(format!(
+                        "{}: texture {tex_path} (map_Kd of `{}`) cannot be read ({reason}); using Kd",
+                        origin.what, m.name
+                    ));
+                    None
+                }
+                Err(e) => return Err(e),
+            }
         }
         _ => None,
     };

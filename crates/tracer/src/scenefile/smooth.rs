@@ -52,6 +52,7 @@ pub fn smooth_normals(mesh: &Mesh, groups: Option<&[u32]>, max_angle: f32) -> Me
     let cos_max = crate::math::cos(max_angle.clamp(0.0, 180.0).to_radians()) - 1e-6;
     let has_uvs = mesh.uvs.len() == n;
     let has_colours = mesh.colours.len() == n;
+    let has_uvs1 = mesh.uvs1.len() == n;
     let mut out = Mesh::default();
     for (t, idx) in mesh.indices.iter().enumerate() {
         for &i in idx {
@@ -76,6 +77,9 @@ pub fn smooth_normals(mesh: &Mesh, groups: Option<&[u32]>, max_angle: f32) -> Me
             }
             if has_colours {
                 out.colours.push(mesh.colours[i as usize]);
+            }
+            if has_uvs1 {
+                out.uvs1.push(mesh.uvs1[i as usize]);
             }
         }
         let k = out.positions.len() as u32;

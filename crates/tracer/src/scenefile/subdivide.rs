@@ -32,12 +32,14 @@ pub fn subdivide(mesh: &Mesh, levels: u32) -> Mesh {
 fn subdivide_once(m: &Mesh) -> Mesh {
     let n = m.positions.len();
     let (has_normals, has_uvs, has_colours) = (m.normals.len() == n, m.uvs.len() == n, m.colours.len() == n);
+    let has_uvs1 = m.uvs1.len() == n;
     let mut out = Mesh {
         positions: m.positions.clone(),
         normals: if has_normals { m.normals.clone() } else { Vec::new() },
         uvs: if has_uvs { m.uvs.clone() } else { Vec::new() },
         indices: Vec::with_capacity(m.indices.len() * 4),
         colours: if has_colours { m.colours.clone() } else { Vec::new() },
+        uvs1: if has_uvs1 { m.uvs1.clone() } else { Vec::new() },
     };
     let mut midpoints: HashMap<(u32, u32), u32> = HashMap::with_capacity(m.indices.len() * 3 / 2);
     let mut midpoint = |out: &mut Mesh, a: u32, b: u32| -> u32 {
@@ -54,6 +56,9 @@ fn subdivide_once(m: &Mesh) -> Mesh {
             }
             if has_colours {
                 out.colours.push((m.colours[i] + m.colours[j]) * 0.5);
+            }
+            if has_uvs1 {
+                out.uvs1.push((m.uvs1[i] + m.uvs1[j]) * 0.5);
             }
             index
         })
@@ -118,6 +123,7 @@ mod tests {
             uvs: vec![Vec2::ZERO, Vec2::X, Vec2::Y, Vec2::ONE],
             indices: vec![[0, 2, 1], [1, 2, 3]],
             colours: vec![Vec3::X, Vec3::Y, Vec3::Y, Vec3::Z],
+            uvs1: Vec::new(),
         };
         let s = subdivide(&mesh, 1);
         // 4 corners + 5 distinct edges.
