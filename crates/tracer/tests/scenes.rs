@@ -817,6 +817,19 @@ fn an_equirectangular_hdr_background_is_seen_by_escaping_rays() {
 }
 
 #[test]
+fn a_camera_inside_the_scene_that_sees_nothing_is_warned_about() {
+    // Two far-apart quads make a large box; the default camera (at z = 12.5,
+    // looking along −Z) stands inside it, looking at empty space.
+    let light = "[[lights]]\nkind = \"point\"\nposition = [0, 1, 0]\n\n";
+    let far = format!("{light}{QUAD}translate = [0, -50, 40]\n\n{QUAD}translate = [0, 50, -40]\n");
+    let p = load_ok(&far);
+    assert!(p.warnings.iter().any(|w| w.contains("inside the scene's bounding box")), "{:?}", p.warnings);
+    // Facing a wall in the same box: no warning.
+    let wall = format!("{far}\n[[objects]]\nkind = \"box\"\nscale = [20, 20, 1]\ntranslate = [0, 0, -10]\n");
+    assert_eq!(load_ok(&wall).warnings, Vec::<String>::new());
+}
+
+#[test]
 fn an_objects_material_overrides_the_mtl() {
     let src = "[materials.gold]\nkind = \"mirror\"\ntint = [1, 0.8, 0.3]\n\n[[objects]]\nkind = \"obj\"\n\
                path = \"meshes/sub/thing.obj\"\nmaterial = \"gold\"\n";

@@ -15,6 +15,7 @@ use crate::scene::{Environment, SceneParts, TriangleShading};
 use crate::shapes::Triangle;
 use crate::textures::{MipMap, Texture};
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::ops::Range;
 use toml::Spanned;
@@ -357,6 +358,30 @@ impl<'a> Builder<'a> {
         if let Some(w) = large_scene_warning(self.parts.triangles.len()) {
             self.warn(w);
         }
+        if self.camera_sees_nothing_from_inside() {
+            self.warn(
+                "the camera is inside the scene's bounding box and sees nothing: move its `eye` \
+                 (or check the model's scale)"
+                    .into(),
+            );
+        }
+    }
+
+    /// True when the camera's eye is inside the bounding box of the scene's
+    /// triangles and none of the rays through the image's centre and four
+    /// points near its corners hits one (brute force: the BVH is not built yet).
+    fn camera_sees_nothing_from_inside(&self) -> bool {
+        let tris = &self.parts.triangles;
+        let bounds = tris.iter().fold(crate::geometry::Aabb::EMPTY, |b, t| b.union(&t.bounds()));
+        let eye = self.parts.camera.eye;
+        if !(eye.cmpge(bounds.min).all() && eye.cmple(bounds.max).all()) {
+            return false;
+        }
+        let points = [(0.5, 0.5), (0.1, 0.1), (0.9, 0.1), (0.1, 0.9), (0.9, 0.9)];
+        !points.iter().any(|&(fx, fy)| {
+            let ray = self.parts.camera.ray(fx, fy);
+            tris.par_iter().any(|t| t.occludes(&ray, 0.0, f32::INFINITY))
+        })
     }
 
     fn origin(&self, span: &Range<usize>, what: String) -> Origin {
