@@ -14,6 +14,11 @@ fn root() -> PathBuf {
 /// Runs `isin ARGS`, which must exit (within 30 s) with an error; returns
 /// its standard error.
 fn refused(args: &[&str]) -> String {
+    refused_within(args, Duration::from_secs(30))
+}
+
+/// [`refused`], allowing `limit` for it.
+fn refused_within(args: &[&str], limit: Duration) -> String {
     let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
         .args(args)
         .current_dir(root())
@@ -23,7 +28,7 @@ fn refused(args: &[&str]) -> String {
         .stderr(Stdio::piped())
         .spawn()
         .expect("isin starts");
-    let deadline = Instant::now() + Duration::from_secs(30);
+    let deadline = Instant::now() + limit;
     // Waiting on the process to exit (no signal to wait for but its end).
     while child.try_wait().expect("wait").is_none() {
         if Instant::now() > deadline {
@@ -80,7 +85,12 @@ fn an_output_isin_cannot_write_is_refused_before_rendering_and_leaves_nothing() 
 #[test]
 fn a_slave_whose_master_host_never_resolves_gives_up_with_a_clear_error() {
     // `.invalid` never resolves (RFC 2606).
-    let err = refused(&["slave", "--connect", "isin+tcp-insecure://tok@master.invalid:7878"]);
+    // Ten tries: with a name server that answers at once ~20 s of backoff; one
+    // that times out each lookup takes longer.
+    let err = refused_within(
+        &["slave", "--connect", "isin+tcp-insecure://tok@master.invalid:7878"],
+        Duration::from_secs(180),
+    );
     assert!(err.contains("cannot resolve master.invalid:7878"), "{err}");
     let said = err.lines().filter(|l| l.contains("retrying")).count();
     assert_eq!(said, 1, "retrying is said once a minute, not per attempt:\n{err}");

@@ -358,11 +358,6 @@ impl Cluster {
         &self.budgets
     }
 
-    /// The largest frame a logged-in slave may send.
-    pub fn slave_max_frame(&self) -> usize {
-        self.slave_max_frame
-    }
-
     /// The master's counters.
     pub fn status(&self) -> ClusterStatus {
         ClusterStatus { slaves: self.sched.slaves(), peers: self.peers.len(), ..self.status.clone() }
