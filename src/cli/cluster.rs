@@ -2,7 +2,7 @@
 //! local slaves and a viewer in one process over loopback TLS/TCP — the viewer
 //! window when there is a display, a few frames to `paper.png` otherwise.
 
-use crate::assets::{load_bundle, load_scene_file};
+use crate::assets::load_bundle;
 use actix::Addr;
 use anyhow::Context;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
@@ -159,9 +159,16 @@ pub fn render_frame(
 /// Local slaves of the embedded default.
 const DEFAULT_SLAVES: usize = 2;
 
-/// The default scene, `scenes/paper.toml`.
-fn default_scene() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/paper.toml")
+/// The default scene, `scenes/paper.toml`, built into the binary with its
+/// textures: `isin` alone works wherever the binary is, checkout or not.
+fn default_scene() -> anyhow::Result<(isin_tracer::Scene, isin_tracer::SceneBundle)> {
+    let mut assets = std::collections::BTreeMap::new();
+    assets.insert("textures/wood.png".to_string(), include_bytes!("../../scenes/textures/wood.png").to_vec());
+    assets.insert("textures/bricks.png".to_string(), include_bytes!("../../scenes/textures/bricks.png").to_vec());
+    let source = include_str!("../../scenes/paper.toml").to_string();
+    let bundle = isin_tracer::SceneBundle { name: "paper.toml".into(), source, assets };
+    let scene = bundle.load()?;
+    Ok((scene, bundle))
 }
 
 /// Starts a master on loopback and `slaves` local slaves splitting the cores;
@@ -213,7 +220,7 @@ pub fn run_default(window: &super::view::WindowArgs) -> anyhow::Result<()> {
 
 /// The embedded cluster on a thread of its own, the viewer window on the main thread.
 fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
-    let (scene, bundle) = load_scene_file(&default_scene())?;
+    let (scene, bundle) = default_scene()?;
     let token = auth::generate_token()?;
     let extent = super::view::scene_extent(&scene);
     let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
@@ -240,7 +247,7 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
 /// Without a display: a few frames through the embedded cluster, the first
 /// written to `paper.png`.
 fn run_default_headless() -> anyhow::Result<()> {
-    let (scene, bundle) = load_scene_file(&default_scene())?;
+    let (scene, bundle) = default_scene()?;
     let token = auth::generate_token()?;
     let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
     let settings: RenderSettings = scene.settings;
