@@ -164,7 +164,10 @@ const DEFAULT_SLAVES: usize = 2;
 fn default_scene() -> anyhow::Result<(isin_tracer::Scene, isin_tracer::SceneBundle)> {
     let mut assets = std::collections::BTreeMap::new();
     assets.insert("textures/wood.png".to_string(), include_bytes!("../../scenes/textures/wood.png").to_vec());
-    assets.insert("textures/bricks.png".to_string(), include_bytes!("../../scenes/textures/bricks.png").to_vec());
+    assets.insert(
+        "textures/bricks.png".to_string(),
+        include_bytes!("../../scenes/textures/bricks.png").to_vec(),
+    );
     let source = include_str!("../../scenes/paper.toml").to_string();
     let bundle = isin_tracer::SceneBundle { name: "paper.toml".into(), source, assets };
     let scene = bundle.load()?;
