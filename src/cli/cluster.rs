@@ -201,6 +201,12 @@ async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Add
             }
         });
     }
+    // The local slaves join within moments (they load the scene first): the
+    // viewer starts once they have, not with a frame that waits for them.
+    let deadline = Instant::now() + std::time::Duration::from_secs(30);
+    while master.send(GetStatus).await?.slaves.len() < slaves && Instant::now() < deadline {
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
     Ok((master, ticket))
 }
 
