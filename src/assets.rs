@@ -62,11 +62,10 @@ pub fn load_scene_file_timed(path: &Path) -> anyhow::Result<(Scene, SceneBundle,
     Ok((scene, bundle, times))
 }
 
-/// The bundle of a scene file (or of the scene made around a mesh file):
-/// parsed, so that every asset it refers to is read, but not built (no BVH).
-/// What a cluster client needs to name the scene it means.
-pub fn load_bundle(path: &Path) -> anyhow::Result<SceneBundle> {
-    parse_file(path).map(|(_, bundle)| bundle)
+/// What a cluster client renders with: the scene's own camera and settings,
+/// and its bundle (parsed, so every asset is read, but not built).
+pub fn load_view(path: &Path) -> anyhow::Result<(isin_tracer::Camera, isin_tracer::RenderSettings, SceneBundle)> {
+    parse_file(path).map(|(parts, bundle)| (parts.camera, parts.settings, bundle))
 }
 
 /// Reads and parses `path` and every asset it refers to.

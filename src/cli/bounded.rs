@@ -34,3 +34,8 @@ pub fn queue_depth(s: &str) -> Result<u32, String> {
 pub fn heartbeat_ms(s: &str) -> Result<u64, String> {
     limits::HEARTBEAT_TIMEOUT_MS.parse(s)
 }
+
+/// A cluster client's `--timeout` in seconds.
+pub fn timeout(s: &str) -> Result<u64, String> {
+    limits::CLIENT_TIMEOUT_S.parse(s)
+}

@@ -2,14 +2,14 @@
 //! local slaves and a viewer in one process over loopback TLS/TCP — the viewer
 //! window when there is a display, a few frames to `paper.png` otherwise.
 
-use crate::assets::load_bundle;
+use crate::assets::load_view;
 use actix::Addr;
 use anyhow::Context;
 use isin_actors::master::{GetStatus, Master, MasterConfig};
 use isin_actors::slave::{self, SlaveOptions, Tracer};
 use isin_actors::viewer;
 use isin_cluster::auth;
-use isin_cluster::protocol::{self, SceneInfo};
+use isin_cluster::protocol;
 use isin_tracer::{Camera, RenderSettings};
 use isin_transport::{Fingerprint, Ticket, Transport, TransportKind};
 use isin_transport_quic::QuicTransport;
@@ -17,7 +17,7 @@ use isin_transport_tcp::TcpTransport;
 use isin_transport_tls::Identity;
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// The transport a master of `kind` listens with (`isin master` picks
 /// plaintext only with `--insecure`), and the certificate fingerprint its
@@ -113,47 +113,88 @@ pub fn ticket(connect: &str, token: Option<&str>, transport: TransportKind) -> a
     }
 }
 
-/// Refuses to go on when the master of a cluster serves another scene than
-/// `path` (a master serves the scene it was started with).
-pub fn check_scene(served: &SceneInfo, path: &Path) -> anyhow::Result<()> {
-    let ours = protocol::served_scene_hash(&load_bundle(path)?);
-    anyhow::ensure!(
-        ours == served.hash,
-        "the master serves {} (scene {}), not {} (scene {}): a master renders the scene it was \
-         started with; start one with `isin master {}`",
-        served.name,
-        protocol::short_hash(&served.hash),
-        path.display(),
-        protocol::short_hash(&ours),
-        path.display()
-    );
-    Ok(())
+/// How long a client keeps trying to reach a master at most between two
+/// attempts.
+const CLIENT_MAX_BACKOFF: Duration = Duration::from_secs(5);
+
+/// Connects a client to the master of `ticket` as `setup` says, retrying
+/// with capped exponential backoff while the master cannot be reached (it
+/// may be restarting), and saying so once a minute. Gives up at once when
+/// retrying cannot help (a wrong token or fingerprint, a refused scene).
+pub async fn connect_client(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    setup: viewer::Setup<'_>,
+) -> anyhow::Result<viewer::Connected> {
+    let mut backoff = Duration::from_millis(100);
+    let mut said: Option<Instant> = None;
+    loop {
+        match viewer::connect_with(transport, ticket, setup).await {
+            Ok(c) => return Ok(c),
+            Err(e) if !e.is_retryable() => {
+                return Err(anyhow::Error::new(e).context(format!("cannot use the master at {}", ticket.addr)));
+            }
+            Err(e) => {
+                if said.is_none_or(|at| at.elapsed() >= isin_actors::slave::RETRY_REPORT) {
+                    said = Some(Instant::now());
+                    tracing::warn!("cannot reach the master at {} yet ({e}); retrying (said again in a minute)", ticket.addr);
+                }
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(CLIENT_MAX_BACKOFF);
+            }
+        }
+    }
+}
+
+/// Runs `job` within `timeout` (if given), as `--timeout` asks.
+pub async fn within<T>(
+    timeout: Option<Duration>,
+    job: impl std::future::Future<Output = anyhow::Result<T>>,
+) -> anyhow::Result<T> {
+    match timeout {
+        None => job.await,
+        Some(t) => tokio::time::timeout(t, job)
+            .await
+            .map_err(|_| anyhow::anyhow!("gave up after --timeout {} s", t.as_secs_f64()))?,
+    }
 }
 
 /// Renders one frame of the scene at `path` through the cluster of
-/// `ticket` (whose master must serve that scene); the scene's camera and
-/// settings come from the master, with the given overrides.
+/// `ticket`: the scene goes to the master unless it holds it already, and
+/// the scene's own camera and settings are used, with the given overrides.
+/// If the master is lost mid-frame (a restart), the client reconnects and
+/// asks again.
 pub fn render_frame(
     ticket: &Ticket,
     path: &Path,
     width: Option<u32>,
     height: Option<u32>,
     spp: Option<u32>,
+    timeout: Option<Duration>,
 ) -> anyhow::Result<(isin_tracer::Frame, isin_cluster::protocol::FrameStats, String, u64)> {
     let transport = client_transport(ticket)?;
-    actix::System::new().block_on(async move {
+    let (camera, settings, bundle) = load_view(path)?;
+    let name = protocol::served_name(&bundle.name).to_string();
+    // As a local render: the scene's aspect kept, another shape widening the view.
+    let mut settings = settings.resized(width, height);
+    settings.spp = spp.unwrap_or(settings.spp);
+    let camera = camera.fit_aspect(settings.width as f32 / settings.height as f32);
+    actix::System::new().block_on(within(timeout, async move {
         // A still: batch work, which fills what people flying leave.
         let work = isin_cluster::scheduler::Work::Batch;
-        let (v, scene, mut events) = viewer::connect_as(transport.as_ref(), ticket, "render", work).await?;
-        check_scene(&scene, path)?;
-        // As a local render: the scene's aspect kept, another shape widening the view.
-        let mut settings = scene.settings.resized(width, height);
-        settings.spp = spp.unwrap_or(settings.spp);
-        let camera = scene.camera.fit_aspect(settings.width as f32 / settings.height as f32);
-        let (frame, stats) = viewer::collect_frame(&v, &mut events, camera, settings).await?;
-        let wire = v.send(viewer::GetWireStats).await?;
-        Ok((frame, stats, scene.name, wire.bytes_received))
-    })
+        let setup = viewer::Setup { name: "render", work, scene: Some(&bundle), job: None };
+        loop {
+            let mut c = connect_client(transport.as_ref(), ticket, setup).await?;
+            match viewer::collect_frame(&c.addr, &mut c.events, camera, settings).await {
+                Ok((frame, stats)) => {
+                    let wire = c.addr.send(viewer::GetWireStats).await?;
+                    return Ok((frame, stats, name, wire.bytes_received));
+                }
+                Err(viewer::ViewerError::Lost(why)) => tracing::warn!("{why}; reconnecting"),
+                Err(e) => return Err(e.into()),
+            }
+        }
+    }))
 }
 
 /// Local slaves of the embedded default.
@@ -250,7 +291,7 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
         })
         .context("cannot start the embedded cluster")?;
     let ticket = ticket_rx.recv().context("the embedded cluster did not start")??;
-    super::view::run_remote(ticket, Some(extent), window)
+    super::view::run_remote(ticket, Some(extent), None, window)
 }
 
 /// Without a display: a few frames through the embedded cluster, the first

@@ -7,7 +7,9 @@ use anyhow::Context;
 use clap::Args;
 use isin_actors::viewer;
 use isin_cluster::scheduler::Work;
-use isin_tracer::RenderSettings;
+use isin_cluster::protocol::{self, JobSpec, SceneHash};
+use isin_tracer::{Camera, RenderSettings};
+use sha2::{Digest, Sha256};
 use isin_viewer::CameraPath;
 use isin_viewer::stats::Summary;
 use std::path::PathBuf;
@@ -49,10 +51,15 @@ pub struct FlyArgs {
     pub frames: Option<Frames>,
     /// Render on the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`,
     /// as the master printed it) instead of on this machine. The master must
-    /// serve SCENE; frames are batch work (people flying come first), several
-    /// queued at once, each written as it completes.
+    /// send SCENE to the master (unless it holds it); frames are one batch
+    /// job (people flying come first), several queued at once, each written
+    /// as it completes. If the master restarts, the flight reconnects and
+    /// resumes from the first frame not written.
     #[arg(long, value_name = "TICKET")]
     pub cluster: Option<String>,
+    /// With --cluster: give up after this many seconds.
+    #[arg(long, value_name = "SECONDS", requires = "cluster", value_parser = super::bounded::timeout)]
+    pub timeout: Option<u64>,
 }
 
 /// A range of a camera path's frames, as `--frames` takes it.
@@ -118,12 +125,27 @@ fn flight_settings(
     Ok(settings)
 }
 
-/// Writes frame `i` into `dir`, if frames are written.
+/// The file of frame `i` in `dir`.
+fn frame_file(dir: &std::path::Path, i: usize) -> PathBuf {
+    dir.join(format!("frame_{i:04}.png"))
+}
+
+/// Writes frame `i` into `dir`, if frames are written: whole or not at all
+/// (to a temporary name, then renamed), so a file there is a finished frame.
 fn write_frame(dir: Option<&PathBuf>, i: usize, frame: &isin_tracer::Frame) -> anyhow::Result<()> {
     let Some(dir) = dir else { return Ok(()) };
-    let file = dir.join(format!("frame_{i:04}.png"));
-    image::save_buffer(&file, &frame.rgb, frame.width, frame.height, image::ColorType::Rgb8)
-        .with_context(|| format!("cannot write {}", file.display()))
+    let file = frame_file(dir, i);
+    let part = file.with_extension("png.part");
+    image::save_buffer_with_format(
+        &part,
+        &frame.rgb,
+        frame.width,
+        frame.height,
+        image::ColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .and_then(|()| std::fs::rename(&part, &file).map_err(image::ImageError::IoError))
+    .with_context(|| format!("cannot write {}", file.display()))
 }
 
 /// Runs `isin fly`.
@@ -186,7 +208,23 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
 /// a client).
 const QUEUED: usize = 3;
 
-/// `isin fly --cluster`: the path's frames through a cluster, pipelined.
+/// The key of a flight as a batch job: everything that decides its frames
+/// (scene, cameras, settings, first frame), so rerunning the same command
+/// resumes it and any change makes another job.
+fn job_key(scene: &SceneHash, cameras: &[Camera], settings: &RenderSettings, first: usize) -> SceneHash {
+    let mut h = Sha256::new();
+    h.update(scene);
+    h.update((first as u64).to_le_bytes());
+    // MessagePack of plain numbers: the same bytes on every machine.
+    h.update(rmp_serde::to_vec(&(cameras, settings)).unwrap_or_default());
+    h.finalize().into()
+}
+
+/// `isin fly --cluster`: the path's frames through a cluster, pipelined, as
+/// one batch job. SCENE goes to the master unless it holds it. When the
+/// master is lost (a restart), the flight reconnects and goes on from the
+/// frames not yet written; a frame the master recorded done whose file is
+/// there is not rendered again.
 fn run_cluster(
     args: &FlyArgs,
     path: &CameraPath,
@@ -195,37 +233,76 @@ fn run_cluster(
 ) -> anyhow::Result<()> {
     let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let transport = super::cluster::client_transport(&ticket)?;
-    actix::System::new().block_on(async move {
-        let (v, scene, mut events) =
-            viewer::connect_as(transport.as_ref(), &ticket, "fly", Work::Batch).await?;
-        super::cluster::check_scene(&scene, &args.scene)?;
-        let settings = flight_settings(args, path, scene.settings)?;
-        let aspect = settings.width as f32 / settings.height as f32;
-        let cameras: Vec<_> =
-            path.frames[range.clone()].iter().map(|f| f.camera().fit_aspect(aspect)).collect();
-        println!(
-            "flying {} frames of {} through {} at {}x{}, {} spp, on the cluster at {}",
-            cameras.len(),
-            args.path.display(),
-            args.scene.display(),
-            settings.width,
-            settings.height,
-            settings.spp,
-            ticket.addr
-        );
+    let (_, scene_settings, bundle) = crate::assets::load_view(&args.scene)?;
+    let settings = flight_settings(args, path, scene_settings)?;
+    let aspect = settings.width as f32 / settings.height as f32;
+    let cameras: Vec<Camera> = path.frames[range.clone()].iter().map(|f| f.camera().fit_aspect(aspect)).collect();
+    let scene_hash = protocol::served_scene_hash(&bundle);
+    let name = match &args.out {
+        Some(dir) => dir.display().to_string(),
+        None => args.path.display().to_string(),
+    };
+    let name: String = name.chars().rev().take(protocol::MAX_SLAVE_TEXT / 4).collect::<Vec<_>>().into_iter().rev().collect();
+    let spec = JobSpec {
+        key: job_key(&scene_hash, &cameras, &settings, range.start),
+        name,
+        scene: scene_hash,
+        frames: u32::try_from(cameras.len()).unwrap_or(u32::MAX),
+        settings,
+    };
+    println!(
+        "flying {} frames of {} through {} at {}x{}, {} spp, on the cluster at {}",
+        cameras.len(),
+        args.path.display(),
+        args.scene.display(),
+        settings.width,
+        settings.height,
+        settings.spp,
+        ticket.addr
+    );
+    let timeout = args.timeout.map(Duration::from_secs);
+    actix::System::new().block_on(super::cluster::within(timeout, async {
+        let setup = viewer::Setup { name: "fly", work: Work::Batch, scene: Some(&bundle), job: Some(&spec) };
         let total = Instant::now();
         let mut last = Duration::ZERO;
         let mut intervals = Vec::with_capacity(cameras.len());
-        viewer::collect_frames(&v, &mut events, &cameras, settings, QUEUED, |k, frame, stats| {
-            let i = range.start + k;
-            write_frame(args.out.as_ref(), i, &frame)?;
-            let at = total.elapsed();
-            intervals.push(at - last);
-            last = at;
-            println!("frame {i:04}  done at {:8.2} s  {:4} tiles", at.as_secs_f64(), stats.tiles);
-            anyhow::Ok(())
-        })
-        .await?;
+        // Frames (indices into `cameras`) written by this run.
+        let mut written = std::collections::BTreeSet::new();
+        loop {
+            let mut c = super::cluster::connect_client(transport.as_ref(), &ticket, setup).await?;
+            let done_before: std::collections::BTreeSet<u32> = c.done.iter().copied().collect();
+            let todo: Vec<u32> = (0..spec.frames)
+                .filter(|&k| !written.contains(&k))
+                .filter(|&k| {
+                    let file = args.out.as_ref().map(|d| frame_file(d, range.start + k as usize));
+                    !(done_before.contains(&k) && file.is_some_and(|f| f.exists()))
+                })
+                .collect();
+            if todo.len() < cameras.len() - written.len() {
+                println!("resuming: {} frames done before", cameras.len() - written.len() - todo.len());
+            }
+            let todo_cameras: Vec<Camera> = todo.iter().map(|&k| cameras[k as usize]).collect();
+            let result =
+                viewer::collect_frames(&c.addr, &mut c.events, &todo_cameras, Some(&todo), settings, QUEUED, |j, frame, stats| {
+                    let k = todo[j];
+                    let i = range.start + k as usize;
+                    write_frame(args.out.as_ref(), i, &frame)?;
+                    written.insert(k);
+                    let at = total.elapsed();
+                    intervals.push(at - last);
+                    last = at;
+                    println!("frame {i:04}  done at {:8.2} s  {:4} tiles", at.as_secs_f64(), stats.tiles);
+                    anyhow::Ok(())
+                })
+                .await;
+            match result {
+                Ok(()) => break,
+                Err(viewer::ViewerError::Lost(why)) => {
+                    tracing::warn!("{why}; reconnecting to resume the flight");
+                }
+                Err(e) => return Err(anyhow::Error::new(e)),
+            }
+        }
         let summary = Summary::of(&intervals);
         println!(
             "frames {}  median {:.2} ms between frames  mean {:.1} fps  wall {:.2} s",
@@ -238,7 +315,7 @@ fn run_cluster(
             println!("wrote {}/frame_NNNN.png", dir.display());
         }
         anyhow::Ok(())
-    })
+    }))
 }
 
 fn ms(d: Duration) -> f64 {

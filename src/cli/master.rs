@@ -1,10 +1,11 @@
-//! `isin master`: serve a scene to slaves and viewers.
+//! `isin master`: serve slaves and clients — a default scene, if given, and
+//! the scenes clients bring.
 
 use super::cluster;
 use crate::assets::load_scene_file;
 use clap::Args;
 use isin_actors::master::{Master, MasterConfig};
-use isin_cluster::auth;
+use isin_cluster::{DefaultScene, auth};
 use isin_cluster::codec::Compression;
 use isin_cluster::scheduler::SchedulerConfig;
 use isin_transport::{Ticket, TransportKind};
@@ -15,8 +16,15 @@ use std::time::Duration;
 /// Arguments of `isin master`.
 #[derive(Args, Debug)]
 pub struct MasterArgs {
-    /// Scene file (TOML).
-    pub scene: PathBuf,
+    /// Default scene (TOML, or a mesh file), shown to viewers that name none;
+    /// without it clients bring their own (`isin render SCENE --cluster …`).
+    pub scene: Option<PathBuf>,
+    /// Directory where scenes clients sent and batch jobs are kept (created
+    /// if missing), so that after a restart — a crash included — every job
+    /// resumes where it was: its client reconnects and is told which frames
+    /// are done.
+    #[arg(long, value_name = "DIR")]
+    pub state: Option<PathBuf>,
     /// Address to listen on (port 0 picks a free port; the ticket shows the real one).
     #[arg(long, default_value = "0.0.0.0:7878")]
     pub listen: String,
@@ -58,14 +66,20 @@ pub struct MasterArgs {
 
 /// Runs `isin master` until killed.
 pub fn run(args: MasterArgs) -> anyhow::Result<()> {
-    let (scene, bundle) = load_scene_file(&args.scene)?;
+    let default = match &args.scene {
+        None => None,
+        Some(path) => {
+            let (scene, bundle) = load_scene_file(path)?;
+            Some(DefaultScene { bundle, camera: scene.camera, settings: scene.settings })
+        }
+    };
     let token = match args.token {
         Some(t) if t.is_empty() => anyhow::bail!("--token must not be empty"),
         Some(t) => t,
         None => auth::generate_token()?,
     };
-    let mut cfg = MasterConfig::new(token.clone(), bundle, scene.camera, scene.settings)?;
-    drop(scene);
+    let mut cfg = MasterConfig::serving(token.clone(), default)?;
+    cfg.state = args.state.clone();
     cfg.cluster.scheduler.tile_size = args.tile.max(1);
     cfg.cluster.scheduler.heartbeat_timeout = Duration::from_millis(args.heartbeat_timeout_ms.max(1));
     cfg.cluster.scheduler.duplicate_stragglers = !args.no_duplicates;

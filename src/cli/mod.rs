@@ -9,6 +9,7 @@ mod remote;
 mod render;
 mod scene;
 mod slave;
+mod status;
 mod view;
 
 use clap::{Parser, Subcommand};
@@ -40,10 +41,12 @@ enum Command {
     Fly(fly::FlyArgs),
     /// Print the scene isin makes around a mesh file (.gltf, .glb, .obj) as editable TOML.
     Scene(scene::SceneArgs),
-    /// Serve a scene to slaves and viewers; prints a join ticket.
+    /// Serve slaves and clients (a default scene, and those clients bring); prints a join ticket.
     Master(master::MasterArgs),
     /// Render tiles for a master.
     Slave(slave::SlaveArgs),
+    /// Print a cluster's slaves, clients and jobs.
+    Status(status::StatusArgs),
     /// Benchmarks (`isin bench cluster`).
     Bench(bench::BenchArgs),
 }
@@ -59,6 +62,7 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Scene(args)) => scene::run(args),
         Some(Command::Master(args)) => master::run(args),
         Some(Command::Slave(args)) => slave::run(args),
+        Some(Command::Status(args)) => status::run(args),
         Some(Command::Bench(args)) => bench::run(args),
         None => cluster::run_default(&cli.window),
     }

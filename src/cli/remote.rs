@@ -24,6 +24,8 @@ use isin_actors::viewer::{
     self, Disconnect, GetSlaves, GetWireStats, RequestFrameAs, SlaveList, ViewerActor, ViewerEvent,
 };
 use isin_cluster::protocol::SceneInfo;
+use isin_cluster::scheduler::Work;
+use isin_tracer::SceneBundle;
 use isin_transport::Ticket;
 use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate, Worker};
 use std::collections::BTreeMap;
@@ -44,9 +46,15 @@ pub struct Remote {
 }
 
 impl Remote {
-    /// Connects to the master of `ticket` as viewer `name`; returns once the
-    /// master has welcomed us, with the source to give the window.
-    pub fn connect(ticket: Ticket, name: String) -> anyhow::Result<(Remote, ChannelSource)> {
+    /// Connects to the master of `ticket` as viewer `name`, flying `own` (a
+    /// scene of the user's, sent to the master unless it holds it) or the
+    /// master's default scene; returns once the master has welcomed us, with
+    /// the source to give the window.
+    pub fn connect(
+        ticket: Ticket,
+        name: String,
+        own: Option<(SceneInfo, SceneBundle)>,
+    ) -> anyhow::Result<(Remote, ChannelSource)> {
         let addr = ticket.addr.clone();
         let (requests, request_rx) = mpsc::unbounded_channel::<FrameRequest>();
         let (source, feed) = isin_viewer::channel_source(move |r| {
@@ -65,14 +73,30 @@ impl Remote {
                             return;
                         }
                     };
-                    let (viewer, scene, events) =
-                        match viewer::connect(transport.as_ref(), &ticket, &name).await {
-                            Ok(v) => v,
-                            Err(e) => {
-                                let _ = ready_tx.send(Err(anyhow::Error::new(e)));
-                                return;
-                            }
-                        };
+                    let setup = viewer::Setup {
+                        name: &name,
+                        work: Work::Interactive,
+                        scene: own.as_ref().map(|(_, b)| b),
+                        job: None,
+                    };
+                    let connected = viewer::connect_with(transport.as_ref(), &ticket, setup).await;
+                    let scene = match connected {
+                        Ok(c) => match own.map(|(info, _)| info).or(c.default_scene.clone()) {
+                            Some(scene) => Ok((c, scene)),
+                            None => Err(anyhow::anyhow!(
+                                "the master serves no scene of its own: name one (isin view SCENE --connect TICKET)"
+                            )),
+                        },
+                        Err(e) => Err(anyhow::Error::new(e)),
+                    };
+                    let (connected, scene) = match scene {
+                        Ok(v) => v,
+                        Err(e) => {
+                            let _ = ready_tx.send(Err(e));
+                            return;
+                        }
+                    };
+                    let (viewer, events) = (connected.addr, connected.events);
                     let _ = ready_tx.send(Ok(scene));
                     let link = Link {
                         viewer,

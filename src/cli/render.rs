@@ -5,7 +5,7 @@ use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Arguments of `isin render`.
 #[derive(Args, Debug)]
@@ -36,9 +36,15 @@ pub struct RenderArgs {
     #[arg(long)]
     pub quiet: bool,
     /// Render through the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`)
-    /// instead of locally; the master's scene, camera and settings are used.
+    /// instead of locally: SCENE goes to the master (unless it holds it
+    /// already) and the frame is batch work, after people flying. If the
+    /// master restarts, the render reconnects and goes on.
     #[arg(long)]
     pub cluster: Option<String>,
+    /// With --cluster: give up after this many seconds (waiting for slaves,
+    /// or for a master that is down, included).
+    #[arg(long, value_name = "SECONDS", requires = "cluster", value_parser = super::bounded::timeout)]
+    pub timeout: Option<u64>,
 }
 
 /// An output image being written: the format checked and the file created
@@ -159,7 +165,14 @@ fn run_cluster(args: &RenderArgs, ticket: &str, output: Output) -> anyhow::Resul
     let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let t0 = Instant::now();
     let (frame, stats, scene, wire) =
-        super::cluster::render_frame(&ticket, &args.scene, args.width, args.height, args.spp)?;
+        super::cluster::render_frame(
+            &ticket,
+            &args.scene,
+            args.width,
+            args.height,
+            args.spp,
+            args.timeout.map(Duration::from_secs),
+        )?;
     let elapsed = t0.elapsed();
     output.write(&frame)?;
     println!("scene      {scene} (via cluster {})", ticket.addr);

@@ -136,7 +136,9 @@ impl Default for WindowArgs {
 /// Arguments of `isin view`.
 #[derive(Args, Debug)]
 pub struct ViewArgs {
-    /// Scene file (TOML) or mesh file (.gltf, .glb, .obj); not needed with --connect, where the master's scene is shown.
+    /// Scene file (TOML) or mesh file (.gltf, .glb, .obj). With --connect it
+    /// is sent to the master and flown on the cluster; without, the master's
+    /// own scene is shown.
     #[arg(required_unless_present = "connect")]
     pub scene: Option<PathBuf>,
     /// Show what a cluster renders: the join ticket the master printed
@@ -167,10 +169,16 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     isin_viewer::check_display()?;
     if let Some(connect) = &args.connect {
         let ticket = cluster::ticket(connect, args.token.as_deref(), args.transport)?;
-        if let Some(scene) = &args.scene {
-            tracing::warn!("showing the master's scene; {} is not loaded", scene.display());
-        }
-        return run_remote(ticket, None, &args.window);
+        let own = match &args.scene {
+            None => None,
+            Some(path) => {
+                let (camera, settings, bundle) = crate::assets::load_view(path)?;
+                let name = isin_cluster::protocol::served_name(&bundle.name).to_string();
+                let hash = isin_cluster::protocol::served_scene_hash(&bundle);
+                Some((isin_cluster::protocol::SceneInfo { name, hash, camera, settings }, bundle))
+            }
+        };
+        return run_remote(ticket, None, own, &args.window);
     }
     let scene_path = args.scene.context("a scene file is needed without --connect")?;
     let (scene, _bundle) = load_scene_file(&scene_path)?;
@@ -186,9 +194,14 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
 /// settings. `extent` (the scene's size, for navigation steps) is guessed
 /// from the camera when not known ([`extent_from_camera`]). Closing the window
 /// disconnects; the master and its slaves stay up.
-pub fn run_remote(ticket: Ticket, extent: Option<f32>, window: &WindowArgs) -> anyhow::Result<()> {
+pub fn run_remote(
+    ticket: Ticket,
+    extent: Option<f32>,
+    own: Option<(isin_cluster::protocol::SceneInfo, isin_tracer::SceneBundle)>,
+    window: &WindowArgs,
+) -> anyhow::Result<()> {
     let addr = ticket.addr.clone();
-    let (remote, source) = Remote::connect(ticket, format!("view-{}", std::process::id()))?;
+    let (remote, source) = Remote::connect(ticket, format!("view-{}", std::process::id()), own)?;
     let scene = remote.scene.clone();
     let extent = extent.unwrap_or_else(|| extent_from_camera(&scene.camera));
     let title = format!("isin — {} via {addr}", scene.name);

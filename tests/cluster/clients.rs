@@ -28,6 +28,7 @@ cluster_test!(two_viewers_flying_at_once_each_get_their_frames_and_a_fair_share,
             async move {
                 let (v, scene, mut events) =
                     viewer::connect(transport.as_ref(), ticket, name).await.expect("viewer");
+                let scene = scene.expect("the master serves a scene");
                 let settings = isin_tracer::RenderSettings { width: 128, height: 96, ..scene.settings };
                 let mut got = Vec::new();
                 for _ in 0..FRAMES {

@@ -34,7 +34,7 @@ async fn login_slave(c: &Cluster, name: &str) -> (Connection, protocol::Welcome)
     let ticket: Ticket = c.ticket.parse().expect("ticket");
     let t = client_transport(c);
     let (mut conn, welcome) =
-        client::handshake(t.as_ref(), &ticket, client::Join::slave(name, 1, None, &[])).await.expect("login");
+        client::handshake(t.as_ref(), &ticket, client::Join::slave(name, 1, &[], &[])).await.expect("login");
     loop {
         match client::recv_message(&mut conn, DEFAULT_MAX_FRAME, TIMEOUT).await.expect("the scene") {
             Message::SceneSync { .. } => return (conn, welcome),
@@ -81,7 +81,7 @@ cluster_test!(
 /// frame it was not handed; returns why the master refused it.
 async fn forge(c: &Cluster) -> String {
     let (mut conn, welcome) = login_slave(c, "forger").await;
-    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash }).expect("ready");
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.map(|s| s.hash) }).expect("ready");
     let mut forged = false;
     rejection(&mut conn, |conn, m| {
         let Message::TileAssignment(a) = m else { return };
@@ -160,7 +160,7 @@ fn logged_in_viewers_cannot_pin_the_masters_memory() {
             threads: 0,
             client_nonce,
             proof,
-            cached_scene: None,
+            cached_scenes: vec![],
             codecs: vec![],
             work: Default::default(),
         };

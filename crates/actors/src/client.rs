@@ -86,8 +86,8 @@ pub struct Join<'a> {
     pub name: &'a str,
     /// Render threads (slaves).
     pub threads: u32,
-    /// The scene held already, if any (slaves): it is not sent again.
-    pub cached_scene: Option<SceneHash>,
+    /// The scenes held already (slaves): they are not sent again.
+    pub cached_scenes: &'a [SceneHash],
     /// Tile codecs offered (the master's choice is in the [`Welcome`]).
     pub codecs: &'a [Codec],
     /// What kind of work the frames are (viewers).
@@ -96,13 +96,13 @@ pub struct Join<'a> {
 
 impl<'a> Join<'a> {
     /// A slave with `threads` render threads.
-    pub fn slave(name: &'a str, threads: u32, cached_scene: Option<SceneHash>, codecs: &'a [Codec]) -> Self {
-        Self { role: Role::Slave, name, threads, cached_scene, codecs, work: Work::Interactive }
+    pub fn slave(name: &'a str, threads: u32, cached_scenes: &'a [SceneHash], codecs: &'a [Codec]) -> Self {
+        Self { role: Role::Slave, name, threads, cached_scenes, codecs, work: Work::Interactive }
     }
 
     /// A viewer whose frames are `work`, decoding every codec.
     pub fn viewer(name: &'a str, work: Work) -> Self {
-        Self { role: Role::Viewer, name, threads: 0, cached_scene: None, codecs: &Codec::ALL, work }
+        Self { role: Role::Viewer, name, threads: 0, cached_scenes: &[], codecs: &Codec::ALL, work }
     }
 }
 
@@ -112,7 +112,7 @@ pub async fn handshake(
     ticket: &Ticket,
     join: Join<'_>,
 ) -> Result<(Connection, Welcome), JoinError> {
-    let Join { role, name, threads, cached_scene, codecs, work } = join;
+    let Join { role, name, threads, cached_scenes, codecs, work } = join;
     let mut conn = tokio::time::timeout(HANDSHAKE_TIMEOUT, transport.connect(&ticket.addr))
         .await
         .map_err(|_| JoinError::Timeout(HANDSHAKE_TIMEOUT))??;
@@ -124,8 +124,9 @@ pub async fn handshake(
     let client_nonce = auth::random_bytes::<32>().map_err(|e| JoinError::Scene(e.to_string()))?;
     let proof = auth::client_proof(&ticket.token, role, &nonce, &client_nonce);
     let codecs = codecs.iter().map(|c| c.name().to_string()).collect();
+    let cached_scenes = cached_scenes.iter().take(protocol::MAX_CACHED_SCENES).copied().collect();
     let hello =
-        Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scene, codecs, work };
+        Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scenes, codecs, work };
     send_message(&conn, &Message::Hello(hello))?;
     // The master's welcome is small, but what follows (the scene) is not,
     // and may take minutes on a slow link.

@@ -12,7 +12,8 @@
 //! QUIC in `isin-transport-quic`).
 //!
 //! Modules: [`master`], [`slave`], [`viewer`]: the actors; [`client`]: the peer
-//! side of the handshake that slaves and viewers share.
+//! side of the handshake that slaves and viewers share; [`state`]: the
+//! master's state directory.
 //!
 //! Data flow: a viewer sends `FrameRequest`; the master's scheduler cuts the
 //! frame into tiles and keeps every slave's window full with `TileAssignment`s;
@@ -23,6 +24,7 @@
 pub mod client;
 pub mod master;
 pub mod slave;
+pub mod state;
 pub mod viewer;
 
 // A fresh connection must carry the handshake, and no more.

@@ -4,16 +4,19 @@
 //! Connections are numbered as they are accepted; their frames reach the
 //! core as actix messages from per-connection reader tasks (`Inbound`,
 //! `Closed`), and after every event the actor carries out what the core
-//! asks ([`Transmit`]): encode and send, raise a frame limit, close.
+//! asks ([`Transmit`]): encode and send, raise a frame limit, close, and
+//! — with a state directory — keep on disk ([`crate::state`]) before going on.
 
 use actix::prelude::*;
 use isin_cluster::auth::{self, AuthError};
 use isin_cluster::protocol::{self, FrameStats};
 use isin_cluster::scheduler::SlaveInfo;
-use isin_cluster::{Class, Cluster, ClusterConfig, PeerId, Transmit};
+use crate::state::{StateDir, StateError};
+use isin_cluster::{Class, Cluster, ClusterConfig, DefaultScene, PeerId, Transmit};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use isin_transport::{ConnStats, Connection, Delivery, FrameSender, Listener, MemoryBudget, TransportError};
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 /// How the master runs.
@@ -23,21 +26,40 @@ pub struct MasterConfig {
     pub cluster: ClusterConfig,
     /// Period of the clock tick (timeouts, heartbeats).
     pub tick: Duration,
+    /// Where uploaded scenes and batch jobs are kept across restarts.
+    pub state: Option<PathBuf>,
 }
 
 impl MasterConfig {
-    /// Defaults around a scene and a token, with fresh randomness for the
-    /// core's challenge nonces.
+    /// Defaults around a default scene and a token, with fresh randomness
+    /// for the core's challenge nonces.
     pub fn new(
         token: String,
         bundle: SceneBundle,
         camera: Camera,
         settings: RenderSettings,
     ) -> Result<Self, AuthError> {
-        let seed = auth::random_bytes::<32>()?;
-        let cluster = ClusterConfig::new(token, bundle, camera, settings, seed);
-        Ok(Self { cluster, tick: Duration::from_millis(50) })
+        Self::serving(token, Some(DefaultScene { bundle, camera, settings }))
     }
+
+    /// Defaults around a token and a default scene, or none (clients then
+    /// bring their own).
+    pub fn serving(token: String, scene: Option<DefaultScene>) -> Result<Self, AuthError> {
+        let seed = auth::random_bytes::<32>()?;
+        let cluster = ClusterConfig::new(token, scene, seed);
+        Ok(Self { cluster, tick: Duration::from_millis(50), state: None })
+    }
+}
+
+/// Why a master could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum MasterError {
+    /// The default scene could not be encoded.
+    #[error(transparent)]
+    Protocol(#[from] protocol::ProtocolError),
+    /// The state directory could not be used.
+    #[error(transparent)]
+    State(#[from] StateError),
 }
 
 /// Counters of the whole master, for `isin bench` and the embedded default.
@@ -72,18 +94,40 @@ pub struct Master {
     senders: HashMap<PeerId, FrameSender>,
     /// Byte counts of connections already closed.
     closed_wire: ConnStats,
+    state: Option<StateDir>,
 }
 
 impl Master {
-    /// A master for `cfg`; fails only if the scene cannot be encoded.
-    pub fn new(cfg: MasterConfig) -> Result<Self, protocol::ProtocolError> {
+    /// A master for `cfg`, with what its state directory holds; fails if the
+    /// scene cannot be encoded or the state directory cannot be used.
+    pub fn new(cfg: MasterConfig) -> Result<Self, MasterError> {
+        let mut core = Cluster::new(cfg.cluster)?;
+        let epoch = Instant::now();
+        let state = match &cfg.state {
+            None => None,
+            Some(root) => {
+                let (dir, loaded) = StateDir::open(root)?;
+                for (path, sync) in loaded.scenes {
+                    if let Err(e) = core.restore_scene(sync) {
+                        tracing::warn!("ignoring scene {}: {e}", path.display());
+                    }
+                }
+                let jobs = loaded.jobs.len();
+                for job in loaded.jobs {
+                    core.restore_job(Duration::ZERO, job);
+                }
+                tracing::info!("state {}: {jobs} jobs", root.display());
+                Some(dir)
+            }
+        };
         Ok(Self {
-            core: Cluster::new(cfg.cluster)?,
+            core,
             tick: cfg.tick,
-            epoch: Instant::now(),
+            epoch,
             next_peer: 1,
             senders: HashMap::new(),
             closed_wire: ConnStats::default(),
+            state,
         })
     }
 
@@ -128,6 +172,15 @@ impl Master {
     /// Carries out everything the core asked for.
     fn flush(&mut self) {
         while let Some(t) = self.core.poll_transmit() {
+            if let Transmit::Store(what) = &t {
+                // Before anything that follows it goes out.
+                if let Some(dir) = &self.state
+                    && let Err(e) = dir.store(what)
+                {
+                    tracing::error!("cannot keep state: {e}");
+                }
+                continue;
+            }
             let Some(sender) = self.senders.get(&t.peer()) else { continue };
             match t {
                 Transmit::Send { message, class, .. } => match protocol::encode(&message) {
@@ -150,6 +203,7 @@ impl Master {
                         sender.close();
                     }
                 }
+                Transmit::Store(_) => {}
             }
         }
     }

@@ -1,6 +1,12 @@
-//! The slave: joins a master, receives the scene once (cached by hash across
-//! reconnections), renders assigned tiles on its own rayon pool and streams
-//! the results back.
+//! The slave: joins a master, renders assigned tiles on its own rayon pool
+//! and streams the results back.
+//!
+//! Scenes are kept by content hash in a [`SceneCache`] (least recently used
+//! out first, within a byte budget), across reconnections: the master's
+//! default scene comes at join unless cached; any other scene is asked for
+//! ([`Message::NeedScene`]) the first time an assignment names it, and loaded
+//! beside the rendering of other scenes' tiles — its tiles wait, nothing
+//! else does.
 //!
 //! The actor never renders: each tile is a job on the pool, and the job sends
 //! its encoded result straight into the connection (a [`FrameSender`] works
@@ -21,7 +27,7 @@ use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, 
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
 use isin_transport::{Delivery, FrameSender, Ticket, Transport, TransportError};
 use serde_bytes::ByteBuf;
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -44,6 +50,9 @@ pub struct SlaveOptions {
     pub max_attempts: Option<u32>,
     /// Tile codecs offered to the master, which picks one (raw if none suits).
     pub codecs: Vec<Codec>,
+    /// Bytes of loaded scenes kept (as [`Renderer::footprint`] counts them);
+    /// the least recently used go first, the one in use never.
+    pub scene_cache_bytes: usize,
 }
 
 impl Default for SlaveOptions {
@@ -56,6 +65,7 @@ impl Default for SlaveOptions {
             max_backoff: Duration::from_secs(5),
             max_attempts: None,
             codecs: Codec::ALL.to_vec(),
+            scene_cache_bytes: 4 << 30,
         }
     }
 }
@@ -75,6 +85,12 @@ pub trait Renderer: Send + Sync + 'static {
     fn load(&self, bundle: SceneBundle) -> Result<Self::Scene, String>;
     /// `tile.w * tile.h * 3` bytes of RGB8.
     fn render(&self, scene: &Self::Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8>;
+
+    /// Bytes a loaded scene holds, roughly, for the cache's budget; the
+    /// default is its bundle's size.
+    fn footprint(&self, _scene: &Self::Scene, bundle_bytes: usize) -> usize {
+        bundle_bytes
+    }
 
     /// [`Renderer::render`] that gives up (`None`) once `cancelled()` answers
     /// true: the slave asks between bands of rows, so a tile of a superseded
@@ -169,6 +185,12 @@ impl Renderer for Tracer {
         isin_tracer::render_tile(scene, camera, settings, tile)
     }
 
+    /// The bundle (textures are decoded from it) plus the BVH and triangle
+    /// data: about 100 bytes a triangle.
+    fn footprint(&self, scene: &Scene, bundle_bytes: usize) -> usize {
+        bundle_bytes.saturating_mul(2).saturating_add(scene.triangle_count().saturating_mul(100))
+    }
+
     /// Renders the tile in bands of [`ROWS_PER_CANCEL_CHECK`] rows, asking
     /// `cancelled` before each: the bytes are those of one
     /// [`isin_tracer::render_tile`] call (a pixel's value does not depend on
@@ -208,12 +230,84 @@ pub fn thread_cpu_time() -> Option<Duration> {
     None
 }
 
-/// A loaded scene and the hash of the bundle it came from.
+/// Loaded scenes by content hash, least recently used out first.
 pub struct SceneCache<S> {
-    /// Content hash.
-    pub hash: SceneHash,
-    /// The built scene.
-    pub scene: Arc<S>,
+    entries: Vec<CachedScene<S>>,
+    budget: usize,
+    clock: u64,
+}
+
+struct CachedScene<S> {
+    hash: SceneHash,
+    scene: Arc<S>,
+    bytes: usize,
+    used: u64,
+}
+
+impl<S> SceneCache<S> {
+    /// An empty cache of `budget` bytes.
+    pub fn new(budget: usize) -> Self {
+        Self { entries: Vec::new(), budget, clock: 0 }
+    }
+
+    /// The scene of `hash`, if held (now the most recently used).
+    pub fn get(&mut self, hash: &SceneHash) -> Option<Arc<S>> {
+        self.clock += 1;
+        let e = self.entries.iter_mut().find(|e| &e.hash == hash)?;
+        e.used = self.clock;
+        Some(e.scene.clone())
+    }
+
+    /// Keeps `scene`, evicting the least recently used others until it fits
+    /// (it is kept even if it alone is over the budget). Returns the hashes
+    /// evicted.
+    pub fn insert(&mut self, hash: SceneHash, scene: Arc<S>, bytes: usize) -> Vec<SceneHash> {
+        self.entries.retain(|e| e.hash != hash);
+        let mut evicted = Vec::new();
+        while !self.entries.is_empty() && self.held_bytes() + bytes > self.budget {
+            let Some(oldest) = self.entries.iter().enumerate().min_by_key(|(_, e)| e.used).map(|(i, _)| i)
+            else {
+                break;
+            };
+            evicted.push(self.entries.remove(oldest).hash);
+        }
+        self.clock += 1;
+        self.entries.push(CachedScene { hash, scene, bytes, used: self.clock });
+        evicted
+    }
+
+    /// The hashes held, most recently used first.
+    pub fn hashes(&self) -> Vec<SceneHash> {
+        let mut e: Vec<(u64, SceneHash)> = self.entries.iter().map(|e| (e.used, e.hash)).collect();
+        e.sort_unstable_by(|a, b| b.0.cmp(&a.0));
+        e.into_iter().map(|(_, h)| h).collect()
+    }
+
+    fn held_bytes(&self) -> usize {
+        self.entries.iter().map(|e| e.bytes).sum()
+    }
+}
+
+/// A shared [`SceneCache`]: the session's actor and the reconnection loop use it.
+pub type SharedScenes<S> = Arc<Mutex<SceneCache<S>>>;
+
+/// Loads `bundle` on a thread of its own (it builds a BVH: never on the
+/// async thread), a panicking loader reported as an error.
+fn load_in_background<R: Renderer>(
+    renderer: Arc<R>,
+    bundle: SceneBundle,
+) -> oneshot::Receiver<Result<(R::Scene, usize), String>> {
+    let (tx, rx) = oneshot::channel();
+    std::thread::spawn(move || {
+        let bytes = bundle.source.len() + bundle.assets.values().map(Vec::len).sum::<usize>();
+        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| renderer.load(bundle)));
+        let out = out.unwrap_or_else(|_| Err("scene loader panicked".into()));
+        let _ = tx.send(out.map(|scene| {
+            let footprint = renderer.footprint(&scene, bytes);
+            (scene, footprint)
+        }));
+    });
+    rx
 }
 
 /// Counters shared with the render jobs.
@@ -241,17 +335,18 @@ pub async fn run<R: Renderer>(
             .map_err(|e| JoinError::Scene(format!("cannot start render threads: {e}")))?,
     );
     let counters = Arc::new(SlaveCounters::default());
-    let mut cache: Option<SceneCache<R::Scene>> = None;
+    let cache: SharedScenes<R::Scene> = Arc::new(Mutex::new(SceneCache::new(opts.scene_cache_bytes)));
     let mut backoff = Duration::from_millis(100);
     let (mut failures, mut unresolved) = (0u32, 0u32);
     // Retrying is said once a minute, not at every attempt.
     let mut said: Option<std::time::Instant> = None;
     loop {
-        match join(transport.as_ref(), &ticket, &opts, &renderer, &mut cache).await {
+        match join(transport.as_ref(), &ticket, &opts, &renderer, &cache).await {
             Ok(session) => {
                 backoff = Duration::from_millis(100);
                 (failures, unresolved, said) = (0, 0, None);
-                let why = serve(session, renderer.clone(), pool.clone(), counters.clone(), &opts).await;
+                let why =
+                    serve(session, renderer.clone(), pool.clone(), counters.clone(), cache.clone(), &opts).await;
                 tracing::warn!("lost the master ({why}); reconnecting");
             }
             Err(e) if !e.is_retryable() => return Err(e),
@@ -290,24 +385,30 @@ pub const MAX_UNRESOLVED: u32 = 10;
 /// How often a slave that cannot join says it is still trying.
 pub const RETRY_REPORT: Duration = Duration::from_secs(60);
 
-/// An authenticated, scene-synced connection, ready for tiles.
-pub struct Session<S> {
+/// An authenticated connection with the master's default scene loaded,
+/// ready for tiles.
+pub struct Session {
     conn: isin_transport::Connection,
-    scene: Arc<S>,
     name: String,
     codec: Codec,
 }
 
-/// Connects, authenticates, and makes sure the master's scene is loaded.
+fn lock<S>(cache: &SharedScenes<S>) -> std::sync::MutexGuard<'_, SceneCache<S>> {
+    // A panic while holding it cannot leave the cache half-changed.
+    cache.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Connects, authenticates, and makes sure the master's default scene (if
+/// any) is loaded.
 pub async fn join<R: Renderer>(
     transport: &dyn Transport,
     ticket: &Ticket,
     opts: &SlaveOptions,
     renderer: &Arc<R>,
-    cache: &mut Option<SceneCache<R::Scene>>,
-) -> Result<Session<R::Scene>, JoinError> {
-    let cached = cache.as_ref().map(|c| c.hash);
-    let join = client::Join::slave(&opts.name, opts.threads as u32, cached, &opts.codecs);
+    cache: &SharedScenes<R::Scene>,
+) -> Result<Session, JoinError> {
+    let cached = lock(cache).hashes();
+    let join = client::Join::slave(&opts.name, opts.threads as u32, &cached, &opts.codecs);
     let (mut conn, welcome) = client::handshake(transport, ticket, join).await?;
     if welcome.codec != Codec::Raw && !opts.codecs.contains(&welcome.codec) {
         conn.sender.close();
@@ -320,7 +421,8 @@ pub async fn join<R: Renderer>(
     // and loading a large scene takes longer than that: say alive meanwhile.
     let heartbeats = tokio::spawn(heartbeat_until_dropped(conn.sender.clone(), opts.heartbeat_interval));
     let _stop_heartbeats = AbortOnDrop(heartbeats);
-    if cached != Some(welcome.scene.hash) {
+    let default = welcome.scene.as_ref().map(|s| s.hash);
+    if let Some(want) = default.filter(|h| lock(cache).get(h).is_none()) {
         let (hash, bundle) = loop {
             match client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120))
                 .await?
@@ -332,25 +434,16 @@ pub async fn join<R: Renderer>(
             }
         };
         let bundle: SceneBundle = bundle.into();
-        if protocol::scene_hash(&bundle) != hash {
+        if hash != want || protocol::scene_hash(&bundle) != hash {
             return Err(JoinError::Scene("scene bundle does not match its hash".into()));
         }
-        // Loading builds a BVH: keep it off the async thread. A panicking
-        // loader is reported, not propagated.
-        let (tx, rx) = oneshot::channel();
-        let r = renderer.clone();
-        std::thread::spawn(move || {
-            let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| r.load(bundle)));
-            let _ = tx.send(out.unwrap_or_else(|_| Err("scene loader panicked".into())));
-        });
-        let scene = rx
+        let (scene, bytes) = load_in_background(renderer.clone(), bundle)
             .await
             .map_err(|_| JoinError::Scene("scene loader vanished".into()))?
             .map_err(JoinError::Scene)?;
-        *cache = Some(SceneCache { hash, scene: Arc::new(scene) });
+        lock(cache).insert(hash, Arc::new(scene), bytes);
     }
-    let scene = cache.as_ref().map(|c| c.scene.clone()).ok_or(JoinError::Closed)?;
-    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash })?;
+    client::send_message(&conn, &Message::Ready { hash: default })?;
     tracing::info!(
         master = %ticket.addr,
         "joined master {} as {} (tiles in {})",
@@ -358,7 +451,7 @@ pub async fn join<R: Renderer>(
         welcome.name,
         welcome.codec
     );
-    Ok(Session { conn, scene, name: welcome.name, codec: welcome.codec })
+    Ok(Session { conn, name: welcome.name, codec: welcome.codec })
 }
 
 /// Sends a heartbeat every `interval` until the connection closes (or the
@@ -384,17 +477,19 @@ impl Drop for AbortOnDrop {
 
 /// Serves one session until the connection ends; returns why it ended.
 pub async fn serve<R: Renderer>(
-    session: Session<R::Scene>,
+    session: Session,
     renderer: Arc<R>,
     pool: Arc<rayon::ThreadPool>,
     counters: Arc<SlaveCounters>,
+    scenes: SharedScenes<R::Scene>,
     opts: &SlaveOptions,
 ) -> String {
     let (done_tx, done_rx) = oneshot::channel();
     let isin_transport::Connection { sender, mut receiver, .. } = session.conn;
     let actor = SlaveActor {
         sender,
-        scene: session.scene,
+        scenes,
+        parked: HashMap::new(),
         renderer,
         pool,
         latest: Arc::new(AtomicU64::new(0)),
@@ -420,7 +515,9 @@ pub async fn serve<R: Renderer>(
 /// The slave actor (see the [module docs](self)).
 pub struct SlaveActor<R: Renderer> {
     sender: FrameSender,
-    scene: Arc<R::Scene>,
+    scenes: SharedScenes<R::Scene>,
+    /// Assignments waiting for their scene (asked for once), by scene.
+    parked: HashMap<SceneHash, Vec<TileAssignment>>,
     renderer: Arc<R>,
     pool: Arc<rayon::ThreadPool>,
     latest: Arc<AtomicU64>,
@@ -443,7 +540,53 @@ impl<R: Renderer> SlaveActor<R> {
         ctx.stop();
     }
 
+    /// An assignment: rendered if its scene is here, else parked and the
+    /// scene asked for.
     fn assign(&mut self, a: TileAssignment) {
+        let held = lock(&self.scenes).get(&a.scene);
+        if let Some(scene) = held {
+            return self.render(a, scene);
+        }
+        let parked_tiles: usize = self.parked.values().flatten().map(|a| a.tiles.len()).sum();
+        if parked_tiles + a.tiles.len() > MAX_PARKED_TILES {
+            return tracing::error!("more than {MAX_PARKED_TILES} tiles wait for scenes; assignment dropped");
+        }
+        let waiting = self.parked.entry(a.scene).or_default();
+        if waiting.is_empty() {
+            tracing::info!("fetching a scene for frame {}", a.frame);
+            if let Ok(m) = protocol::encode(&Message::NeedScene { hash: a.scene }) {
+                let _ = self.sender.send(m);
+            }
+        }
+        waiting.push(a);
+    }
+
+    /// A scene arrived: loaded off the actor, then its parked tiles go.
+    fn scene_arrived(&mut self, hash: SceneHash, bundle: SceneBundle, ctx: &mut Context<Self>) {
+        if !self.parked.contains_key(&hash) {
+            return tracing::warn!("the master sent a scene no assignment waits for; ignored");
+        }
+        if protocol::scene_hash(&bundle) != hash {
+            return self.scene_failed(hash, "scene bundle does not match its hash".into());
+        }
+        let rx = load_in_background(self.renderer.clone(), bundle);
+        let me = ctx.address();
+        tokio::spawn(async move {
+            let result = rx.await.unwrap_or_else(|_| Err("scene loader vanished".into()));
+            me.do_send(SceneLoaded { hash, result });
+        });
+    }
+
+    fn scene_failed(&mut self, hash: SceneHash, reason: String) {
+        tracing::error!("cannot load a scene: {reason}");
+        self.parked.remove(&hash);
+        if let Ok(m) = protocol::encode(&Message::SceneFailed { hash, reason }) {
+            let _ = self.sender.send(m);
+        }
+    }
+
+    /// Queues an assignment's tiles on the pool.
+    fn render(&mut self, a: TileAssignment, scene: Arc<R::Scene>) {
         if a.frame > self.latest.load(Ordering::Acquire) {
             self.latest.store(a.frame, Ordering::Release);
             // Cancellations of tiles that were already rendered are never
@@ -465,7 +608,7 @@ impl<R: Renderer> SlaveActor<R> {
             }
             let (renderer, scene, sender, latest, cancelled, counters) = (
                 self.renderer.clone(),
-                self.scene.clone(),
+                scene.clone(),
                 self.sender.clone(),
                 self.latest.clone(),
                 self.cancelled.clone(),
@@ -555,6 +698,38 @@ impl<R: Renderer> Actor for SlaveActor<R> {
 #[rtype(result = "()")]
 struct Inbound(Result<Vec<u8>, TransportError>);
 
+/// Tiles that may wait for their scenes at once (far more than a master
+/// keeps in flight on one slave).
+const MAX_PARKED_TILES: usize = 65_536;
+
+/// A scene finished loading (or failed to).
+#[derive(Message)]
+#[rtype(result = "()")]
+struct SceneLoaded<S: Send + 'static> {
+    hash: SceneHash,
+    result: Result<(S, usize), String>,
+}
+
+impl<R: Renderer> Handler<SceneLoaded<R::Scene>> for SlaveActor<R> {
+    type Result = ();
+
+    fn handle(&mut self, msg: SceneLoaded<R::Scene>, _: &mut Self::Context) {
+        match msg.result {
+            Ok((scene, bytes)) => {
+                let scene = Arc::new(scene);
+                let evicted = lock(&self.scenes).insert(msg.hash, scene.clone(), bytes);
+                if !evicted.is_empty() {
+                    tracing::info!("{} scenes evicted from the cache", evicted.len());
+                }
+                for a in self.parked.remove(&msg.hash).unwrap_or_default() {
+                    self.render(a, scene.clone());
+                }
+            }
+            Err(reason) => self.scene_failed(msg.hash, reason),
+        }
+    }
+}
+
 impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
     type Result = ();
 
@@ -566,6 +741,7 @@ impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
         };
         match msg {
             Ok(Message::TileAssignment(a)) => self.assign(a),
+            Ok(Message::SceneSync { hash, bundle }) => self.scene_arrived(hash, bundle.into(), ctx),
             Ok(Message::Cancel { frame, tiles }) => {
                 if let Ok(mut c) = self.cancelled.lock() {
                     c.extend(tiles.into_iter().map(|t| (frame, t)));

@@ -4,9 +4,9 @@
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use isin_cluster::protocol::{self, FrameStats, Message, SceneInfo, SlaveEntry};
+use isin_cluster::protocol::{self, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, WireBundle};
 use isin_cluster::scheduler::Work;
-use isin_tracer::{Camera, Frame, RenderSettings, Tile};
+use isin_tracer::{Camera, Frame, RenderSettings, SceneBundle, Tile};
 use isin_transport::{ConnStats, FrameSender, Ticket, Transport, TransportError};
 use std::time::Duration;
 use tokio::sync::mpsc;
@@ -51,7 +51,15 @@ pub struct ViewerActor {
     next_request: u64,
     slaves: Option<Vec<SlaveEntry>>,
     slaves_version: u64,
+    /// The scene every request names (`None`: the master's default).
+    scene: Option<SceneHash>,
+    status: Option<Status>,
 }
+
+/// Asks for the cluster's status as the master last pushed it.
+#[derive(Message)]
+#[rtype(result = "Option<Status>")]
+pub struct GetClusterStatus;
 
 /// The master's slaves as it last told them (live ones and the latest dead
 /// ones), with a version that grows with every update.
@@ -94,6 +102,8 @@ pub struct QueueFrame {
     pub camera: Camera,
     /// Resolution, samples and so on.
     pub settings: RenderSettings,
+    /// Its index in the client's job, if the client submitted one.
+    pub job_frame: Option<u32>,
 }
 
 /// Asks for a frame under the caller's own request number (e.g. a window's
@@ -139,12 +149,12 @@ impl Actor for ViewerActor {
 }
 
 impl ViewerActor {
-    fn request(&mut self, request: u64, camera: Camera, settings: RenderSettings, queue: bool) {
+    fn request(&mut self, request: u64, camera: Camera, settings: RenderSettings, queue: Option<Option<u32>>) {
         self.next_request = self.next_request.max(request);
-        let m = if queue {
-            Message::QueueFrame { request, camera, settings }
-        } else {
-            Message::FrameRequest { request, camera, settings }
+        let scene = self.scene;
+        let m = match queue {
+            Some(job_frame) => Message::QueueFrame { request, scene, camera, settings, job_frame },
+            None => Message::FrameRequest { request, scene, camera, settings },
         };
         match protocol::encode(&m) {
             Ok(bytes) => {
@@ -162,7 +172,7 @@ impl Handler<RequestFrame> for ViewerActor {
 
     fn handle(&mut self, msg: RequestFrame, _: &mut Self::Context) -> u64 {
         let request = self.next_request + 1;
-        self.request(request, msg.camera, msg.settings, false);
+        self.request(request, msg.camera, msg.settings, None);
         request
     }
 }
@@ -172,7 +182,7 @@ impl Handler<QueueFrame> for ViewerActor {
 
     fn handle(&mut self, msg: QueueFrame, _: &mut Self::Context) -> u64 {
         let request = self.next_request + 1;
-        self.request(request, msg.camera, msg.settings, true);
+        self.request(request, msg.camera, msg.settings, Some(msg.job_frame));
         request
     }
 }
@@ -181,7 +191,7 @@ impl Handler<RequestFrameAs> for ViewerActor {
     type Result = ();
 
     fn handle(&mut self, msg: RequestFrameAs, _: &mut Self::Context) {
-        self.request(msg.request, msg.camera, msg.settings, false);
+        self.request(msg.request, msg.camera, msg.settings, None);
     }
 }
 
@@ -199,6 +209,14 @@ impl Handler<GetWireStats> for ViewerActor {
 
     fn handle(&mut self, _: GetWireStats, _: &mut Self::Context) -> Self::Result {
         MessageResult(self.sender.stats())
+    }
+}
+
+impl Handler<GetClusterStatus> for ViewerActor {
+    type Result = MessageResult<GetClusterStatus>;
+
+    fn handle(&mut self, _: GetClusterStatus, _: &mut Self::Context) -> Self::Result {
+        MessageResult(self.status.clone())
     }
 }
 
@@ -240,6 +258,10 @@ impl Handler<Inbound> for ViewerActor {
             Ok(Message::Error { message }) => Some(ViewerEvent::Error(message)),
             Ok(Message::Notice { message }) => Some(ViewerEvent::Notice(message)),
             Ok(Message::Reject { reason }) => Some(ViewerEvent::Closed(format!("master refused: {reason}"))),
+            Ok(Message::Status(status)) => {
+                self.status = Some(status);
+                None
+            }
             Ok(Message::Heartbeat) => None,
             Ok(other) => Some(ViewerEvent::Error(format!("unexpected {} from the master", other.kind()))),
             Err(e) => {
@@ -255,12 +277,13 @@ impl Handler<Inbound> for ViewerActor {
 }
 
 /// Connects a viewer actor to the master of `ticket`. Must run inside an actix
-/// system. Returns the actor, the scene the master serves and the event stream.
+/// system. Returns the actor, the master's default scene (if it has one) and
+/// the event stream.
 pub async fn connect(
     transport: &dyn Transport,
     ticket: &Ticket,
     name: &str,
-) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
+) -> Result<(Addr<ViewerActor>, Option<SceneInfo>, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
     connect_as(transport, ticket, name, Work::Interactive).await
 }
 
@@ -272,11 +295,107 @@ pub async fn connect_as(
     ticket: &Ticket,
     name: &str,
     work: Work,
-) -> Result<(Addr<ViewerActor>, SceneInfo, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
-    let (conn, welcome) = client::handshake(transport, ticket, client::Join::viewer(name, work)).await?;
+) -> Result<(Addr<ViewerActor>, Option<SceneInfo>, mpsc::UnboundedReceiver<ViewerEvent>), JoinError> {
+    let c = connect_with(transport, ticket, Setup { name, work, scene: None, job: None }).await?;
+    Ok((c.addr, c.default_scene, c.events))
+}
+
+/// What a client brings when it connects ([`connect_with`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Setup<'a> {
+    /// Name for the master's logs and status.
+    pub name: &'a str,
+    /// Interactive or batch.
+    pub work: Work,
+    /// Its own scene (uploaded unless the master holds it); `None`: the
+    /// master's default.
+    pub scene: Option<&'a SceneBundle>,
+    /// Its batch job, if its frames are one.
+    pub job: Option<&'a JobSpec>,
+}
+
+/// A connected client ([`connect_with`]).
+pub struct Connected {
+    /// The viewer actor: every frame it requests is of the client's scene.
+    pub addr: Addr<ViewerActor>,
+    /// The master's default scene, if it has one.
+    pub default_scene: Option<SceneInfo>,
+    /// The frames of the job done before (by an earlier run of it).
+    pub done: Vec<u32>,
+    /// The event stream.
+    pub events: mpsc::UnboundedReceiver<ViewerEvent>,
+}
+
+/// How long the master may take to answer a scene upload or a job: a
+/// large scene over a slow link.
+pub const SETUP_TIMEOUT: Duration = Duration::from_secs(600);
+
+/// Waits for the answer `pick` takes, skipping what a master says meanwhile.
+async fn answer<T>(
+    conn: &mut isin_transport::Connection,
+    mut pick: impl FnMut(Message) -> Option<Result<T, JoinError>>,
+) -> Result<T, JoinError> {
+    loop {
+        match client::recv_message(conn, protocol::DEFAULT_MAX_FRAME, SETUP_TIMEOUT).await? {
+            Message::Error { message } => return Err(JoinError::Rejected(message)),
+            Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
+            m => {
+                if let Some(out) = pick(m) {
+                    return out;
+                }
+            }
+        }
+    }
+}
+
+/// Connects a client: the handshake, then its scene (sent only if the
+/// master does not hold it) and its job. Must run inside an actix system.
+pub async fn connect_with(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    setup: Setup<'_>,
+) -> Result<Connected, JoinError> {
+    let (mut conn, welcome) =
+        client::handshake(transport, ticket, client::Join::viewer(setup.name, setup.work)).await?;
+    let scene = match setup.scene {
+        None => None,
+        Some(bundle) => {
+            let mut bundle = bundle.clone();
+            bundle.name = protocol::served_name(&bundle.name).to_string();
+            let hash = protocol::scene_hash(&bundle);
+            let frame = protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) })?;
+            client::send_message(&conn, &Message::SceneUpload { hash, bytes: frame.len() as u64 })?;
+            let mut frame = Some(frame);
+            let sender = conn.sender.clone();
+            answer(&mut conn, |m| match m {
+                Message::SceneStored { hash: h } if h == hash => Some(Ok(())),
+                Message::SceneWanted { hash: h } if h == hash => {
+                    tracing::info!("sending scene {} to the master", bundle.name);
+                    let sent = frame.take().map(|f| sender.send(f));
+                    sent.and_then(|r| r.err()).map(|e| Err(e.into()))
+                }
+                _ => None,
+            })
+            .await?;
+            Some(hash)
+        }
+    };
+    let done = match setup.job {
+        None => Vec::new(),
+        Some(job) => {
+            client::send_message(&conn, &Message::SubmitJob(job.clone()))?;
+            answer(&mut conn, |m| match m {
+                Message::JobAccepted { key, done } if key == job.key => Some(Ok(done)),
+                _ => None,
+            })
+            .await?
+        }
+    };
     let (sink, events) = mpsc::unbounded_channel();
     let isin_transport::Connection { sender, mut receiver, .. } = conn;
-    let addr = ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0 }.start();
+    let actor =
+        ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0, scene, status: None };
+    let addr = actor.start();
     let target = addr.clone();
     tokio::spawn(async move {
         while let Some(frame) = receiver.recv().await {
@@ -284,7 +403,7 @@ pub async fn connect_as(
         }
         target.do_send(Inbound(Err(TransportError::Closed)));
     });
-    Ok((addr, welcome.scene, events))
+    Ok(Connected { addr, default_scene: welcome.scene, done, events })
 }
 
 /// Why a cluster frame failed.
@@ -293,9 +412,12 @@ pub enum ViewerError {
     /// Could not join.
     #[error(transparent)]
     Join(#[from] JoinError),
-    /// The master answered with an error or went away.
+    /// The master answered with an error.
     #[error("{0}")]
     Master(String),
+    /// The connection to the master was lost (worth reconnecting).
+    #[error("lost the master: {0}")]
+    Lost(String),
     /// The viewer actor is gone.
     #[error("viewer actor stopped")]
     Mailbox,
@@ -330,10 +452,11 @@ pub async fn collect_frame(
             }
             ViewerEvent::Tile { .. } | ViewerEvent::FrameDone { .. } => {}
             ViewerEvent::Notice(m) => tracing::warn!("master: {m}"),
-            ViewerEvent::Error(e) | ViewerEvent::Closed(e) => return Err(ViewerError::Master(e)),
+            ViewerEvent::Error(e) => return Err(ViewerError::Master(e)),
+            ViewerEvent::Closed(e) => return Err(ViewerError::Lost(e)),
         }
     }
-    Err(ViewerError::Master("connection closed".into()))
+    Err(ViewerError::Lost("connection closed".into()))
 }
 
 /// Renders one frame per camera of `cameras` through `viewer`, keeping up to
@@ -341,10 +464,14 @@ pub async fn collect_frame(
 /// from one frame straight into the next, and hands each to `done` (with its
 /// index in `cameras`) as it completes — in the order they complete. Stops at
 /// the first error, `done`'s included.
+///
+/// With `job_frames`, camera `i` is frame `job_frames[i]` of the client's job
+/// (the master records it done).
 pub async fn collect_frames<E: std::fmt::Display>(
     viewer: &Addr<ViewerActor>,
     events: &mut mpsc::UnboundedReceiver<ViewerEvent>,
     cameras: &[Camera],
+    job_frames: Option<&[u32]>,
     settings: RenderSettings,
     depth: usize,
     mut done: impl FnMut(usize, Frame, FrameStats) -> Result<(), E>,
@@ -355,13 +482,14 @@ pub async fn collect_frames<E: std::fmt::Display>(
     let all = settings.width as usize * settings.height as usize;
     while next < cameras.len() || !open.is_empty() {
         while next < cameras.len() && open.len() < depth.max(1) {
-            let queue = QueueFrame { camera: cameras[next], settings };
+            let job_frame = job_frames.and_then(|j| j.get(next).copied());
+            let queue = QueueFrame { camera: cameras[next], settings, job_frame };
             let request = viewer.send(queue).await.map_err(|_| ViewerError::Mailbox)?;
             open.insert(request, (next, Frame::new(settings.width, settings.height), 0));
             next += 1;
         }
         let Some(ev) = events.recv().await else {
-            return Err(ViewerError::Master("connection closed".into()));
+            return Err(ViewerError::Lost("connection closed".into()));
         };
         match ev {
             ViewerEvent::Tile { request, tile, pixels, .. } => {
@@ -382,7 +510,8 @@ pub async fn collect_frames<E: std::fmt::Display>(
                 done(index, frame, stats).map_err(|e| ViewerError::Master(e.to_string()))?;
             }
             ViewerEvent::Notice(m) => tracing::warn!("master: {m}"),
-            ViewerEvent::Error(e) | ViewerEvent::Closed(e) => return Err(ViewerError::Master(e)),
+            ViewerEvent::Error(e) => return Err(ViewerError::Master(e)),
+            ViewerEvent::Closed(e) => return Err(ViewerError::Lost(e)),
         }
     }
     Ok(())

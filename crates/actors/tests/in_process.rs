@@ -86,7 +86,7 @@ async fn frames_through_two_slaves_are_exact_and_scene_is_sent_once_each() {
     wait_slaves(&master, 2).await;
 
     let (v, scene, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
-    assert_eq!(scene.name, "fake.toml");
+    assert_eq!(scene.unwrap().name, "fake.toml");
     for round in 0..3 {
         let mut cam = Camera::default();
         cam.eye.z += round as f32;
@@ -118,7 +118,7 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
     // A hand-driven slave that lies about a tile's size.
     // It offers no codec, as a build without compression would: raw it is.
     let (mut conn, welcome) =
-        client::handshake(&t, &ticket, client::Join::slave("liar", 1, None, &[])).await.unwrap();
+        client::handshake(&t, &ticket, client::Join::slave("liar", 1, &[], &[])).await.unwrap();
     assert_eq!(welcome.codec, Codec::Raw);
     let max = protocol::DEFAULT_MAX_FRAME;
     loop {
@@ -128,7 +128,7 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
             other => panic!("unexpected {}", other.kind()),
         }
     }
-    client::send_message(&conn, &Message::Ready { hash: welcome.scene.hash }).unwrap();
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.map(|s| s.hash) }).unwrap();
     wait_slaves(&master, 1).await;
     let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();
     let req = v.send(viewer::RequestFrame { camera: Camera::default(), settings: settings(64, 64) });
@@ -300,7 +300,7 @@ async fn queued_frames_are_pipelined_and_each_comes_back_exact_in_order() {
     // frame k's are still queued on them, and must render both.
     let mut requests = Vec::new();
     for &camera in &cams {
-        requests.push(v.send(viewer::QueueFrame { camera, settings: settings(w, h) }).await.unwrap());
+        requests.push(v.send(viewer::QueueFrame { camera, settings: settings(w, h), job_frame: None }).await.unwrap());
     }
     let mut frames: BTreeMap<u64, Vec<u8>> =
         requests.iter().map(|&r| (r, vec![0; (w * h * 3) as usize])).collect();

@@ -37,7 +37,7 @@ async fn fake_slave(
     threads: u32,
 ) -> isin_transport::Connection {
     let (mut conn, _) =
-        client::handshake(t, ticket, client::Join::slave(name, threads, None, &[Codec::Raw])).await.unwrap();
+        client::handshake(t, ticket, client::Join::slave(name, threads, &[], &[Codec::Raw])).await.unwrap();
     let hash = loop {
         match client::recv_message(&mut conn, 1 << 20, Duration::from_secs(10)).await.unwrap() {
             Message::SceneSync { hash, .. } => break hash,
@@ -45,7 +45,7 @@ async fn fake_slave(
             other => panic!("unexpected {}", other.kind()),
         }
     };
-    client::send_message(&conn, &Message::Ready { hash }).unwrap();
+    client::send_message(&conn, &Message::Ready { hash: Some(hash) }).unwrap();
     conn
 }
 

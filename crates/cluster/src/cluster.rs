@@ -28,9 +28,25 @@
 //!   by fair share of pixel-samples (the scheduler's docs say how), so two
 //!   people flying through the scene each keep half the cluster. A viewer
 //!   that leaves takes its frames.
+//! - **Which scene a frame is of.** The master may serve a default scene;
+//!   a client may upload its own ([`Message::SceneUpload`], then
+//!   [`Message::Scene`]), and every frame names its scene. Scenes are held by
+//!   content hash within [`Budgets::scene_bytes`] (least recently used idle
+//!   scenes evicted first; none of an open frame). A slave receives the
+//!   default scene at join and any other the first time it is handed a tile
+//!   of it and asks ([`Message::NeedScene`]); slaves keep scenes by hash, so
+//!   switching back costs nothing. A frame's scene is part of its identity:
+//!   its tiles are the bytes of a local render of that scene.
+//! - **Batch jobs.** A client may declare that its frames are a job
+//!   ([`Message::SubmitJob`]); the master records each frame of it that
+//!   completes ([`Transmit::Store`], written by the driver before the frame's
+//!   `FrameDone` goes out) so that a restarted master tells the returning
+//!   client which frames are done ([`Message::JobAccepted`]).
 //! - **What viewers hear**: tiles as they arrive (in a codec they decode),
-//!   `FrameDone`, the slave list whenever it changes, and once, a `Notice`
-//!   when their frames wait because no slave is connected.
+//!   `FrameDone`, the slave list whenever it changes, once a `Notice` when
+//!   their frames wait because no slave is connected, and the cluster's
+//!   [`Status`] whenever a slave joins or dies and every second while frames
+//!   are open.
 //!
 //! # What it trusts
 //!
@@ -71,24 +87,31 @@
 //! above 16 KiB (handshake, viewers) or one tile's bytes (slaves, ~20 KiB for
 //! 32-pixel tiles).
 
+mod jobs;
 mod roster;
+mod scenes;
 #[cfg(test)]
 mod tests;
 
+pub use jobs::JobRecord;
 pub use roster::DEAD_SLAVES_LISTED;
+pub use scenes::StoreError;
 
 use crate::auth::{self, Nonces};
 use crate::codec::{self, Codec, Compression};
 use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
-    self, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Hello, Message, ProtocolError, Role,
-    SceneInfo, TileAssignment, TileResult, Welcome, WireBundle,
+    self, ClientStatus, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Hello, JobSpec,
+    MAX_JOB_FRAMES, Message, ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status,
+    TileAssignment, TileResult, Welcome, WireBundle,
 };
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
 };
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use jobs::Jobs;
 use roster::Roster;
+use scenes::Scenes;
 use serde_bytes::ByteBuf;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
@@ -145,6 +168,29 @@ pub enum Transmit {
         /// Why, for logs.
         reason: String,
     },
+    /// Keep this on disk, if the master has a state directory, before doing
+    /// what follows it (the core acknowledges nothing stored until then).
+    Store(Stored),
+}
+
+/// What the master keeps across restarts ([`Transmit::Store`]); read back
+/// with [`Cluster::restore_scene`] and [`Cluster::restore_job`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum Stored {
+    /// A scene a client uploaded, as its encoded `SceneSync`.
+    Scene {
+        /// Its hash (a file name for it).
+        hash: SceneHash,
+        /// The encoded `SceneSync`.
+        sync: Arc<Vec<u8>>,
+    },
+    /// A scene no longer held.
+    ForgetScene {
+        /// Its hash.
+        hash: SceneHash,
+    },
+    /// A batch job, as it stands now.
+    Job(JobRecord),
 }
 
 impl Transmit {
@@ -155,8 +201,20 @@ impl Transmit {
             | Transmit::SendEncoded { peer, .. }
             | Transmit::Limit { peer, .. }
             | Transmit::Close { peer, .. } => *peer,
+            Transmit::Store(_) => PeerId::MAX,
         }
     }
+}
+
+/// The scene a master serves to clients that name none.
+#[derive(Clone, Debug)]
+pub struct DefaultScene {
+    /// The scene. Only its file name goes to peers.
+    pub bundle: SceneBundle,
+    /// The scene's own camera (offered to viewers).
+    pub camera: Camera,
+    /// The scene's own settings (offered to viewers).
+    pub settings: RenderSettings,
 }
 
 /// How the master runs.
@@ -164,12 +222,8 @@ impl Transmit {
 pub struct ClusterConfig {
     /// The shared secret peers must prove.
     pub token: String,
-    /// The scene to serve. Only its file name goes to peers.
-    pub scene: SceneBundle,
-    /// The scene's own camera (offered to viewers).
-    pub camera: Camera,
-    /// The scene's own settings (offered to viewers).
-    pub settings: RenderSettings,
+    /// The scene served to clients that name none, if any.
+    pub scene: Option<DefaultScene>,
     /// Scheduling knobs; its heartbeat timeout is every logged-in peer's.
     pub scheduler: SchedulerConfig,
     /// How often the master tells peers it is alive.
@@ -188,19 +242,11 @@ pub struct ClusterConfig {
 }
 
 impl ClusterConfig {
-    /// Defaults around a scene, a token and a nonce seed.
-    pub fn new(
-        token: String,
-        scene: SceneBundle,
-        camera: Camera,
-        settings: RenderSettings,
-        seed: [u8; 32],
-    ) -> Self {
+    /// Defaults around a token, a default scene (or none) and a nonce seed.
+    pub fn new(token: String, scene: Option<DefaultScene>, seed: [u8; 32]) -> Self {
         Self {
             token,
             scene,
-            camera,
-            settings,
             scheduler: SchedulerConfig::default(),
             heartbeat_interval: Duration::from_millis(500),
             handshake_timeout: Duration::from_secs(10),
@@ -231,6 +277,8 @@ pub struct ClusterStatus {
     pub foreign_results: u64,
     /// Last completed frame's stats.
     pub last_frame: Option<FrameStats>,
+    /// Scenes sent to slaves (at join or when they asked).
+    pub scene_sends: u64,
 }
 
 #[derive(Debug)]
@@ -241,9 +289,25 @@ enum PeerState {
     Syncing { threads: u32, since: Duration },
     /// A slave in the scheduler.
     Slave,
-    /// A viewer (a client of its own), with its kind of work, its open
-    /// frames, and whether it was told that they wait for slaves.
-    Viewer { work: Work, frames: BTreeSet<FrameId>, told_waiting: bool },
+    /// A viewer (a client of its own).
+    Viewer(Client),
+}
+
+/// A client's state.
+#[derive(Debug, Default)]
+struct Client {
+    /// Its kind of work.
+    work: Work,
+    /// Its open frames.
+    frames: BTreeSet<FrameId>,
+    /// Whether it was told that its frames wait for slaves.
+    told_waiting: bool,
+    /// A scene it announced and may now send, with its announced size.
+    upload: Option<(SceneHash, usize)>,
+    /// The job its frames belong to.
+    job: Option<SceneHash>,
+    /// Frames completed for it.
+    frames_done: u64,
 }
 
 #[derive(Debug)]
@@ -264,11 +328,15 @@ struct Peer {
     decodes: Vec<Codec>,
     /// Results it sent for tiles it was never handed.
     foreign: u32,
+    /// Scenes sent to it (slaves).
+    scene_sends: u32,
 }
 
 /// A frame the master has open, as its viewer asked for it.
 #[derive(Debug)]
 struct FrameSpec {
+    scene: SceneHash,
+    job_frame: Option<u32>,
     camera: Camera,
     settings: RenderSettings,
     viewer: PeerId,
@@ -281,8 +349,9 @@ struct FrameSpec {
 #[derive(Debug)]
 pub struct Cluster {
     token: String,
-    scene: SceneInfo,
-    scene_sync: Arc<Vec<u8>>,
+    scene: Option<SceneInfo>,
+    scenes: Scenes,
+    jobs: Jobs,
     heartbeat_interval: Duration,
     handshake_timeout: Duration,
     sync_timeout: Duration,
@@ -307,23 +376,39 @@ pub struct Cluster {
     status: ClusterStatus,
     /// Where tiles are decoded to be checked (reused: no allocation per tile).
     scratch: Vec<u8>,
+    /// When the status was last pushed, and each slave's tiles then (for
+    /// its rate).
+    last_status: Duration,
+    tiles_then: BTreeMap<PeerId, (u64, f32)>,
 }
+
+/// How often viewers are sent the [`Status`] while frames are open.
+pub const STATUS_INTERVAL: Duration = Duration::from_secs(1);
 
 impl Cluster {
     /// A master for `cfg`; fails only if the scene cannot be encoded.
     pub fn new(cfg: ClusterConfig) -> Result<Self, ProtocolError> {
-        let mut bundle = cfg.scene;
-        bundle.name = protocol::served_name(&bundle.name).to_string();
-        let hash = protocol::scene_hash(&bundle);
-        let scene_sync =
-            Arc::new(protocol::encode(&Message::SceneSync { hash, bundle: WireBundle::from(&bundle) })?);
-        let scene = SceneInfo { name: bundle.name, hash, camera: cfg.camera, settings: cfg.settings };
+        let mut scenes = Scenes::new(cfg.budgets.scene_bytes);
+        let scene = match cfg.scene {
+            None => None,
+            Some(DefaultScene { mut bundle, camera, settings }) => {
+                bundle.name = protocol::served_name(&bundle.name).to_string();
+                let hash = match scenes.insert(&bundle, true) {
+                    Ok((hash, _)) => hash,
+                    Err(StoreError::Encode(e)) => return Err(e),
+                    Err(e) => return Err(ProtocolError::Encode(e.to_string())),
+                };
+                Some(SceneInfo { name: bundle.name, hash, camera, settings })
+            }
+        };
+        let jobs = Jobs::new(cfg.budgets.max_jobs);
         let sched = Scheduler::new(cfg.scheduler);
         let slave_max_frame = limits::slave_max_frame(sched.config().tile_size);
         Ok(Self {
             token: cfg.token,
             scene,
-            scene_sync,
+            scenes,
+            jobs,
             heartbeat_interval: cfg.heartbeat_interval,
             handshake_timeout: cfg.handshake_timeout,
             sync_timeout: cfg.sync_timeout,
@@ -343,14 +428,28 @@ impl Cluster {
             bytes_at_last_done: 0,
             status: ClusterStatus::default(),
             scratch: Vec::new(),
+            last_status: Duration::ZERO,
+            tiles_then: BTreeMap::new(),
         })
+    }
+
+    /// Holds a scene read back from a state directory (an encoded
+    /// `SceneSync`, as [`Stored::Scene`] gave it); its hash is checked.
+    pub fn restore_scene(&mut self, sync: Vec<u8>) -> Result<SceneHash, String> {
+        self.scenes.insert_sync(sync)
+    }
+
+    /// Knows a job read back from a state directory: its client resumes it
+    /// by submitting it again.
+    pub fn restore_job(&mut self, now: Duration, record: JobRecord) {
+        self.jobs.restore(now, record);
     }
 
     // ---- getters -------------------------------------------------------
 
-    /// The scene being served, as peers are told of it.
-    pub fn scene(&self) -> &SceneInfo {
-        &self.scene
+    /// The default scene, as peers are told of it.
+    pub fn scene(&self) -> Option<&SceneInfo> {
+        self.scene.as_ref()
     }
 
     /// The budgets in force.
@@ -374,7 +473,13 @@ impl Cluster {
             PeerState::Slave => Duration::MAX,
         });
         let heartbeat = (!self.peers.is_empty()).then(|| self.last_heartbeat + self.heartbeat_interval);
-        peers.chain(heartbeat).chain(self.sched.poll_timeout()).filter(|&t| t != Duration::MAX).min()
+        let status = (!self.frames.is_empty()).then(|| self.last_status + STATUS_INTERVAL);
+        peers
+            .chain(heartbeat)
+            .chain(status)
+            .chain(self.sched.poll_timeout())
+            .filter(|&t| t != Duration::MAX)
+            .min()
     }
 
     /// The next thing for the driver to do, if any.
@@ -423,6 +528,7 @@ impl Cluster {
                 codec: Codec::Raw,
                 decodes: Vec::new(),
                 foreign: 0,
+                scene_sends: 0,
             },
         );
         self.handshaking += 1;
@@ -494,6 +600,9 @@ impl Cluster {
                 self.send(id, Message::Heartbeat);
             }
         }
+        if !self.frames.is_empty() && now >= self.last_status + STATUS_INTERVAL {
+            self.push_status(now);
+        }
         self.drain(now);
     }
 
@@ -514,7 +623,7 @@ impl Cluster {
                 self.refuse(now, peer, format!("expected Hello, got {}", other.kind()));
             }
             (PeerState::Syncing { threads, .. }, Message::Ready { hash }) => {
-                if hash != self.scene.hash {
+                if hash != self.scenes.default_hash() {
                     return self.refuse(now, peer, "slave loaded a different scene".into());
                 }
                 let threads = *threads;
@@ -524,20 +633,36 @@ impl Cluster {
                 self.roster.join(peer, &name, &addr, threads);
                 self.send_roster();
                 for p in self.peers.values_mut() {
-                    if let PeerState::Viewer { told_waiting, .. } = &mut p.state {
-                        *told_waiting = false;
+                    if let PeerState::Viewer(c) = &mut p.state {
+                        c.told_waiting = false;
                     }
                 }
                 self.sched.handle_join(now, peer, name, threads);
+                self.push_status(now);
                 self.drain(now);
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r),
-            (_, Message::Heartbeat) => {}
-            (PeerState::Viewer { .. }, Message::FrameRequest { request, camera, settings }) => {
-                self.request_frame(now, peer, request, camera, settings, false);
+            (PeerState::Slave, Message::NeedScene { hash }) => self.send_scene(now, peer, hash),
+            (PeerState::Slave, Message::SceneFailed { hash, reason }) => {
+                self.on_scene_failed(now, peer, hash, reason)
             }
-            (PeerState::Viewer { .. }, Message::QueueFrame { request, camera, settings }) => {
-                self.request_frame(now, peer, request, camera, settings, true);
+            (_, Message::Heartbeat) => {}
+            (PeerState::Viewer(_), Message::FrameRequest { request, scene, camera, settings }) => {
+                let order = Request { request, scene, camera, settings, queue: false, job_frame: None };
+                self.request_frame(now, peer, order);
+            }
+            (PeerState::Viewer(_), Message::QueueFrame { request, scene, camera, settings, job_frame }) => {
+                let order = Request { request, scene, camera, settings, queue: true, job_frame };
+                self.request_frame(now, peer, order);
+            }
+            (PeerState::Viewer(_), Message::SceneUpload { hash, bytes }) => {
+                self.on_scene_upload(peer, hash, bytes)
+            }
+            (PeerState::Viewer(_), Message::Scene { bundle }) => self.on_scene(now, peer, bundle),
+            (PeerState::Viewer(_), Message::SubmitJob(spec)) => self.on_submit_job(now, peer, spec),
+            (PeerState::Viewer(_), Message::StatusRequest) => {
+                let status = self.report(now);
+                self.send(peer, Message::Status(status));
             }
             (_, Message::Error { message }) => {
                 let message: String = message.chars().take(200).collect();
@@ -561,12 +686,212 @@ impl Cluster {
         let viewers: Vec<PeerId> = self
             .peers
             .iter()
-            .filter(|(_, p)| matches!(p.state, PeerState::Viewer { .. }))
+            .filter(|(_, p)| matches!(p.state, PeerState::Viewer(_)))
             .map(|(&id, _)| id)
             .collect();
         for id in viewers {
             self.send(id, list.clone());
         }
+    }
+
+    /// The cluster as [`Message::Status`] tells it (each slave's rate is
+    /// measured since the previous report).
+    fn report(&mut self, now: Duration) -> Status {
+        let elapsed = now.saturating_sub(self.last_status).as_secs_f32();
+        let mut rates = BTreeMap::new();
+        let slaves = self
+            .sched
+            .slaves()
+            .into_iter()
+            .map(|s| {
+                let (then, rate) = self.tiles_then.get(&s.id).copied().unwrap_or((s.tiles_done, 0.0));
+                let rate = if elapsed >= 0.5 { (s.tiles_done - then) as f32 / elapsed } else { rate };
+                rates.insert(s.id, (if elapsed >= 0.5 { s.tiles_done } else { then }, rate));
+                let last = self.peers.get(&s.id).map_or(now, |p| p.last_heard);
+                SlaveStatus {
+                    id: s.id,
+                    name: roster::cut(&s.name),
+                    threads: s.threads,
+                    tiles_per_second: rate,
+                    last_seen_ms: now.saturating_sub(last).as_millis() as u64,
+                }
+            })
+            .collect();
+        if elapsed >= 0.5 {
+            self.last_status = now;
+        }
+        self.tiles_then = rates;
+        let clients = self
+            .peers
+            .iter()
+            .filter_map(|(&id, p)| match &p.state {
+                PeerState::Viewer(c) => Some(ClientStatus {
+                    id,
+                    name: roster::cut(&p.name),
+                    work: c.work,
+                    open_frames: c.frames.len() as u32,
+                    frames_done: c.frames_done,
+                }),
+                _ => None,
+            })
+            .collect();
+        let jobs = self.jobs.by_key.values().map(|j| j.status()).collect();
+        Status { slaves, clients, jobs, scenes: self.scenes.len() as u32 }
+    }
+
+    /// Pushes the status to every interactive viewer.
+    fn push_status(&mut self, now: Duration) {
+        let status = self.report(now);
+        self.last_status = now;
+        let viewers: Vec<PeerId> = self
+            .peers
+            .iter()
+            .filter(|(_, p)| matches!(&p.state, PeerState::Viewer(c) if c.work == Work::Interactive))
+            .map(|(&id, _)| id)
+            .collect();
+        for id in viewers {
+            self.send(id, Message::Status(status.clone()));
+        }
+    }
+
+    /// A slave asked for a scene: sent if held, within its budget of sends.
+    fn send_scene(&mut self, now: Duration, slave: PeerId, hash: SceneHash) {
+        let Some(sync) = self.scenes.sync(&hash) else {
+            // Its frames are gone (a held scene is never evicted while used).
+            return tracing::debug!(slave, "a slave asked for a scene no longer held");
+        };
+        let Some(p) = self.peers.get_mut(&slave) else { return };
+        p.scene_sends += 1;
+        if p.scene_sends > self.budgets.scene_sends {
+            let n = p.scene_sends;
+            return self.refuse(now, slave, format!("asked for scenes {n} times"));
+        }
+        tracing::info!(slave = %p.name, "sending scene {} to {}", self.scenes.name(&hash).unwrap_or("?"), p.name);
+        self.status.scene_sends += 1;
+        self.out.push_back(Transmit::SendEncoded { peer: slave, frame: sync });
+    }
+
+    /// A slave could not load a scene: every open frame of it fails, and
+    /// the scene is forgotten (a client may upload it again).
+    fn on_scene_failed(&mut self, now: Duration, slave: PeerId, hash: SceneHash, reason: String) {
+        let reason: String = reason.chars().take(300).collect();
+        let slave_name = self.peers.get(&slave).map(|p| p.name.clone()).unwrap_or_default();
+        let scene = self.scenes.name(&hash).unwrap_or("?").to_string();
+        tracing::warn!(slave = %slave_name, "{slave_name} cannot load scene {scene}: {reason}");
+        if Some(hash) == self.scenes.default_hash() {
+            return self.refuse(now, slave, format!("cannot load the default scene: {reason}"));
+        }
+        let failed: Vec<FrameId> =
+            self.frames.iter().filter(|(_, f)| f.scene == hash).map(|(&id, _)| id).collect();
+        let mut told = BTreeSet::new();
+        for frame in failed {
+            self.sched.abandon(frame);
+            if let Some(spec) = self.close_frame(frame)
+                && told.insert(spec.viewer)
+            {
+                let message = format!("scene {scene} could not be loaded by slave {slave_name}: {reason}");
+                self.send(spec.viewer, Message::Error { message });
+            }
+        }
+        if self.scenes.remove(&hash) {
+            self.out.push_back(Transmit::Store(Stored::ForgetScene { hash }));
+        }
+        self.drain(now);
+    }
+
+    /// A client announced a scene: stored already, or it may send it now.
+    fn on_scene_upload(&mut self, peer: PeerId, hash: SceneHash, bytes: u64) {
+        let max = self.budgets.scene_upload_bytes;
+        if self.scenes.contains(&hash) {
+            return self.send(peer, Message::SceneStored { hash });
+        }
+        if bytes > max as u64 {
+            let message = format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes");
+            return self.send(peer, Message::Error { message });
+        }
+        let Some(p) = self.peers.get_mut(&peer) else { return };
+        let PeerState::Viewer(c) = &mut p.state else { return };
+        c.upload = Some((hash, bytes as usize));
+        p.max_frame = (bytes as usize).max(VIEWER_MAX_FRAME);
+        // Only the announced frame may be this large: the limit drops back
+        // once it is in.
+        self.out.push_back(Transmit::Limit { peer, max_frame: bytes.max(VIEWER_MAX_FRAME as u64) as usize });
+        self.send(peer, Message::SceneWanted { hash });
+    }
+
+    /// A client's scene arrived: checked against what it announced, held.
+    fn on_scene(&mut self, now: Duration, peer: PeerId, bundle: WireBundle) {
+        let Some(p) = self.peers.get_mut(&peer) else { return };
+        let PeerState::Viewer(c) = &mut p.state else { return };
+        let Some((announced, _)) = c.upload.take() else {
+            return self.refuse(now, peer, "sent a scene it had not announced".into());
+        };
+        p.max_frame = VIEWER_MAX_FRAME;
+        self.out.push_back(Transmit::Limit { peer, max_frame: VIEWER_MAX_FRAME });
+        let mut bundle = SceneBundle::from(bundle);
+        bundle.name = protocol::served_name(&bundle.name).to_string();
+        let hash = protocol::scene_hash(&bundle);
+        if hash != announced {
+            let message = "the scene sent does not match the hash announced".to_string();
+            return self.send(peer, Message::Error { message });
+        }
+        match self.scenes.insert(&bundle, false) {
+            Ok((hash, evicted)) => {
+                for h in evicted {
+                    self.out.push_back(Transmit::Store(Stored::ForgetScene { hash: h }));
+                }
+                if let Some(sync) = self.scenes.sync(&hash) {
+                    self.out.push_back(Transmit::Store(Stored::Scene { hash, sync }));
+                }
+                tracing::info!("holding scene {} for {}", bundle.name, self.peers.get(&peer).map_or("?", |p| &p.name));
+                self.send(peer, Message::SceneStored { hash });
+            }
+            Err(e) => self.send(peer, Message::Error { message: e.to_string() }),
+        }
+    }
+
+    /// A client's batch job: recorded (stored before it is acknowledged).
+    fn on_submit_job(&mut self, now: Duration, peer: PeerId, spec: JobSpec) {
+        let bad = if spec.frames == 0 || spec.frames > MAX_JOB_FRAMES {
+            Some(format!("a job has 1 to {MAX_JOB_FRAMES} frames, not {}", spec.frames))
+        } else if !self.scenes.contains(&spec.scene) {
+            Some("the job's scene is not held: upload it first".to_string())
+        } else {
+            limits::check_settings(&spec.settings).err().map(|e| e.to_string())
+        };
+        if let Some(message) = bad {
+            return self.send(peer, Message::Error { message });
+        }
+        let key = spec.key;
+        let Some(job) = self.jobs.submit(now, spec, peer) else {
+            let message = format!("the master runs {} jobs already", self.budgets.max_jobs);
+            return self.send(peer, Message::Error { message });
+        };
+        let record = job.record();
+        tracing::info!(
+            "job {} ({} frames, {} done) from {}",
+            record.spec.name,
+            record.spec.frames,
+            record.done.len(),
+            self.peers.get(&peer).map_or("?", |p| &p.name)
+        );
+        let done = record.done.clone();
+        self.out.push_back(Transmit::Store(Stored::Job(record)));
+        if let Some(PeerState::Viewer(c)) = self.peers.get_mut(&peer).map(|p| &mut p.state) {
+            c.job = Some(key);
+        }
+        self.send(peer, Message::JobAccepted { key, done });
+    }
+
+    /// Forgets an open frame (its scene is no longer used by it); the
+    /// scheduler's side is the caller's.
+    fn close_frame(&mut self, frame: FrameId) -> Option<FrameSpec> {
+        let spec = self.frames.remove(&frame)?;
+        self.scenes.release(&spec.scene);
+        if let Some(PeerState::Viewer(c)) = self.peers.get_mut(&spec.viewer).map(|p| &mut p.state) {
+            c.frames.remove(&frame);
+        }
+        Some(spec)
     }
 
     fn on_hello(&mut self, now: Duration, id: PeerId, nonce: [u8; 32], hello: Hello) {
@@ -594,8 +919,7 @@ impl Cluster {
         let max_frame = peer.max_frame;
         match hello.role {
             Role::Viewer => {
-                peer.state =
-                    PeerState::Viewer { work: hello.work, frames: BTreeSet::new(), told_waiting: false };
+                peer.state = PeerState::Viewer(Client { work: hello.work, ..Client::default() });
                 tracing::info!(viewer = %peer.name, addr = %peer.addr, "viewer {} connected", peer.name);
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
@@ -603,7 +927,8 @@ impl Cluster {
             }
             Role::Slave => {
                 peer.state = PeerState::Syncing { threads: hello.threads, since: now };
-                let cached = hello.cached_scene == Some(self.scene.hash);
+                let default = self.scenes.default_hash();
+                let cached = default.is_none_or(|h| hello.cached_scenes.contains(&h));
                 tracing::info!(
                     slave = %peer.name,
                     addr = %peer.addr,
@@ -616,8 +941,12 @@ impl Cluster {
                 );
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
-                if !cached {
-                    self.out.push_back(Transmit::SendEncoded { peer: id, frame: self.scene_sync.clone() });
+                if let Some(frame) = default.filter(|_| !cached).and_then(|h| self.scenes.sync(&h)) {
+                    if let Some(p) = self.peers.get_mut(&id) {
+                        p.scene_sends += 1;
+                    }
+                    self.status.scene_sends += 1;
+                    self.out.push_back(Transmit::SendEncoded { peer: id, frame });
                 }
             }
         }
@@ -682,41 +1011,64 @@ impl Cluster {
 
     /// A viewer's frame request: supersedes the open frames, or with `queue`
     /// waits behind them (the scheduler pipelines it).
-    fn request_frame(
-        &mut self,
-        now: Duration,
-        viewer: PeerId,
-        request: u64,
-        camera: Camera,
-        settings: RenderSettings,
-        queue: bool,
-    ) {
+    fn request_frame(&mut self, now: Duration, viewer: PeerId, r: Request) {
+        let Request { request, scene, camera, settings, queue, job_frame } = r;
         if let Err(message) = limits::validate_request(&camera, &settings) {
             return self.send(viewer, Message::Error { message });
         }
+        let Some(PeerState::Viewer(client)) = self.peers.get(&viewer).map(|p| &p.state) else { return };
+        let scene = match scene.or(self.scenes.default_hash()) {
+            Some(h) if self.scenes.contains(&h) => h,
+            Some(_) => {
+                let message = "unknown scene: upload it first (SceneUpload)".to_string();
+                return self.send(viewer, Message::Error { message });
+            }
+            None => {
+                let message = "the master serves no scene of its own: name one                                (isin view SCENE --connect TICKET)"
+                    .to_string();
+                return self.send(viewer, Message::Error { message });
+            }
+        };
+        if let Some(i) = job_frame {
+            let in_job = client.job.and_then(|k| self.jobs.by_key.get(&k)).is_some_and(|j| i < j.spec.frames);
+            if !in_job {
+                let message = format!("frame {i} is not a frame of this client's job");
+                return self.send(viewer, Message::Error { message });
+            }
+        }
         let frame = self.next_frame;
         let (w, h) = (settings.width, settings.height);
-        let work = match self.peers.get(&viewer).map(|p| &p.state) {
-            Some(PeerState::Viewer { work, .. }) => *work,
-            _ => return,
-        };
-        let order = FrameOrder { client: viewer, work, width: w, height: h, samples: settings.spp, queue };
+        let order =
+            FrameOrder { client: viewer, work: client.work, width: w, height: h, samples: settings.spp, queue };
         if let Err(e) = self.sched.open(now, frame, order) {
             return self.send(viewer, Message::Error { message: e.to_string() });
         }
         self.next_frame += 1;
-        if let Some(PeerState::Viewer { frames, .. }) = self.peers.get_mut(&viewer).map(|p| &mut p.state) {
-            if !queue {
-                // The scheduler dropped this viewer's open frames (and no one else's).
-                for old in std::mem::take(frames) {
-                    self.frames.remove(&old);
-                }
+        if !queue {
+            // The scheduler dropped this viewer's open frames (and no one else's).
+            let old = match self.peers.get_mut(&viewer).map(|p| &mut p.state) {
+                Some(PeerState::Viewer(c)) => std::mem::take(&mut c.frames),
+                _ => BTreeSet::new(),
+            };
+            for f in old {
+                self.close_frame(f);
             }
-            frames.insert(frame);
+        }
+        if let Some(PeerState::Viewer(c)) = self.peers.get_mut(&viewer).map(|p| &mut p.state) {
+            c.frames.insert(frame);
         }
         self.tell_if_waiting();
         self.status.frames_requested += 1;
-        let spec = FrameSpec { camera, settings, viewer, request, bytes_at_start: self.bytes_received };
+        self.scenes.acquire(&scene);
+        let spec = FrameSpec {
+            scene,
+            job_frame,
+            camera,
+            settings,
+            viewer,
+            request,
+            bytes_at_start: self.bytes_received,
+        };
         self.frames.insert(frame, spec);
         tracing::debug!(frame, request, queue, "frame requested {w}x{h}");
         self.drain(now);
@@ -730,11 +1082,11 @@ impl Cluster {
         }
         let mut told = Vec::new();
         for (&id, p) in self.peers.iter_mut() {
-            if let PeerState::Viewer { frames, told_waiting, .. } = &mut p.state
-                && !frames.is_empty()
-                && !*told_waiting
+            if let PeerState::Viewer(c) = &mut p.state
+                && !c.frames.is_empty()
+                && !c.told_waiting
             {
-                *told_waiting = true;
+                c.told_waiting = true;
                 told.push(id);
             }
         }
@@ -765,11 +1117,12 @@ impl Cluster {
             PeerState::AwaitHello { .. } => self.handshaking -= 1,
             PeerState::Syncing { .. } => {}
             PeerState::Slave => self.sched.handle_disconnect(now, id),
-            PeerState::Viewer { frames, .. } => {
-                for f in frames {
+            PeerState::Viewer(c) => {
+                for f in c.frames {
                     self.sched.abandon(f);
-                    self.frames.remove(&f);
+                    self.close_frame(f);
                 }
+                self.jobs.detach(id);
             }
         }
         self.drain(now);
@@ -792,6 +1145,7 @@ impl Cluster {
                     tracing::trace!(slave, frame, "assigning {} tiles", tiles.len());
                     let message = Message::TileAssignment(TileAssignment {
                         frame,
+                        scene: spec.scene,
                         camera: spec.camera,
                         settings: spec.settings,
                         tiles,
@@ -803,6 +1157,7 @@ impl Cluster {
                     self.status.deaths += 1;
                     if self.roster.death(slave) {
                         self.send_roster();
+                        self.push_status(now);
                     }
                     self.tell_if_waiting();
                     tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
@@ -818,8 +1173,8 @@ impl Cluster {
                     self.bytes_at_last_done = self.bytes_received;
                     self.status.frames_done += 1;
                     self.status.last_frame = Some(stats.clone());
-                    let Some(spec) = self.frames.remove(&frame) else { continue };
-                    tracing::info!(
+                    let Some(spec) = self.close_frame(frame) else { continue };
+                    tracing::debug!(
                         frame,
                         "frame done in {:.1} ms: {} tiles, {} moved, {} duplicated, {} requeued",
                         stats.micros as f64 / 1e3,
@@ -828,14 +1183,36 @@ impl Cluster {
                         stats.duplicated,
                         stats.requeued
                     );
-                    if let Some(PeerState::Viewer { frames, .. }) =
-                        self.peers.get_mut(&spec.viewer).map(|p| &mut p.state)
+                    let job = match self.peers.get_mut(&spec.viewer).map(|p| &mut p.state) {
+                        Some(PeerState::Viewer(c)) => {
+                            c.frames_done += 1;
+                            c.job
+                        }
+                        _ => None,
+                    };
+                    // A job's frame is stored done before its client hears so.
+                    if let (Some(i), Some(job)) = (spec.job_frame, job.and_then(|k| self.jobs.by_key.get_mut(&k)))
+                        && job.complete(now, i)
                     {
-                        frames.remove(&frame);
+                        let record = job.record();
+                        if job.finished() {
+                            tracing::info!("job {} finished: {} frames", record.spec.name, record.spec.frames);
+                        }
+                        self.out.push_back(Transmit::Store(Stored::Job(record)));
                     }
                     self.send(spec.viewer, Message::FrameDone { request: spec.request, stats });
                 }
             }
         }
     }
+}
+
+/// A frame request as a viewer sent it.
+struct Request {
+    request: u64,
+    scene: Option<SceneHash>,
+    camera: Camera,
+    settings: RenderSettings,
+    queue: bool,
+    job_frame: Option<u32>,
 }

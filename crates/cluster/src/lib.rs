@@ -26,4 +26,6 @@ pub mod scheduler;
 #[cfg(test)]
 mod testing;
 
-pub use cluster::{Class, Cluster, ClusterConfig, ClusterStatus, PeerId, Transmit};
+pub use cluster::{
+    Class, Cluster, ClusterConfig, ClusterStatus, DefaultScene, JobRecord, PeerId, STATUS_INTERVAL, Stored, Transmit,
+};

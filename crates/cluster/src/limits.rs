@@ -19,7 +19,9 @@ pub use isin_tracer::limits::*;
 pub const TILE_MESSAGE_OVERHEAD: usize = 4 << 10;
 
 /// Largest frame a logged-in viewer may send: its messages are frame requests
-/// (a camera and settings, ~200 bytes) and heartbeats.
+/// (a camera and settings, ~200 bytes), job descriptions and heartbeats. A
+/// scene it uploads is the exception: announced first, that one frame may be
+/// as large as [`Budgets::scene_upload_bytes`].
 pub const VIEWER_MAX_FRAME: usize = 16 << 10;
 
 /// How much each peer, and all peers together, may make the master hold.
@@ -40,11 +42,33 @@ pub struct Budgets {
     /// disconnected (an honest slave sends none; a few could only come from a
     /// bug, not a race).
     pub foreign_results: u32,
+    /// Bytes of scenes the master holds (encoded bundles: its default scene
+    /// and those clients uploaded). Idle scenes are evicted to make room;
+    /// scenes of open frames never are.
+    pub scene_bytes: usize,
+    /// Largest scene one client may upload: within [`Budgets::buffered_bytes`]
+    /// (it is one frame being read), so other peers keep room.
+    pub scene_upload_bytes: usize,
+    /// Scenes sent to one slave connection: one per scene it is handed tiles
+    /// of, again only if it evicted one. Far above what an honest slave asks.
+    pub scene_sends: u32,
+    /// Batch jobs the master remembers (running, or waiting for their client
+    /// to return); the oldest one nobody runs is forgotten first.
+    pub max_jobs: usize,
 }
 
 impl Default for Budgets {
     fn default() -> Self {
-        Self { max_peers: 2048, max_handshaking: 128, buffered_bytes: 256 << 20, foreign_results: 8 }
+        Self {
+            max_peers: 2048,
+            max_handshaking: 128,
+            buffered_bytes: 256 << 20,
+            foreign_results: 8,
+            scene_bytes: 2 << 30,
+            scene_upload_bytes: 192 << 20,
+            scene_sends: 256,
+            max_jobs: 256,
+        }
     }
 }
 

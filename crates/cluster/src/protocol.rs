@@ -21,8 +21,18 @@ use std::collections::BTreeMap;
 /// queue frames behind the open one, [`Message::QueueFrame`]. 4: the master
 /// tells viewers its slaves, [`Message::Slaves`]. 5: every viewer is a client
 /// of its own, interactive or batch ([`Hello::work`]), whose requests
-/// supersede only its own frames.)
-pub const PROTOCOL_VERSION: u16 = 5;
+/// supersede only its own frames. 6: scenes per client: clients upload
+/// theirs ([`Message::SceneUpload`]), frames name their scene, slaves fetch a
+/// scene they lack ([`Message::NeedScene`]); batch jobs ([`Message::SubmitJob`])
+/// and the master's status ([`Message::Status`]).)
+pub const PROTOCOL_VERSION: u16 = 6;
+
+/// Most scene hashes a slave may list as cached in its [`Hello`].
+pub const MAX_CACHED_SCENES: usize = 64;
+
+/// Most frames one batch job may hold ([`Message::SubmitJob`]): a
+/// 24 frames/s animation of over an hour.
+pub const MAX_JOB_FRAMES: u32 = 100_000;
 
 /// Most slaves a [`Message::Slaves`] may list; a longer list is refused while
 /// it is decoded, before it is allocated.
@@ -71,8 +81,9 @@ pub struct Hello {
     pub client_nonce: [u8; 32],
     /// `HMAC-SHA256(token, …)` over both nonces and the role: see [`crate::auth`].
     pub proof: [u8; 32],
-    /// The scene this peer already holds, if any: it is not sent again.
-    pub cached_scene: Option<SceneHash>,
+    /// The scenes this peer already holds (slaves): they are not sent again.
+    #[serde(deserialize_with = "bounded_vec::<_, _, MAX_CACHED_SCENES>")]
+    pub cached_scenes: Vec<SceneHash>,
     /// Tile codecs this peer can encode and decode, by [`Codec::name`]
     /// (unknown names are ignored; absent or empty: raw only).
     #[serde(default)]
@@ -104,8 +115,9 @@ pub struct Welcome {
     pub name: String,
     /// Proof that the master knows the token too (mutual authentication).
     pub proof: [u8; 32],
-    /// The scene being served.
-    pub scene: SceneInfo,
+    /// The master's default scene, if it has one (frames that name no scene
+    /// use it).
+    pub scene: Option<SceneInfo>,
     /// The codec a slave must encode its tiles with (one it offered, or raw).
     pub codec: Codec,
 }
@@ -155,6 +167,8 @@ pub struct TileJob {
 pub struct TileAssignment {
     /// The frame they belong to.
     pub frame: FrameId,
+    /// The scene to render (a slave lacking it asks with [`Message::NeedScene`]).
+    pub scene: SceneHash,
     /// The frame's camera (carried by every assignment so that message order
     /// does not matter).
     pub camera: Camera,
@@ -308,16 +322,21 @@ pub enum Message {
         /// The scene.
         bundle: WireBundle,
     },
-    /// Slave → master: scene loaded, ready for tiles.
+    /// Slave → master: the master's default scene is loaded (or there is
+    /// none), ready for tiles.
     Ready {
-        /// Hash of the scene it holds.
-        hash: SceneHash,
+        /// Hash of the default scene it holds (`None`: the master has none).
+        hash: Option<SceneHash>,
     },
     /// Viewer → master: render a frame (supersedes any earlier request).
     FrameRequest {
         /// The viewer's own number for the request (its window's frame id),
         /// echoed in the replies.
         request: u64,
+        /// The scene (one the master holds: its default, or one this client
+        /// uploaded); `None`: the default.
+        #[serde(default)]
+        scene: Option<SceneHash>,
         /// Camera to render with.
         camera: Camera,
         /// Resolution, samples and the rest.
@@ -367,10 +386,17 @@ pub enum Message {
     QueueFrame {
         /// The viewer's own number for the request, echoed in the replies.
         request: u64,
+        /// The scene, as in [`Message::FrameRequest`].
+        #[serde(default)]
+        scene: Option<SceneHash>,
         /// Camera to render with.
         camera: Camera,
         /// Resolution, samples and the rest.
         settings: RenderSettings,
+        /// The frame's index in the client's job ([`Message::SubmitJob`]), if
+        /// it is one: the master records it done when it completes.
+        #[serde(default)]
+        job_frame: Option<u32>,
     },
     /// Master → viewer: something worth telling the user that is not an
     /// error — its frames wait because no slave is connected, say. Said
@@ -379,6 +405,142 @@ pub enum Message {
         /// Human-readable text.
         message: String,
     },
+    /// Client → master: it wants to render with the scene of this hash, of
+    /// `bytes` encoded bytes. The master answers [`Message::SceneStored`] if
+    /// it holds the scene already, else [`Message::SceneWanted`] once it
+    /// accepts a frame of that size from the client, or an error.
+    SceneUpload {
+        /// Content hash of the bundle ([`scene_hash`]).
+        hash: SceneHash,
+        /// Length of the [`Message::Scene`] frame that will carry it.
+        bytes: u64,
+    },
+    /// Master → client: send the scene announced with [`Message::SceneUpload`].
+    SceneWanted {
+        /// The hash announced.
+        hash: SceneHash,
+    },
+    /// Client → master: the scene itself, after [`Message::SceneWanted`].
+    Scene {
+        /// The scene.
+        bundle: WireBundle,
+    },
+    /// Master → client: the scene is held; frames may name it.
+    SceneStored {
+        /// Its hash.
+        hash: SceneHash,
+    },
+    /// Slave → master: an assignment named a scene this slave does not hold;
+    /// the master answers with its [`Message::SceneSync`].
+    NeedScene {
+        /// The scene.
+        hash: SceneHash,
+    },
+    /// Slave → master: a scene could not be loaded; its frames fail.
+    SceneFailed {
+        /// The scene.
+        hash: SceneHash,
+        /// The loader's error.
+        reason: String,
+    },
+    /// Client → master: the frames that follow belong to this batch job (a
+    /// still or an animation). With a state directory the master records
+    /// the job, and each frame of it that completes, on disk before it
+    /// answers, so a job survives a restart of the master.
+    SubmitJob(JobSpec),
+    /// Master → client: the job is recorded; `done` lists the frames of it
+    /// completed before (by an earlier run of the same job).
+    JobAccepted {
+        /// The job's key, as submitted.
+        key: SceneHash,
+        /// Frame indices already completed, ascending.
+        #[serde(deserialize_with = "bounded_vec::<_, _, { MAX_JOB_FRAMES as usize }>")]
+        done: Vec<u32>,
+    },
+    /// Client → master: send the cluster's status.
+    StatusRequest,
+    /// Master → client: slaves, clients and jobs. Answers
+    /// [`Message::StatusRequest`], and is pushed to every viewer when a slave
+    /// joins or dies and every second while frames are open.
+    Status(Status),
+}
+
+/// A batch job as its client describes it ([`Message::SubmitJob`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobSpec {
+    /// Identifies the job across runs: a hash of everything that determines
+    /// its frames (scene, cameras, settings). Submitting the same key again
+    /// resumes the job.
+    pub key: SceneHash,
+    /// Name for people (the output folder, say).
+    pub name: String,
+    /// The scene's hash.
+    pub scene: SceneHash,
+    /// Frames in the job (at most [`MAX_JOB_FRAMES`]).
+    pub frames: u32,
+    /// The job's settings.
+    pub settings: RenderSettings,
+}
+
+/// The cluster as the master sees it ([`Message::Status`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// Live slaves.
+    #[serde(deserialize_with = "bounded_vec::<_, _, MAX_SLAVES_LISTED>")]
+    pub slaves: Vec<SlaveStatus>,
+    /// Connected clients.
+    #[serde(deserialize_with = "bounded_vec::<_, _, MAX_SLAVES_LISTED>")]
+    pub clients: Vec<ClientStatus>,
+    /// Batch jobs known (running, or waiting for their client to return).
+    #[serde(deserialize_with = "bounded_vec::<_, _, MAX_SLAVES_LISTED>")]
+    pub jobs: Vec<JobStatus>,
+    /// Scenes the master holds.
+    pub scenes: u32,
+}
+
+/// One slave in a [`Status`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SlaveStatus {
+    /// Its id.
+    pub id: u64,
+    /// Its name (as given with `--name`, then `#id`).
+    pub name: String,
+    /// Render threads.
+    pub threads: u32,
+    /// Tiles it delivered over the last few seconds, per second.
+    pub tiles_per_second: f32,
+    /// Milliseconds since it was last heard from.
+    pub last_seen_ms: u64,
+}
+
+/// One client in a [`Status`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClientStatus {
+    /// Its id.
+    pub id: u64,
+    /// Its name.
+    pub name: String,
+    /// Interactive or batch.
+    pub work: Work,
+    /// Frames it has open now.
+    pub open_frames: u32,
+    /// Frames completed for it.
+    pub frames_done: u64,
+}
+
+/// One batch job in a [`Status`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobStatus {
+    /// Its name.
+    pub name: String,
+    /// Frames completed.
+    pub done: u32,
+    /// Frames in all.
+    pub frames: u32,
+    /// Whether its client is connected.
+    pub running: bool,
+    /// Estimated seconds to completion at the recent rate, if known.
+    pub eta_seconds: Option<f32>,
 }
 
 impl Message {
@@ -402,6 +564,16 @@ impl Message {
             Message::Error { .. } => "Error",
             Message::QueueFrame { .. } => "QueueFrame",
             Message::Notice { .. } => "Notice",
+            Message::SceneUpload { .. } => "SceneUpload",
+            Message::SceneWanted { .. } => "SceneWanted",
+            Message::Scene { .. } => "Scene",
+            Message::SceneStored { .. } => "SceneStored",
+            Message::NeedScene { .. } => "NeedScene",
+            Message::SceneFailed { .. } => "SceneFailed",
+            Message::SubmitJob(_) => "SubmitJob",
+            Message::JobAccepted { .. } => "JobAccepted",
+            Message::StatusRequest => "StatusRequest",
+            Message::Status(_) => "Status",
         }
     }
 }
@@ -464,13 +636,21 @@ pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
     if rest != 0 {
         return Err(ProtocolError::Decode(format!("{rest} trailing bytes after the message")));
     }
-    if let Message::Slaves { slaves } = &msg
-        && let Some(s) =
-            slaves.iter().find(|s| s.name.len() > MAX_SLAVE_TEXT || s.addr.len() > MAX_SLAVE_TEXT)
-    {
+    let long = |t: &String| t.len() > MAX_SLAVE_TEXT;
+    let too_long = match &msg {
+        Message::Slaves { slaves } => slaves.iter().any(|s| long(&s.name) || long(&s.addr)),
+        Message::Status(s) => {
+            s.slaves.iter().any(|x| long(&x.name))
+                || s.clients.iter().any(|x| long(&x.name))
+                || s.jobs.iter().any(|x| long(&x.name))
+        }
+        Message::SubmitJob(j) => long(&j.name),
+        _ => false,
+    };
+    if too_long {
         return Err(ProtocolError::Decode(format!(
-            "slave {} has a name or address longer than {MAX_SLAVE_TEXT} bytes",
-            s.id
+            "{} holds a name or address longer than {MAX_SLAVE_TEXT} bytes",
+            msg.kind()
         )));
     }
     Ok(msg)
@@ -531,7 +711,7 @@ mod tests {
                 threads: 4,
                 client_nonce: [1; 32],
                 proof: [2; 32],
-                cached_scene: Some([3; 32]),
+                cached_scenes: vec![[3; 32]],
                 codecs: codec::offer(),
                 work: Work::Batch,
             }),
@@ -539,29 +719,73 @@ mod tests {
                 id: 9,
                 name: "box#9".into(),
                 proof: [4; 32],
-                scene: SceneInfo {
+                scene: Some(SceneInfo {
                     name: "s".into(),
                     hash: [5; 32],
                     camera: Camera::default(),
                     settings: RenderSettings::default(),
-                },
+                }),
                 codec: Codec::Qoi,
             }),
             Message::Reject { reason: "no".into() },
             Message::SceneSync { hash: scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
-            Message::Ready { hash: [6; 32] },
+            Message::Ready { hash: Some([6; 32]) },
+            Message::Ready { hash: None },
             Message::FrameRequest {
                 request: 3,
+                scene: None,
                 camera: Camera::default(),
                 settings: RenderSettings::default(),
             },
             Message::QueueFrame {
                 request: 4,
+                scene: Some([8; 32]),
                 camera: Camera::default(),
                 settings: RenderSettings::default(),
+                job_frame: Some(17),
             },
+            Message::SceneUpload { hash: [1; 32], bytes: 1234 },
+            Message::SceneWanted { hash: [1; 32] },
+            Message::Scene { bundle: WireBundle::from(&bundle) },
+            Message::SceneStored { hash: [1; 32] },
+            Message::NeedScene { hash: [2; 32] },
+            Message::SceneFailed { hash: [2; 32], reason: "bad mesh".into() },
+            Message::SubmitJob(JobSpec {
+                key: [3; 32],
+                name: "frames/".into(),
+                scene: [4; 32],
+                frames: 30,
+                settings: RenderSettings::default(),
+            }),
+            Message::JobAccepted { key: [3; 32], done: vec![0, 1, 5] },
+            Message::StatusRequest,
+            Message::Status(Status {
+                slaves: vec![SlaveStatus {
+                    id: 2,
+                    name: "box#2".into(),
+                    threads: 8,
+                    tiles_per_second: 120.5,
+                    last_seen_ms: 30,
+                }],
+                clients: vec![ClientStatus {
+                    id: 3,
+                    name: "fly#3".into(),
+                    work: Work::Batch,
+                    open_frames: 2,
+                    frames_done: 40,
+                }],
+                jobs: vec![JobStatus {
+                    name: "frames/".into(),
+                    done: 40,
+                    frames: 100,
+                    running: true,
+                    eta_seconds: Some(12.0),
+                }],
+                scenes: 2,
+            }),
             Message::TileAssignment(TileAssignment {
                 frame: 2,
+                scene: [5; 32],
                 camera: Camera::default(),
                 settings: RenderSettings::default(),
                 tiles: vec![TileJob { id: 1, tile: Tile { x: 0, y: 32, w: 32, h: 16 } }],
@@ -649,7 +873,7 @@ mod tests {
             threads: u32,
             client_nonce: [u8; 32],
             proof: [u8; 32],
-            cached_scene: Option<SceneHash>,
+            cached_scenes: Vec<SceneHash>,
         }
         #[derive(Serialize)]
         enum OldMessage {
@@ -665,7 +889,7 @@ mod tests {
             threads: 1,
             client_nonce: [1; 32],
             proof: [2; 32],
-            cached_scene: None,
+            cached_scenes: vec![],
         };
         let mut bytes = PROTOCOL_VERSION.to_be_bytes().to_vec();
         rmp_serde::encode::write(&mut bytes, &OldMessage::Hello(old)).unwrap();

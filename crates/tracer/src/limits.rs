@@ -123,9 +123,27 @@ pub const HEARTBEAT_TIMEOUT_MS: Bound = Bound {
     why: "peers heartbeat every 500 ms: below two heartbeats healthy peers die; above an hour nothing is noticed",
 };
 
+/// Seconds a cluster client waits in all (`--timeout`).
+pub const CLIENT_TIMEOUT_S: Bound = Bound {
+    name: "timeout (s)",
+    min: 1,
+    max: 604_800,
+    why: "a week covers any overnight or weekend job; 0 would give up before starting",
+};
+
 /// Every bound, for documentation and `isin --help`.
-pub const ALL: &[Bound] =
-    &[IMAGE_SIDE, IMAGE_PIXELS, SPP, LIGHT_SAMPLES, DEPTH, THREADS, TILE, QUEUE_DEPTH, HEARTBEAT_TIMEOUT_MS];
+pub const ALL: &[Bound] = &[
+    IMAGE_SIDE,
+    IMAGE_PIXELS,
+    SPP,
+    LIGHT_SAMPLES,
+    DEPTH,
+    THREADS,
+    TILE,
+    QUEUE_DEPTH,
+    HEARTBEAT_TIMEOUT_MS,
+    CLIENT_TIMEOUT_S,
+];
 
 /// Checks a frame's settings against the bounds: size, samples, light
 /// samples and depth.

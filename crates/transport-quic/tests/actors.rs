@@ -94,7 +94,7 @@ async fn frames_through_two_slaves_over_quic_are_exact() {
     spawn_slave(&s.client, &s.ticket, "b", fakes[1].clone());
     wait_until(&s.master, "2 slaves", |st| st.slaves.len() == 2).await;
     let (v, scene, mut events) = viewer::connect(&s.client, &s.ticket, "viewer").await.unwrap();
-    assert_eq!(scene.name, "fake.toml");
+    assert_eq!(scene.unwrap().name, "fake.toml");
     for round in 0..3 {
         let mut cam = Camera::default();
         cam.eye.z += round as f32;

@@ -108,7 +108,7 @@ pub async fn replay(
         if open == 1 {
             v.send(viewer::RequestFrame { camera, settings }).await
         } else {
-            v.send(viewer::QueueFrame { camera, settings }).await
+            v.send(viewer::QueueFrame { camera, settings, job_frame: None }).await
         }
     };
     while next < cameras.len() && pending.len() < open {

@@ -691,6 +691,7 @@ fn run_once(
                 actix::System::new().block_on(async {
                     let transport = cluster::client_transport(&ticket)?;
                     let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
+                    let info = info.context("the master serves no scene")?;
                     let settings = RenderSettings { width: w, height: h, ..info.settings };
                     // Warm-up: scene loaded and caches hot on every slave.
                     viewer::collect_frame(&v, &mut events, cameras[0], settings).await?;

@@ -358,6 +358,7 @@ fn run_once(lab: Option<&Lab>, cond: &Condition, spec: &RunSpec) -> anyhow::Resu
                 actix::System::new().block_on(async {
                     let transport = cluster::client_transport(&ticket)?;
                     let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
+                    let info = info.context("the master serves no scene")?;
                     let settings = RenderSettings { width: w, height: h, ..info.settings };
                     // Warm-up: cached runs fill the cache with every camera; traced runs render one frame.
                     let warm = if spec.kind == "cached" { spec.cameras } else { &spec.cameras[..1] };

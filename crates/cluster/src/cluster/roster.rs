@@ -15,7 +15,7 @@ pub(super) struct Roster {
 
 /// At most [`MAX_SLAVE_TEXT`] bytes of `s` without control characters, cut
 /// at a character boundary.
-fn cut(s: &str) -> String {
+pub(super) fn cut(s: &str) -> String {
     let mut out = String::new();
     for c in s.chars().filter(|c| !c.is_control()) {
         if out.len() + c.len_utf8() > MAX_SLAVE_TEXT {

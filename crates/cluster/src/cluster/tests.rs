@@ -3,6 +3,8 @@
 //! [`Transmit`]s out — honest or hostile. A simulated transport between them
 //! applies the frame limits the core asks for, as TCP and QUIC do.
 
+mod jobs;
+mod scenes;
 mod sim;
 
 use super::*;
@@ -193,7 +195,7 @@ fn peer_caps_refuse_connections_with_the_limit_named() {
 #[test]
 fn the_scene_goes_out_by_its_file_name_never_its_path() {
     let mut cfg = sim::config();
-    cfg.scene.name = "/home/someone/private/scenes/room.toml".into();
+    cfg.scene.as_mut().unwrap().bundle.name = "/home/someone/private/scenes/room.toml".into();
     let mut net = Net::new(cfg);
     let s = net.slave(SlaveSpec::default());
     let v = net.viewer();
@@ -204,7 +206,7 @@ fn the_scene_goes_out_by_its_file_name_never_its_path() {
             assert!(!text.contains("/home/someone"), "{} leaks the path", m.kind());
         }
     }
-    assert_eq!(net.core.scene().name, "room.toml");
+    assert_eq!(net.core.scene().unwrap().name, "room.toml");
 }
 
 #[test]
@@ -295,7 +297,7 @@ fn a_slave_that_reconnects_with_the_scene_cached_is_not_sent_it_again() {
     let a = net.slave(SlaveSpec::default());
     net.run_until(|n| n.core.status().slaves.len() == 1);
     assert_eq!(net.scene_syncs(a), 1);
-    let hash = net.core.scene().hash;
+    let hash = net.core.scene().unwrap().hash;
     net.disconnect(a);
     let b = net.slave(SlaveSpec { cached: Some(hash), ..SlaveSpec::default() });
     net.run_until(|n| n.core.status().slaves.len() == 1);
@@ -364,9 +366,9 @@ fn a_viewer_sending_a_tile_or_a_slave_requesting_a_frame_is_refused() {
     let v = net.viewer();
     net.run_until(|n| n.core.status().slaves.len() == 1 && n.limit(v).is_some());
     let request =
-        Message::FrameRequest { request: 1, camera: Camera::default(), settings: settings(8, 8, 1) };
+        Message::FrameRequest { request: 1, scene: None, camera: Camera::default(), settings: settings(8, 8, 1) };
     net.send_raw(s, protocol::encode(&request).unwrap());
-    net.send_raw(v, protocol::encode(&Message::Ready { hash: [0; 32] }).unwrap());
+    net.send_raw(v, protocol::encode(&Message::Ready { hash: Some([0; 32]) }).unwrap());
     net.run_until(|n| n.is_closed(s) && n.is_closed(v));
     assert!(net.rejection(s).unwrap().contains("unexpected FrameRequest"));
     assert!(net.rejection(v).unwrap().contains("unexpected Ready"));

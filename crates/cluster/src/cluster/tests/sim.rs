@@ -9,7 +9,7 @@
 
 use super::super::*;
 use super::MS;
-use crate::protocol::{SceneHash, TileId, TileJob};
+use crate::protocol::{JobSpec, SceneHash, Status, TileId, TileJob};
 use isin_tracer::Tile;
 
 /// The token honest peers know.
@@ -18,12 +18,26 @@ pub const TOKEN: &str = "secret";
 /// Heartbeat period of simulated peers.
 const HEARTBEAT: Duration = Duration::from_millis(500);
 
-/// A core around a small fake scene.
-pub fn config() -> ClusterConfig {
+/// A small fake scene of `bytes` asset bytes.
+pub fn fake_scene(name: &str, bytes: usize) -> SceneBundle {
     let mut assets = BTreeMap::new();
-    assets.insert("mesh.bin".to_string(), vec![42u8; 5000]);
-    let scene = SceneBundle { name: "fake.toml".into(), source: "fake scene".into(), assets };
-    ClusterConfig::new(TOKEN.into(), scene, Camera::default(), RenderSettings::default(), [7; 32])
+    assets.insert("mesh.bin".to_string(), vec![42u8; bytes]);
+    SceneBundle { name: name.into(), source: format!("fake scene {name}"), assets }
+}
+
+/// A core around a small fake default scene.
+pub fn config() -> ClusterConfig {
+    let scene = DefaultScene {
+        bundle: fake_scene("fake.toml", 5000),
+        camera: Camera::default(),
+        settings: RenderSettings::default(),
+    };
+    ClusterConfig::new(TOKEN.into(), Some(scene), [7; 32])
+}
+
+/// What a scene adds to a frame's seed: slaves "render" each scene differently.
+fn scene_seed(scene: &SceneHash) -> u64 {
+    u64::from_le_bytes([scene[0], scene[1], scene[2], scene[3], scene[4], scene[5], scene[6], scene[7]])
 }
 
 /// The "render" every slave agrees on: a hash of the frame's seed and the pixel.
@@ -65,6 +79,8 @@ pub enum Behaviour {
     Oversized,
     /// Returns its first tile with another rectangle.
     WrongRect,
+    /// Loads the default scene, but fails every other one.
+    FailsScenes,
 }
 
 /// A simulated slave.
@@ -94,7 +110,13 @@ type Job = (FrameId, TileJob, u64);
 struct SlaveSim {
     threads: u32,
     us_per_pixel: u64,
-    cached: Option<SceneHash>,
+    /// Scenes it holds.
+    held: BTreeSet<SceneHash>,
+    /// Scenes it asked for.
+    asked: BTreeSet<SceneHash>,
+    /// Assignments waiting for their scene.
+    parked: Vec<TileAssignment>,
+    ready: bool,
     codec: Codec,
     queue: VecDeque<Job>,
     lanes: Vec<Option<(Job, Duration)>>,
@@ -104,9 +126,62 @@ struct SlaveSim {
     forged: BTreeSet<FrameId>,
 }
 
+impl SlaveSim {
+    /// Takes an assignment of a scene it holds.
+    fn assign(&mut self, a: TileAssignment, behaviour: Behaviour, limit: Option<usize>, out: &mut Vec<Message>) {
+        let s = self;
+        s.assignments += 1;
+        let seed = a.settings.seed ^ scene_seed(&a.scene);
+        match behaviour {
+            Behaviour::Forger if s.forged.insert(a.frame) => {
+                let edge = a.tiles.first().map_or(32, |t| t.tile.w.max(t.tile.h));
+                let mine: BTreeSet<TileId> = a.tiles.iter().map(|t| t.id).collect();
+                let grid = Tile::grid(a.settings.width, a.settings.height, edge);
+                for (i, tile) in grid.into_iter().enumerate() {
+                    let id = i as TileId;
+                    if !mine.contains(&id) {
+                        let pixels = ByteBuf::from(vec![255u8; tile.pixel_count() * 3]);
+                        let r = TileResult {
+                            frame: a.frame,
+                            id,
+                            tile,
+                            render_micros: 1,
+                            codec: Codec::Raw,
+                            pixels,
+                        };
+                        out.push(Message::TileResult(r));
+                    }
+                }
+            }
+            Behaviour::WrongRect => {
+                if let Some(job) = a.tiles.first() {
+                    let mut tile = job.tile;
+                    tile.w += 1;
+                    let pixels = ByteBuf::from(vec![0u8; tile.pixel_count() * 3]);
+                    out.push(Message::TileResult(TileResult {
+                        frame: a.frame,
+                        id: job.id,
+                        tile,
+                        render_micros: 1,
+                        codec: Codec::Raw,
+                        pixels,
+                    }));
+                }
+            }
+            Behaviour::Oversized => {
+                let huge = "x".repeat(limit.unwrap_or(HANDSHAKE_MAX_FRAME) + 1);
+                out.push(Message::Error { message: huge });
+            }
+            _ => {}
+        }
+        s.queue.extend(a.tiles.into_iter().map(|t| (a.frame, t, seed)));
+    }
+}
+
 #[derive(Debug)]
 struct ViewFrame {
     settings: RenderSettings,
+    scene: Option<SceneHash>,
     requested: Duration,
     took: Option<Duration>,
     image: Vec<u8>,
@@ -120,6 +195,11 @@ struct ViewerSim {
     frames: BTreeMap<u64, ViewFrame>,
     errors: Vec<String>,
     notices: Vec<String>,
+    /// A scene announced, to send when the master wants it.
+    upload: Option<SceneBundle>,
+    stored: BTreeSet<SceneHash>,
+    statuses: Vec<Status>,
+    accepted: Option<Vec<u32>>,
 }
 
 #[derive(Debug)]
@@ -159,13 +239,27 @@ pub struct Net {
     /// Lane-milliseconds of live slaves, and of those the busy ones.
     lane_ms: u64,
     busy_lane_ms: u64,
+    /// What the core asked to be stored.
+    pub disk: Disk,
+    config: ClusterConfig,
+}
+
+/// The master's state directory, as the core filled it.
+#[derive(Debug, Default)]
+pub struct Disk {
+    /// Encoded `SceneSync`s by hash.
+    pub scenes: BTreeMap<SceneHash, Vec<u8>>,
+    /// Jobs by key.
+    pub jobs: BTreeMap<SceneHash, JobRecord>,
 }
 
 impl Net {
     /// A core for `cfg` with no peers, at time zero.
     pub fn new(cfg: ClusterConfig) -> Self {
         Self {
-            core: Cluster::new(cfg).expect("scene encodes"),
+            core: Cluster::new(cfg.clone()).expect("scene encodes"),
+            disk: Disk::default(),
+            config: cfg,
             now: Duration::ZERO,
             peers: BTreeMap::new(),
             next_peer: 1,
@@ -202,7 +296,7 @@ impl Net {
         let sim = SlaveSim {
             threads: spec.threads,
             us_per_pixel: spec.us_per_pixel,
-            cached: spec.cached,
+            held: spec.cached.into_iter().collect(),
             lanes: vec![None; spec.threads as usize],
             ..SlaveSim::default()
         };
@@ -232,6 +326,20 @@ impl Net {
 
     /// Has viewer `v` request (or queue) a frame; returns its request number.
     pub fn request(&mut self, v: PeerId, settings: RenderSettings, queue: bool) -> u64 {
+        self.request_of(v, settings, queue, None, None)
+    }
+
+    /// [`Net::request`] of a frame of `scene` (`None`: the default), as
+    /// frame `job_frame` of the viewer's job if given.
+    pub fn request_of(
+        &mut self,
+        v: PeerId,
+        settings: RenderSettings,
+        queue: bool,
+        scene: Option<SceneHash>,
+        job_frame: Option<u32>,
+    ) -> u64 {
+        let expected = scene.or(self.core.scene().map(|s| s.hash));
         let p = self.peers.get_mut(&v).expect("known peer");
         let Kind::Viewer(sim) = &mut p.kind else { panic!("{v} is not a viewer") };
         sim.next_request += 1;
@@ -240,6 +348,7 @@ impl Net {
         let requested = self.now;
         let frame = ViewFrame {
             settings,
+            scene: expected,
             requested,
             took: None,
             image: vec![0; n * 3],
@@ -249,13 +358,68 @@ impl Net {
         sim.frames.insert(request, frame);
         let camera = Camera::default();
         let msg = if queue {
-            Message::QueueFrame { request, camera, settings }
+            Message::QueueFrame { request, scene, camera, settings, job_frame }
         } else {
-            Message::FrameRequest { request, camera, settings }
+            Message::FrameRequest { request, scene, camera, settings }
         };
         p.outbox.push(protocol::encode(&msg).expect("encodes"));
         self.pump();
         request
+    }
+
+    /// Has viewer `v` announce `bundle` (sent when the master wants it);
+    /// returns its hash.
+    pub fn upload(&mut self, v: PeerId, bundle: SceneBundle) -> SceneHash {
+        let hash = protocol::scene_hash(&bundle);
+        let bytes = protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) }).expect("encodes").len();
+        let p = self.peers.get_mut(&v).expect("known peer");
+        let Kind::Viewer(sim) = &mut p.kind else { panic!("{v} is not a viewer") };
+        sim.upload = Some(bundle);
+        p.outbox.push(protocol::encode(&Message::SceneUpload { hash, bytes: bytes as u64 }).expect("encodes"));
+        self.pump();
+        hash
+    }
+
+    /// Whether viewer `v` was told the master holds `hash`.
+    pub fn stored(&self, v: PeerId, hash: SceneHash) -> bool {
+        self.viewer_sim(v).stored.contains(&hash)
+    }
+
+    /// Has viewer `v` submit a job; its answer is [`Net::accepted`].
+    pub fn submit_job(&mut self, v: PeerId, spec: JobSpec) {
+        let p = self.peers.get_mut(&v).expect("known peer");
+        p.outbox.push(protocol::encode(&Message::SubmitJob(spec)).expect("encodes"));
+        self.pump();
+    }
+
+    /// The frames viewer `v`'s job had done, once the master accepted it.
+    pub fn accepted(&self, v: PeerId) -> Option<Vec<u32>> {
+        self.viewer_sim(v).accepted.clone()
+    }
+
+    /// The statuses viewer `v` was pushed or answered.
+    pub fn statuses(&self, v: PeerId) -> &[Status] {
+        &self.viewer_sim(v).statuses
+    }
+
+    /// Has `peer` send `msg`.
+    pub fn say(&mut self, peer: PeerId, msg: &Message) {
+        self.send_raw(peer, protocol::encode(msg).expect("encodes"));
+    }
+
+    /// The master dies (every connection with it) and a new one starts from
+    /// the same configuration and what was stored.
+    pub fn restart_master(&mut self) {
+        for p in self.peers.values_mut() {
+            p.gone = true;
+        }
+        self.core = Cluster::new(self.config.clone()).expect("scene encodes");
+        for sync in self.disk.scenes.values() {
+            self.core.restore_scene(sync.clone()).expect("stored scenes reload");
+        }
+        for record in self.disk.jobs.values() {
+            self.core.restore_job(self.now, record.clone());
+        }
     }
 
     /// Closes `peer`'s connection from its side.
@@ -331,6 +495,15 @@ impl Net {
                         p.closed = Some(reason);
                     }
                 }
+                Transmit::Store(Stored::Scene { hash, sync }) => {
+                    self.disk.scenes.insert(hash, sync.as_ref().clone());
+                }
+                Transmit::Store(Stored::ForgetScene { hash }) => {
+                    self.disk.scenes.remove(&hash);
+                }
+                Transmit::Store(Stored::Job(record)) => {
+                    self.disk.jobs.insert(record.spec.key, record);
+                }
             }
         }
         any
@@ -351,8 +524,8 @@ impl Net {
             (Kind::Raw, _) => {}
             (Kind::Slave(_) | Kind::Viewer(_), Message::Challenge { nonce }) => {
                 let (role, threads, cached, codecs) = match &p.kind {
-                    Kind::Slave(s) => (Role::Slave, s.threads, s.cached, codec::offer()),
-                    _ => (Role::Viewer, 0, None, codec::offer()),
+                    Kind::Slave(s) => (Role::Slave, s.threads, s.held.iter().copied().collect(), codec::offer()),
+                    _ => (Role::Viewer, 0, Vec::new(), codec::offer()),
                 };
                 let client_nonce = [id as u8; 32];
                 let proof = auth::client_proof(&p.token, role, &nonce, &client_nonce);
@@ -363,7 +536,7 @@ impl Net {
                     threads,
                     client_nonce,
                     proof,
-                    cached_scene: cached,
+                    cached_scenes: cached,
                     codecs,
                     work: p.work,
                 }));
@@ -371,8 +544,10 @@ impl Net {
             (Kind::Slave(s), Message::Welcome(w)) => {
                 p.logged_in = true;
                 s.codec = w.codec;
-                if s.cached == Some(w.scene.hash) {
-                    out.extend(ready(behaviour, w.scene.hash));
+                let default = w.scene.map(|i| i.hash);
+                if default.is_none_or(|h| s.held.contains(&h)) {
+                    s.ready = true;
+                    out.extend(ready(behaviour, default));
                 }
             }
             (Kind::Viewer(_), Message::Welcome(_)) => p.logged_in = true,
@@ -383,54 +558,33 @@ impl Net {
                     hash,
                     "the scene matches its hash"
                 );
-                out.extend(ready(behaviour, hash));
+                if !s.ready {
+                    s.ready = true;
+                    s.held.insert(hash);
+                    out.extend(ready(behaviour, Some(hash)));
+                } else if behaviour == Behaviour::FailsScenes {
+                    out.push(Message::SceneFailed { hash, reason: "no memory".into() });
+                    s.parked.retain(|a| a.scene != hash);
+                } else {
+                    s.held.insert(hash);
+                    let (now, rest): (Vec<_>, Vec<_>) =
+                        std::mem::take(&mut s.parked).into_iter().partition(|a| a.scene == hash);
+                    s.parked = rest;
+                    for a in now {
+                        s.assign(a, behaviour, p.limit, &mut out);
+                    }
+                }
             }
             (Kind::Slave(s), Message::TileAssignment(a)) => {
-                s.assignments += 1;
-                let seed = a.settings.seed;
-                match behaviour {
-                    Behaviour::Forger if s.forged.insert(a.frame) => {
-                        let edge = a.tiles.first().map_or(32, |t| t.tile.w.max(t.tile.h));
-                        let mine: BTreeSet<TileId> = a.tiles.iter().map(|t| t.id).collect();
-                        let grid = Tile::grid(a.settings.width, a.settings.height, edge);
-                        for (i, tile) in grid.into_iter().enumerate() {
-                            let id = i as TileId;
-                            if !mine.contains(&id) {
-                                let pixels = ByteBuf::from(vec![255u8; tile.pixel_count() * 3]);
-                                let r = TileResult {
-                                    frame: a.frame,
-                                    id,
-                                    tile,
-                                    render_micros: 1,
-                                    codec: Codec::Raw,
-                                    pixels,
-                                };
-                                out.push(Message::TileResult(r));
-                            }
-                        }
+                if s.held.contains(&a.scene) {
+                    s.assign(a, behaviour, p.limit, &mut out);
+                } else {
+                    // Not held: asked for once, rendered when it comes.
+                    if s.asked.insert(a.scene) {
+                        out.push(Message::NeedScene { hash: a.scene });
                     }
-                    Behaviour::WrongRect => {
-                        if let Some(job) = a.tiles.first() {
-                            let mut tile = job.tile;
-                            tile.w += 1;
-                            let pixels = ByteBuf::from(vec![0u8; tile.pixel_count() * 3]);
-                            out.push(Message::TileResult(TileResult {
-                                frame: a.frame,
-                                id: job.id,
-                                tile,
-                                render_micros: 1,
-                                codec: Codec::Raw,
-                                pixels,
-                            }));
-                        }
-                    }
-                    Behaviour::Oversized => {
-                        let huge = "x".repeat(p.limit.unwrap_or(HANDSHAKE_MAX_FRAME) + 1);
-                        out.push(Message::Error { message: huge });
-                    }
-                    _ => {}
+                    s.parked.push(a);
                 }
-                s.queue.extend(a.tiles.into_iter().map(|t| (a.frame, t, seed)));
             }
             (Kind::Slave(s), Message::Cancel { frame, tiles }) => {
                 s.cancels += 1;
@@ -459,6 +613,18 @@ impl Net {
                 f.took = Some(now - f.requested);
             }
             (Kind::Viewer(v), Message::Error { message }) => v.errors.push(message),
+            (Kind::Viewer(v), Message::SceneWanted { hash }) => {
+                // (A test that announced a scene itself sends it itself.)
+                if let Some(bundle) = v.upload.take() {
+                    assert_eq!(protocol::scene_hash(&bundle), hash);
+                    out.push(Message::Scene { bundle: WireBundle::from(&bundle) });
+                }
+            }
+            (Kind::Viewer(v), Message::SceneStored { hash }) => {
+                v.stored.insert(hash);
+            }
+            (Kind::Viewer(v), Message::Status(st)) => v.statuses.push(st),
+            (Kind::Viewer(v), Message::JobAccepted { done, .. }) => v.accepted = Some(done),
             (Kind::Viewer(v), Message::Notice { message }) => v.notices.push(message),
             _ => {}
         }
@@ -582,7 +748,8 @@ impl Net {
         let f = &self.viewer_sim(v).frames[&request];
         assert!(f.done, "request {request} not done");
         let s = f.settings;
-        let want = render(s.seed, Tile { x: 0, y: 0, w: s.width, h: s.height });
+        let scene = f.scene.expect("a frame of a known scene");
+        let want = render(s.seed ^ scene_seed(&scene), Tile { x: 0, y: 0, w: s.width, h: s.height });
         if let Some(i) = f.writes.iter().position(|&n| n != 1) {
             panic!("request {request}: pixel {i} delivered {} times", f.writes[i]);
         }
@@ -656,8 +823,8 @@ impl Net {
     }
 }
 
-/// What a slave says once it holds the scene.
-fn ready(behaviour: Behaviour, hash: SceneHash) -> Option<Message> {
+/// What a slave says once it holds the default scene.
+fn ready(behaviour: Behaviour, hash: Option<SceneHash>) -> Option<Message> {
     match behaviour {
         Behaviour::StallBeforeReady | Behaviour::HeartbeatNeverReady => None,
         _ => Some(Message::Ready { hash }),
