@@ -64,7 +64,9 @@ pub fn load_scene_file_timed(path: &Path) -> anyhow::Result<(Scene, SceneBundle,
 
 /// What a cluster client renders with: the scene's own camera and settings,
 /// and its bundle (parsed, so every asset is read, but not built).
-pub fn load_view(path: &Path) -> anyhow::Result<(isin_tracer::Camera, isin_tracer::RenderSettings, SceneBundle)> {
+pub fn load_view(
+    path: &Path,
+) -> anyhow::Result<(isin_tracer::Camera, isin_tracer::RenderSettings, SceneBundle)> {
     parse_file(path).map(|(parts, bundle)| (parts.camera, parts.settings, bundle))
 }
 

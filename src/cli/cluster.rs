@@ -132,12 +132,17 @@ pub async fn connect_client(
         match viewer::connect_with(transport, ticket, setup).await {
             Ok(c) => return Ok(c),
             Err(e) if !e.is_retryable() => {
-                return Err(anyhow::Error::new(e).context(format!("cannot use the master at {}", ticket.addr)));
+                return Err(
+                    anyhow::Error::new(e).context(format!("cannot use the master at {}", ticket.addr))
+                );
             }
             Err(e) => {
                 if said.is_none_or(|at| at.elapsed() >= isin_actors::slave::RETRY_REPORT) {
                     said = Some(Instant::now());
-                    tracing::warn!("cannot reach the master at {} yet ({e}); retrying (said again in a minute)", ticket.addr);
+                    tracing::warn!(
+                        "cannot reach the master at {} yet ({e}); retrying (said again in a minute)",
+                        ticket.addr
+                    );
                 }
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(CLIENT_MAX_BACKOFF);

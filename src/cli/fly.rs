@@ -6,12 +6,12 @@ use crate::assets::load_scene_file;
 use anyhow::Context;
 use clap::Args;
 use isin_actors::viewer;
-use isin_cluster::scheduler::Work;
 use isin_cluster::protocol::{self, JobSpec, SceneHash};
+use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, RenderSettings};
-use sha2::{Digest, Sha256};
 use isin_viewer::CameraPath;
 use isin_viewer::stats::Summary;
+use sha2::{Digest, Sha256};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -236,13 +236,15 @@ fn run_cluster(
     let (_, scene_settings, bundle) = crate::assets::load_view(&args.scene)?;
     let settings = flight_settings(args, path, scene_settings)?;
     let aspect = settings.width as f32 / settings.height as f32;
-    let cameras: Vec<Camera> = path.frames[range.clone()].iter().map(|f| f.camera().fit_aspect(aspect)).collect();
+    let cameras: Vec<Camera> =
+        path.frames[range.clone()].iter().map(|f| f.camera().fit_aspect(aspect)).collect();
     let scene_hash = protocol::served_scene_hash(&bundle);
     let name = match &args.out {
         Some(dir) => dir.display().to_string(),
         None => args.path.display().to_string(),
     };
-    let name: String = name.chars().rev().take(protocol::MAX_SLAVE_TEXT / 4).collect::<Vec<_>>().into_iter().rev().collect();
+    let name: String =
+        name.chars().rev().take(protocol::MAX_SLAVE_TEXT / 4).collect::<Vec<_>>().into_iter().rev().collect();
     let spec = JobSpec {
         key: job_key(&scene_hash, &cameras, &settings, range.start),
         name,
@@ -278,12 +280,22 @@ fn run_cluster(
                     !(done_before.contains(&k) && file.is_some_and(|f| f.exists()))
                 })
                 .collect();
-            if todo.len() < cameras.len() - written.len() {
-                println!("resuming: {} frames done before", cameras.len() - written.len() - todo.len());
+            if todo.len() < cameras.len() {
+                println!(
+                    "resuming: {} frames done before, {} to render",
+                    cameras.len() - todo.len(),
+                    todo.len()
+                );
             }
             let todo_cameras: Vec<Camera> = todo.iter().map(|&k| cameras[k as usize]).collect();
-            let result =
-                viewer::collect_frames(&c.addr, &mut c.events, &todo_cameras, Some(&todo), settings, QUEUED, |j, frame, stats| {
+            let result = viewer::collect_frames(
+                &c.addr,
+                &mut c.events,
+                &todo_cameras,
+                Some(&todo),
+                settings,
+                QUEUED,
+                |j, frame, stats| {
                     let k = todo[j];
                     let i = range.start + k as usize;
                     write_frame(args.out.as_ref(), i, &frame)?;
@@ -293,8 +305,9 @@ fn run_cluster(
                     last = at;
                     println!("frame {i:04}  done at {:8.2} s  {:4} tiles", at.as_secs_f64(), stats.tiles);
                     anyhow::Ok(())
-                })
-                .await;
+                },
+            )
+            .await;
             match result {
                 Ok(()) => break,
                 Err(viewer::ViewerError::Lost(why)) => {

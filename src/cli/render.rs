@@ -164,15 +164,14 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
 fn run_cluster(args: &RenderArgs, ticket: &str, output: Output) -> anyhow::Result<()> {
     let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let t0 = Instant::now();
-    let (frame, stats, scene, wire) =
-        super::cluster::render_frame(
-            &ticket,
-            &args.scene,
-            args.width,
-            args.height,
-            args.spp,
-            args.timeout.map(Duration::from_secs),
-        )?;
+    let (frame, stats, scene, wire) = super::cluster::render_frame(
+        &ticket,
+        &args.scene,
+        args.width,
+        args.height,
+        args.spp,
+        args.timeout.map(Duration::from_secs),
+    )?;
     let elapsed = t0.elapsed();
     output.write(&frame)?;
     println!("scene      {scene} (via cluster {})", ticket.addr);

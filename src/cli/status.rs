@@ -99,8 +99,20 @@ mod tests {
                 tiles_per_second: 41.5,
                 last_seen_ms: 120,
             }],
-            clients: vec![ClientStatus { id: 4, name: "fly#4".into(), work: Work::Batch, open_frames: 1, frames_done: 7 }],
-            jobs: vec![JobStatus { name: "out/".into(), done: 7, frames: 30, running: true, eta_seconds: Some(46.0) }],
+            clients: vec![ClientStatus {
+                id: 4,
+                name: "fly#4".into(),
+                work: Work::Batch,
+                open_frames: 1,
+                frames_done: 7,
+            }],
+            jobs: vec![JobStatus {
+                name: "out/".into(),
+                done: 7,
+                frames: 30,
+                running: true,
+                eta_seconds: Some(46.0),
+            }],
             scenes: 2,
         };
         let r = report(&s);

@@ -428,9 +428,13 @@ impl Cluster {
 
 /// `isin render` of the test scene on this machine, for comparison.
 pub fn render_local(extra: &[&str]) -> Vec<u8> {
+    render_local_of(&scene(), extra)
+}
+
+/// `isin render` of `scene` on this machine.
+pub fn render_local_of(scene: &Path, extra: &[&str]) -> Vec<u8> {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("local.png");
-    let scene = scene();
     let mut args = vec!["render", scene.to_str().unwrap(), "--quiet", "-o", out.to_str().unwrap()];
     args.extend_from_slice(extra);
     let mut p = Proc::spawn("render", &args, "warn");

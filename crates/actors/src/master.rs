@@ -7,11 +7,11 @@
 //! asks ([`Transmit`]): encode and send, raise a frame limit, close, and
 //! — with a state directory — keep on disk ([`crate::state`]) before going on.
 
+use crate::state::{StateDir, StateError};
 use actix::prelude::*;
 use isin_cluster::auth::{self, AuthError};
 use isin_cluster::protocol::{self, FrameStats};
 use isin_cluster::scheduler::SlaveInfo;
-use crate::state::{StateDir, StateError};
 use isin_cluster::{Class, Cluster, ClusterConfig, DefaultScene, PeerId, Transmit};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use isin_transport::{ConnStats, Connection, Delivery, FrameSender, Listener, MemoryBudget, TransportError};

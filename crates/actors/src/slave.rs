@@ -279,7 +279,7 @@ impl<S> SceneCache<S> {
     /// The hashes held, most recently used first.
     pub fn hashes(&self) -> Vec<SceneHash> {
         let mut e: Vec<(u64, SceneHash)> = self.entries.iter().map(|e| (e.used, e.hash)).collect();
-        e.sort_unstable_by(|a, b| b.0.cmp(&a.0));
+        e.sort_unstable_by_key(|x| std::cmp::Reverse(x.0));
         e.into_iter().map(|(_, h)| h).collect()
     }
 
@@ -346,7 +346,8 @@ pub async fn run<R: Renderer>(
                 backoff = Duration::from_millis(100);
                 (failures, unresolved, said) = (0, 0, None);
                 let why =
-                    serve(session, renderer.clone(), pool.clone(), counters.clone(), cache.clone(), &opts).await;
+                    serve(session, renderer.clone(), pool.clone(), counters.clone(), cache.clone(), &opts)
+                        .await;
                 tracing::warn!("lost the master ({why}); reconnecting");
             }
             Err(e) if !e.is_retryable() => return Err(e),
@@ -761,6 +762,20 @@ impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_scene_cache_evicts_the_least_recently_used_and_keeps_the_newest_whatever_its_size() {
+        let mut c: SceneCache<u8> = SceneCache::new(100);
+        assert!(c.insert([1; 32], Arc::new(1), 40).is_empty());
+        assert!(c.insert([2; 32], Arc::new(2), 40).is_empty());
+        assert!(c.get(&[1; 32]).is_some(), "1 is now the most recent");
+        assert_eq!(c.insert([3; 32], Arc::new(3), 40), vec![[2; 32]]);
+        assert_eq!(c.hashes(), vec![[3; 32], [1; 32]]);
+        // One scene over the whole budget is still kept, alone.
+        assert_eq!(c.insert([4; 32], Arc::new(4), 500), vec![[1; 32], [3; 32]]);
+        assert_eq!(c.get(&[4; 32]).as_deref(), Some(&4));
+        assert!(c.get(&[1; 32]).is_none());
+    }
 
     #[test]
     fn thread_cpu_time_counts_work_not_sleep() {

@@ -4,7 +4,9 @@
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use isin_cluster::protocol::{self, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, WireBundle};
+use isin_cluster::protocol::{
+    self, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, WireBundle,
+};
 use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, Frame, RenderSettings, SceneBundle, Tile};
 use isin_transport::{ConnStats, FrameSender, Ticket, Transport, TransportError};
@@ -149,7 +151,13 @@ impl Actor for ViewerActor {
 }
 
 impl ViewerActor {
-    fn request(&mut self, request: u64, camera: Camera, settings: RenderSettings, queue: Option<Option<u32>>) {
+    fn request(
+        &mut self,
+        request: u64,
+        camera: Camera,
+        settings: RenderSettings,
+        queue: Option<Option<u32>>,
+    ) {
         self.next_request = self.next_request.max(request);
         let scene = self.scene;
         let m = match queue {

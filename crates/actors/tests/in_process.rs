@@ -300,7 +300,9 @@ async fn queued_frames_are_pipelined_and_each_comes_back_exact_in_order() {
     // frame k's are still queued on them, and must render both.
     let mut requests = Vec::new();
     for &camera in &cams {
-        requests.push(v.send(viewer::QueueFrame { camera, settings: settings(w, h), job_frame: None }).await.unwrap());
+        requests.push(
+            v.send(viewer::QueueFrame { camera, settings: settings(w, h), job_frame: None }).await.unwrap(),
+        );
     }
     let mut frames: BTreeMap<u64, Vec<u8>> =
         requests.iter().map(|&r| (r, vec![0; (w * h * 3) as usize])).collect();

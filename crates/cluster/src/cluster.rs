@@ -101,9 +101,9 @@ use crate::auth::{self, Nonces};
 use crate::codec::{self, Codec, Compression};
 use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
-    self, ClientStatus, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Hello, JobSpec,
-    MAX_JOB_FRAMES, Message, ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status,
-    TileAssignment, TileResult, Welcome, WireBundle,
+    self, ClientStatus, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Hello, JobSpec, MAX_JOB_FRAMES,
+    Message, ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status, TileAssignment, TileResult,
+    Welcome, WireBundle,
 };
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
@@ -806,7 +806,8 @@ impl Cluster {
             return self.send(peer, Message::SceneStored { hash });
         }
         if bytes > max as u64 {
-            let message = format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes");
+            let message =
+                format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes");
             return self.send(peer, Message::Error { message });
         }
         let Some(p) = self.peers.get_mut(&peer) else { return };
@@ -843,7 +844,11 @@ impl Cluster {
                 if let Some(sync) = self.scenes.sync(&hash) {
                     self.out.push_back(Transmit::Store(Stored::Scene { hash, sync }));
                 }
-                tracing::info!("holding scene {} for {}", bundle.name, self.peers.get(&peer).map_or("?", |p| &p.name));
+                tracing::info!(
+                    "holding scene {} for {}",
+                    bundle.name,
+                    self.peers.get(&peer).map_or("?", |p| &p.name)
+                );
                 self.send(peer, Message::SceneStored { hash });
             }
             Err(e) => self.send(peer, Message::Error { message: e.to_string() }),
@@ -1038,8 +1043,14 @@ impl Cluster {
         }
         let frame = self.next_frame;
         let (w, h) = (settings.width, settings.height);
-        let order =
-            FrameOrder { client: viewer, work: client.work, width: w, height: h, samples: settings.spp, queue };
+        let order = FrameOrder {
+            client: viewer,
+            work: client.work,
+            width: w,
+            height: h,
+            samples: settings.spp,
+            queue,
+        };
         if let Err(e) = self.sched.open(now, frame, order) {
             return self.send(viewer, Message::Error { message: e.to_string() });
         }
@@ -1191,12 +1202,17 @@ impl Cluster {
                         _ => None,
                     };
                     // A job's frame is stored done before its client hears so.
-                    if let (Some(i), Some(job)) = (spec.job_frame, job.and_then(|k| self.jobs.by_key.get_mut(&k)))
+                    if let (Some(i), Some(job)) =
+                        (spec.job_frame, job.and_then(|k| self.jobs.by_key.get_mut(&k)))
                         && job.complete(now, i)
                     {
                         let record = job.record();
                         if job.finished() {
-                            tracing::info!("job {} finished: {} frames", record.spec.name, record.spec.frames);
+                            tracing::info!(
+                                "job {} finished: {} frames",
+                                record.spec.name,
+                                record.spec.frames
+                            );
                         }
                         self.out.push_back(Transmit::Store(Stored::Job(record)));
                     }

@@ -211,7 +211,7 @@ async fn bench_size(
             .collect();
         let transport = cluster::client_transport(&ticket)?;
         let (v, info, events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
-                    let info = info.context("the master serves no scene")?;
+        let info = info.context("the master serves no scene")?;
         benches.push(Bench {
             slaves: n,
             per,
@@ -305,7 +305,7 @@ fn kill_latency(scene: &str, threads: usize, w: u32, h: u32) -> anyhow::Result<K
     let viewer_thread = std::thread::spawn(move || {
         actix::System::new().block_on(async move {
             let (v, info, mut events) = viewer::connect(transport.as_ref(), &ticket, "bench").await?;
-                    let info = info.context("the master serves no scene")?;
+            let info = info.context("the master serves no scene")?;
             let mut settings = info.settings;
             settings.width = w;
             settings.height = h;

@@ -142,7 +142,13 @@ mod tests {
     use isin_tracer::RenderSettings;
 
     fn spec(key: u8, frames: u32) -> JobSpec {
-        JobSpec { key: [key; 32], name: format!("job{key}"), scene: [0; 32], frames, settings: RenderSettings::default() }
+        JobSpec {
+            key: [key; 32],
+            name: format!("job{key}"),
+            scene: [0; 32],
+            frames,
+            settings: RenderSettings::default(),
+        }
     }
 
     #[test]

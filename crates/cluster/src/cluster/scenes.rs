@@ -29,7 +29,9 @@ struct Held {
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum StoreError {
     /// It cannot fit even with every idle scene evicted.
-    #[error("the scene is {bytes} bytes; the master holds at most {budget} bytes of scenes and {busy} are in use")]
+    #[error(
+        "the scene is {bytes} bytes; the master holds at most {budget} bytes of scenes and {busy} are in use"
+    )]
     Full {
         /// The scene's encoded size.
         bytes: usize,

@@ -365,8 +365,12 @@ fn a_viewer_sending_a_tile_or_a_slave_requesting_a_frame_is_refused() {
     let s = net.slave(SlaveSpec::default());
     let v = net.viewer();
     net.run_until(|n| n.core.status().slaves.len() == 1 && n.limit(v).is_some());
-    let request =
-        Message::FrameRequest { request: 1, scene: None, camera: Camera::default(), settings: settings(8, 8, 1) };
+    let request = Message::FrameRequest {
+        request: 1,
+        scene: None,
+        camera: Camera::default(),
+        settings: settings(8, 8, 1),
+    };
     net.send_raw(s, protocol::encode(&request).unwrap());
     net.send_raw(v, protocol::encode(&Message::Ready { hash: Some([0; 32]) }).unwrap());
     net.run_until(|n| n.is_closed(s) && n.is_closed(v));

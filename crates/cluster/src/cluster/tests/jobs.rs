@@ -106,7 +106,11 @@ fn viewers_are_pushed_the_status_with_slave_names_and_job_progress() {
     run_job(&mut net, c, 6, &[], Some(3));
     let took = (net.now - start).as_secs() as usize;
     assert!(took >= 3, "{took} s");
-    assert!(net.statuses(v).len() >= pushed + took - 1, "{} pushed in {took} s", net.statuses(v).len() - pushed);
+    assert!(
+        net.statuses(v).len() >= pushed + took - 1,
+        "{} pushed in {took} s",
+        net.statuses(v).len() - pushed
+    );
     let last = net.statuses(v).last().unwrap();
     assert!(last.jobs[0].done >= 2 && last.jobs[0].running, "{last:?}");
     assert!(last.jobs[0].eta_seconds.is_some_and(|s| s > 1.0), "{last:?}");

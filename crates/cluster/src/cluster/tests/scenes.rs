@@ -10,7 +10,9 @@ fn two_slaves_a_flyer_and_a_batch_client(net: &mut Net) -> ([PeerId; 2], PeerId,
     let a = net.slave(SlaveSpec::default());
     let b = net.slave(SlaveSpec { us_per_pixel: 7, ..SlaveSpec::default() });
     let (flyer, batch) = (net.viewer(), net.viewer_of(Work::Batch));
-    net.run_until(|n| n.core.status().slaves.len() == 2 && n.limit(flyer).is_some() && n.limit(batch).is_some());
+    net.run_until(|n| {
+        n.core.status().slaves.len() == 2 && n.limit(flyer).is_some() && n.limit(batch).is_some()
+    });
     ([a, b], flyer, batch)
 }
 
@@ -45,7 +47,10 @@ fn a_batch_render_of_another_scene_during_a_flight_is_that_scenes_render_and_eac
         // The default scene at join, the other one when first handed its tiles.
         assert!(net.scene_syncs(s) <= 2, "slave {s} got {} scenes", net.scene_syncs(s));
     }
-    assert_eq!(net.core.status().scene_sends, slaves.iter().map(|&s| u64::from(net.scene_syncs(s))).sum::<u64>());
+    assert_eq!(
+        net.core.status().scene_sends,
+        slaves.iter().map(|&s| u64::from(net.scene_syncs(s))).sum::<u64>()
+    );
 }
 
 #[test]

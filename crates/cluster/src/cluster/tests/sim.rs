@@ -128,7 +128,13 @@ struct SlaveSim {
 
 impl SlaveSim {
     /// Takes an assignment of a scene it holds.
-    fn assign(&mut self, a: TileAssignment, behaviour: Behaviour, limit: Option<usize>, out: &mut Vec<Message>) {
+    fn assign(
+        &mut self,
+        a: TileAssignment,
+        behaviour: Behaviour,
+        limit: Option<usize>,
+        out: &mut Vec<Message>,
+    ) {
         let s = self;
         s.assignments += 1;
         let seed = a.settings.seed ^ scene_seed(&a.scene);
@@ -371,11 +377,13 @@ impl Net {
     /// returns its hash.
     pub fn upload(&mut self, v: PeerId, bundle: SceneBundle) -> SceneHash {
         let hash = protocol::scene_hash(&bundle);
-        let bytes = protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) }).expect("encodes").len();
+        let bytes =
+            protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) }).expect("encodes").len();
         let p = self.peers.get_mut(&v).expect("known peer");
         let Kind::Viewer(sim) = &mut p.kind else { panic!("{v} is not a viewer") };
         sim.upload = Some(bundle);
-        p.outbox.push(protocol::encode(&Message::SceneUpload { hash, bytes: bytes as u64 }).expect("encodes"));
+        p.outbox
+            .push(protocol::encode(&Message::SceneUpload { hash, bytes: bytes as u64 }).expect("encodes"));
         self.pump();
         hash
     }
@@ -524,7 +532,9 @@ impl Net {
             (Kind::Raw, _) => {}
             (Kind::Slave(_) | Kind::Viewer(_), Message::Challenge { nonce }) => {
                 let (role, threads, cached, codecs) = match &p.kind {
-                    Kind::Slave(s) => (Role::Slave, s.threads, s.held.iter().copied().collect(), codec::offer()),
+                    Kind::Slave(s) => {
+                        (Role::Slave, s.threads, s.held.iter().copied().collect(), codec::offer())
+                    }
                     _ => (Role::Viewer, 0, Vec::new(), codec::offer()),
                 };
                 let client_nonce = [id as u8; 32];
