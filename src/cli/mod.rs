@@ -1,6 +1,5 @@
 //! Command-line interface.
 
-mod bench;
 mod bounded;
 mod cluster;
 mod fly;
@@ -45,7 +44,7 @@ enum Command {
     /// Render tiles for a master.
     Slave(slave::SlaveArgs),
     /// Benchmarks (`isin bench cluster`).
-    Bench(bench::BenchArgs),
+    Bench(isin_lab::bench::BenchArgs),
 }
 
 /// Parses the command line and runs the chosen command.
@@ -59,7 +58,7 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Scene(args)) => scene::run(args),
         Some(Command::Master(args)) => master::run(args),
         Some(Command::Slave(args)) => slave::run(args),
-        Some(Command::Bench(args)) => bench::run(args),
+        Some(Command::Bench(args)) => isin_lab::bench::run(args),
         None => cluster::run_default(&cli.window),
     }
 }

@@ -5,8 +5,8 @@
 
 use super::procs::{ChildGuard, cpu_secs, start_master};
 use super::{loadavg, parse_list};
-use crate::assets::load_scene_file;
-use crate::cli::cluster;
+use crate::client as cluster;
+use crate::client::load_scene_file;
 use anyhow::Context;
 use clap::Args;
 use isin_actors::viewer;

@@ -21,7 +21,7 @@ use super::modes;
 use super::procs::{ChildGuard, cpu_secs, start_master, start_slave, wait_joined};
 use super::report::{self, Series, quantile};
 use super::{loadavg, parse_list, parse_sizes};
-use crate::cli::cluster;
+use crate::client as cluster;
 use crate::netlab::{self, Lab, LinkSpec, Support};
 use anyhow::Context;
 use clap::Args;
