@@ -1,6 +1,6 @@
 //! `isin fly`: replays a camera path headless, one PNG per camera, and prints
 //! per-frame render times (for benchmarks and tests) — on this machine, or
-//! with `--cluster` on a cluster, several frames queued at once.
+//! with `--connect` on a cluster, several frames queued at once.
 
 use crate::assets::load_scene_file;
 use anyhow::Context;
@@ -23,7 +23,7 @@ pub struct FlyArgs {
     pub path: PathBuf,
     /// Directory for `frame_NNNN.png` (created if missing); without it frames
     /// are rendered and timed but not written.
-    #[arg(long)]
+    #[arg(long = "out-dir", alias = "out", value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Image width (default: the path's recorded width, else the scene's).
     #[arg(long, value_parser = super::bounded::side)]
@@ -47,12 +47,11 @@ pub struct FlyArgs {
     /// or `..B`; files keep the frame's number in the path.
     #[arg(long, value_name = "A..B")]
     pub frames: Option<Frames>,
-    /// Render on the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`,
-    /// as the master printed it) instead of on this machine. The master must
-    /// serve SCENE; frames are batch work (people flying come first), several
-    /// queued at once, each written as it completes.
-    #[arg(long, value_name = "TICKET")]
-    pub cluster: Option<String>,
+    /// Render on the cluster of a join ticket instead of on this machine. The
+    /// master must serve SCENE; frames are batch work (people flying come
+    /// first), several queued at once, each written as it completes.
+    #[command(flatten)]
+    pub cluster: super::ticket::TicketArgs,
 }
 
 /// A range of a camera path's frames, as `--frames` takes it.
@@ -134,7 +133,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    if let Some(ticket) = &args.cluster {
+    if let Some(ticket) = args.cluster.ticket()? {
         return run_cluster(&args, &path, range, ticket);
     }
     let (scene, _bundle) = load_scene_file(&args.scene)?;
@@ -186,14 +185,13 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
 /// a client).
 const QUEUED: usize = 3;
 
-/// `isin fly --cluster`: the path's frames through a cluster, pipelined.
+/// `isin fly --connect`: the path's frames through a cluster, pipelined.
 fn run_cluster(
     args: &FlyArgs,
     path: &CameraPath,
     range: std::ops::Range<usize>,
-    ticket: &str,
+    ticket: isin_transport::Ticket,
 ) -> anyhow::Result<()> {
-    let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let transport = super::cluster::client_transport(&ticket)?;
     actix::System::new().block_on(async move {
         let (v, scene, mut events) =

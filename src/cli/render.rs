@@ -12,8 +12,8 @@ use std::time::Instant;
 pub struct RenderArgs {
     /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
-    /// Output PNG file.
-    #[arg(short, long, default_value = "out.png")]
+    /// Output image file (PNG, or JPEG named .jpg / .jpeg).
+    #[arg(short, long, value_name = "FILE", default_value = "out.png")]
     pub output: PathBuf,
     /// Image width in pixels (default: the scene's; alone, the height follows
     /// at the scene's aspect ratio). An image of another shape than the
@@ -35,10 +35,10 @@ pub struct RenderArgs {
     /// Do not draw a progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// Render through the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`)
-    /// instead of locally; the master's scene, camera and settings are used.
-    #[arg(long)]
-    pub cluster: Option<String>,
+    /// Render through the cluster of a join ticket instead of locally (the
+    /// master's scene, camera and settings are used).
+    #[command(flatten)]
+    pub cluster: super::ticket::TicketArgs,
 }
 
 /// An output image being written: the format checked and the file created
@@ -97,7 +97,7 @@ impl Drop for Output {
 /// Runs `isin render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let output = Output::create(&args.output)?;
-    if let Some(ticket) = &args.cluster {
+    if let Some(ticket) = args.cluster.ticket()? {
         return run_cluster(&args, ticket, output);
     }
     let (scene, _bundle, load) = load_scene_file_timed(&args.scene)?;
@@ -154,9 +154,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `isin render --cluster TICKET`: one frame through a running cluster.
-fn run_cluster(args: &RenderArgs, ticket: &str, output: Output) -> anyhow::Result<()> {
-    let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
+/// `isin render --connect TICKET`: one frame through a running cluster.
+fn run_cluster(args: &RenderArgs, ticket: isin_transport::Ticket, output: Output) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let (frame, stats, scene, wire) =
         super::cluster::render_frame(&ticket, &args.scene, args.width, args.height, args.spp)?;

@@ -1,5 +1,5 @@
 //! End-to-end tests of the cluster: real `isin master`, `isin slave` and
-//! `isin render --cluster` processes on loopback sockets.
+//! `isin render --connect` processes on loopback sockets.
 //!
 //! Each test body takes the transport it runs over; `cluster_test!` expands
 //! it once per transport, so the same assertions hold for TLS over TCP and
@@ -9,8 +9,8 @@
 //!
 //! Contents:
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
-//! - `rendering_another_scene…`: `render OTHER --cluster` fails naming both scenes, writes nothing.
-//! - `fly_through_the_cluster…`: `fly --cluster --frames 10..16` writes the frames `fly` writes here.
+//! - `rendering_another_scene…`: `render OTHER --connect` fails naming both scenes, writes nothing.
+//! - `fly_through_the_cluster…`: `fly --connect --frames 10..16` writes the frames `fly` writes here.
 //! - `another_aspect…`: `--width`/`--height` of another shape give the local render's pixels.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
@@ -80,7 +80,7 @@ cluster_test!(rendering_another_scene_than_the_masters_is_refused_not_silently_w
     let c = Cluster::start(t, 1, &[]);
     let other = util::root().join("scenes/cornell.toml");
     let out = c.dir.path().join("other.png");
-    let args = ["render", other.to_str().unwrap(), "--cluster", &c.ticket, "-o", out.to_str().unwrap()];
+    let args = ["render", other.to_str().unwrap(), "--connect", &c.ticket, "-o", out.to_str().unwrap()];
     let mut p = Proc::spawn("render other scene", &args, "warn");
     assert!(!p.wait_exit().success(), "rendered another scene than asked\n{}", p.dump());
     let said = p.matching(Stream::Err, |l| l.contains("the master serves paper.toml"));
@@ -94,7 +94,7 @@ cluster_test!(fly_through_the_cluster_equals_fly_here_frame_for_frame, |t| {
     let fly = |out: &std::path::Path, cluster: Option<&str>| {
         let mut args = vec!["fly", scene.to_str().unwrap(), "--path", path.to_str().unwrap()];
         args.extend([
-            "--out",
+            "--out-dir",
             out.to_str().unwrap(),
             "--width",
             "160",
@@ -103,7 +103,7 @@ cluster_test!(fly_through_the_cluster_equals_fly_here_frame_for_frame, |t| {
             "--frames",
             "10..16",
         ]);
-        args.extend(cluster.map(|t| ["--cluster", t]).into_iter().flatten());
+        args.extend(cluster.map(|t| ["--connect", t]).into_iter().flatten());
         let mut p = Proc::spawn("fly", &args, "warn");
         assert!(p.wait_exit().success(), "fly failed\n{}", p.dump());
     };
@@ -177,7 +177,7 @@ cluster_test!(wrong_token, |t: Transport| {
     let (mut p, out) = {
         let scene = util::scene();
         let o = c.dir.path().join("intruder.png");
-        let args = ["render", scene.to_str().unwrap(), "--cluster", &wrong, "-o", o.to_str().unwrap()];
+        let args = ["render", scene.to_str().unwrap(), "--connect", &wrong, "-o", o.to_str().unwrap()];
         (Proc::spawn("intruder render", &args, "info"), o)
     };
     assert!(!p.wait_exit().success());

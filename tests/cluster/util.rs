@@ -397,16 +397,16 @@ impl Cluster {
         }
     }
 
-    /// Starts `isin render --cluster` writing `name`; the caller waits on it.
+    /// Starts `isin render --connect` writing `name`; the caller waits on it.
     pub fn render_async(&self, name: &str, extra: &[&str]) -> (Proc, PathBuf) {
         let out = self.dir.path().join(name);
         let scene = scene();
         let mut args =
-            vec!["render", scene.to_str().unwrap(), "--cluster", &self.ticket, "-o", out.to_str().unwrap()];
+            vec!["render", scene.to_str().unwrap(), "--connect", &self.ticket, "-o", out.to_str().unwrap()];
         args.extend_from_slice(extra);
         let args: Vec<String> = args.into_iter().map(String::from).collect();
         let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-        (Proc::spawn("render --cluster", &refs, "info"), out)
+        (Proc::spawn("render --connect", &refs, "info"), out)
     }
 
     /// The master's ticket with its token replaced by `token`.

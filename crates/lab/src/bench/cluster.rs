@@ -36,7 +36,7 @@ pub struct ClusterBenchArgs {
     #[arg(long)]
     threads: Option<usize>,
     /// Where to write the JSON results.
-    #[arg(long, default_value = "bench-cluster.json")]
+    #[arg(short, long = "output", alias = "out", value_name = "FILE", default_value = "bench-cluster.json")]
     out: PathBuf,
 }
 

@@ -107,7 +107,7 @@ pub struct ScalingArgs {
     #[arg(long)]
     from_json: Option<PathBuf>,
     /// Directory for scaling.json, scaling.md and scaling.svg.
-    #[arg(long, default_value = "target/bench")]
+    #[arg(long, value_name = "DIR", default_value = "target/bench")]
     out_dir: PathBuf,
 }
 

@@ -87,7 +87,7 @@ pub struct TransportsArgs {
     #[arg(long)]
     from_json: Option<PathBuf>,
     /// Directory for transports.json, transports.md and transports.svg.
-    #[arg(long, default_value = "target/bench")]
+    #[arg(long, value_name = "DIR", default_value = "target/bench")]
     out_dir: PathBuf,
 }
 
