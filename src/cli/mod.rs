@@ -27,7 +27,7 @@ current folder.
 #[command(version, propagate_version = true, about, long_about = None, before_help = NO_ARGUMENTS)]
 #[command(args_conflicts_with_subcommands = true)]
 #[command(
-    help_template = "{about-with-newline}\n{before-help}\n{usage-heading} {usage}\n\n{all-args}{after-help}"
+    help_template = "{about-with-newline}\n{before-help}{usage-heading} {usage}\n\n{all-args}{after-help}"
 )]
 #[command(override_usage = "isin [OPTIONS]\n       isin FILE [VIEW OPTIONS]\n       isin <COMMAND>")]
 #[command(after_help = view::KEYS_HELP)]

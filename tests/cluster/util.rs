@@ -204,9 +204,18 @@ impl Proc {
 
     /// [`Proc::spawn`] in working directory `dir`.
     pub fn spawn_in(name: &str, dir: &Path, args: &[&str], log: &str) -> Proc {
+        Self::spawn_with_env(name, dir, args, log, &[])
+    }
+
+    /// [`Proc::spawn_in`] with the environment variables `env` set.
+    pub fn spawn_with_env(name: &str, dir: &Path, args: &[&str], log: &str, env: &[(&str, &str)]) -> Proc {
         let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
             .current_dir(dir)
             .args(args)
+            // No ticket from the environment the tests run in.
+            .env_remove("ISIN_TICKET")
+            .env_remove("ISIN_TOKEN")
+            .envs(env.iter().copied())
             .env("RUST_LOG", log)
             .env("RUST_BACKTRACE", "0")
             // Headless: `isin` with no arguments must not try to open a window.
