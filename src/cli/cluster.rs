@@ -200,8 +200,8 @@ pub fn run_default(window: &super::view::WindowArgs) -> anyhow::Result<()> {
             run_default_headless()?;
             println!("{e}");
             println!(
-                "the viewer needs a display: `isin view scenes/paper.toml` (or `isin view --connect TICKET` \
-                 on a cluster); headless, `isin render scenes/paper.toml -o out.png`"
+                "the viewer needs a display: `isin view SCENE` (or `isin view --connect TICKET` on a \
+                 cluster); headless, `isin render SCENE -o out.png`"
             );
             Ok(())
         }

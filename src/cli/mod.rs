@@ -54,7 +54,8 @@ enum Command {
     Master(master::MasterArgs),
     /// Render tiles for a master.
     Slave(slave::SlaveArgs),
-    /// Benchmarks of whole clusters (`scaling` and `transports` need root).
+    /// Benchmarks of whole clusters, run from the checkout (their default scenes and output
+    /// folders are relative to it; `scaling` and `transports` need root).
     Bench(isin_lab::bench::BenchArgs),
     /// Print a shell completion script (e.g. `isin completions bash > /etc/bash_completion.d/isin`).
     Completions {
