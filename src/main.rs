@@ -3,7 +3,6 @@
 mod assets;
 mod cli;
 mod frame_cache;
-mod netlab;
 
 /// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
 #[global_allocator]

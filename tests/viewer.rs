@@ -442,7 +442,7 @@ fn fly_replays_the_shipped_path_into_pngs() {
         .arg(&scene)
         .arg("--path")
         .arg(&path_file)
-        .arg("--out")
+        .arg("--out-dir")
         .arg(out.path())
         .args(["--width", "48", "--height", "36", "--fast"])
         .current_dir(repo())

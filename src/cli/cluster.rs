@@ -78,7 +78,7 @@ fn load_or_create_identity(dir: &Path) -> anyhow::Result<Identity> {
 }
 
 /// Writes a secret file readable by its owner only.
-fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+pub fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     use std::io::Write;
     use std::os::unix::fs::OpenOptionsExt;
     let mut f = std::fs::OpenOptions::new()
@@ -88,29 +88,10 @@ fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .mode(0o600)
         .open(path)
         .with_context(|| format!("cannot write {}", path.display()))?;
+    // An existing file keeps its mode through `open`: narrowed here.
+    f.set_permissions(std::os::unix::fs::PermissionsExt::from_mode(0o600))
+        .with_context(|| format!("cannot restrict {} to its owner", path.display()))?;
     f.write_all(bytes).with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// A ticket from `--connect`: a full `isin://…` ticket, or `HOST:PORT` with
-/// `--token` for a plaintext master (`transport` `tcp-insecure`; the encrypted
-/// transports need the whole ticket, for its fingerprint).
-pub fn ticket(connect: &str, token: Option<&str>, transport: TransportKind) -> anyhow::Result<Ticket> {
-    if connect.contains("://") {
-        let mut t: Ticket = connect.parse()?;
-        if let Some(tok) = token {
-            t.token = tok.to_string();
-        }
-        Ok(t)
-    } else {
-        let token = token.context("--connect HOST:PORT needs --token (or pass the whole isin:// ticket)")?;
-        anyhow::ensure!(
-            transport == TransportKind::TcpInsecure,
-            "--transport {transport} needs the whole ticket the master printed (it carries the \
-             certificate fingerprint); a bare HOST:PORT only reaches a plaintext master \
-             (--transport tcp-insecure)"
-        );
-        Ok(Ticket { transport, token: token.to_string(), addr: connect.to_string(), fingerprint: None })
-    }
 }
 
 /// How long a client keeps trying to reach a master at most between two
@@ -236,7 +217,7 @@ async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Add
         fingerprint: Some(identity.fingerprint()),
     };
     println!("embedded cluster: master on {} with {slaves} local slaves × {threads} threads", ticket.addr);
-    println!("join more slaves with: isin slave --connect {ticket}");
+    println!("join more slaves with: {}", super::ticket::join_hint(&ticket));
     let master = Master::new(cfg)?.serve(listener);
     for i in 0..slaves {
         let opts = SlaveOptions { name: format!("local{i}"), threads, ..SlaveOptions::default() };
@@ -265,8 +246,8 @@ pub fn run_default(window: &super::view::WindowArgs) -> anyhow::Result<()> {
             run_default_headless()?;
             println!("{e}");
             println!(
-                "the viewer needs a display: `isin view scenes/paper.toml` (or `isin view --connect TICKET` \
-                 on a cluster); headless, `isin render scenes/paper.toml -o out.png`"
+                "the viewer needs a display: `isin view SCENE` (or `isin view --connect TICKET` on a \
+                 cluster); headless, `isin render SCENE -o out.png`"
             );
             Ok(())
         }

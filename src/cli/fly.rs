@@ -1,6 +1,6 @@
 //! `isin fly`: replays a camera path headless, one PNG per camera, and prints
 //! per-frame render times (for benchmarks and tests) — on this machine, or
-//! with `--cluster` on a cluster, several frames queued at once.
+//! with `--connect` on a cluster, several frames queued at once.
 
 use crate::assets::load_scene_file;
 use anyhow::Context;
@@ -25,7 +25,7 @@ pub struct FlyArgs {
     pub path: PathBuf,
     /// Directory for `frame_NNNN.png` (created if missing); without it frames
     /// are rendered and timed but not written.
-    #[arg(long)]
+    #[arg(long = "out-dir", alias = "out", value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Image width (default: the path's recorded width, else the scene's).
     #[arg(long, value_parser = super::bounded::side)]
@@ -49,16 +49,15 @@ pub struct FlyArgs {
     /// or `..B`; files keep the frame's number in the path.
     #[arg(long, value_name = "A..B")]
     pub frames: Option<Frames>,
-    /// Render on the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`,
-    /// as the master printed it) instead of on this machine. The master must
-    /// send SCENE to the master (unless it holds it); frames are one batch
+    /// Render on the cluster of a join ticket instead of on this machine:
+    /// SCENE goes to the master (unless it holds it); frames are one batch
     /// job (people flying come first), several queued at once, each written
     /// as it completes. If the master restarts, the flight reconnects and
     /// resumes from the first frame not written.
-    #[arg(long, value_name = "TICKET")]
-    pub cluster: Option<String>,
-    /// With --cluster: give up after this many seconds.
-    #[arg(long, value_name = "SECONDS", requires = "cluster", value_parser = super::bounded::timeout)]
+    #[command(flatten)]
+    pub cluster: super::ticket::TicketArgs,
+    /// With a ticket: give up after this many seconds.
+    #[arg(long, value_name = "SECONDS", value_parser = super::bounded::timeout)]
     pub timeout: Option<u64>,
 }
 
@@ -156,7 +155,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    if let Some(ticket) = &args.cluster {
+    if let Some(ticket) = args.cluster.ticket()? {
         return run_cluster(&args, &path, range, ticket);
     }
     let (scene, _bundle) = load_scene_file(&args.scene)?;
@@ -220,7 +219,7 @@ fn job_key(scene: &SceneHash, cameras: &[Camera], settings: &RenderSettings, fir
     h.finalize().into()
 }
 
-/// `isin fly --cluster`: the path's frames through a cluster, pipelined, as
+/// `isin fly --connect`: the path's frames through a cluster, pipelined, as
 /// one batch job. SCENE goes to the master unless it holds it. When the
 /// master is lost (a restart), the flight reconnects and goes on from the
 /// frames not yet written; a frame the master recorded done whose file is
@@ -229,9 +228,8 @@ fn run_cluster(
     args: &FlyArgs,
     path: &CameraPath,
     range: std::ops::Range<usize>,
-    ticket: &str,
+    ticket: isin_transport::Ticket,
 ) -> anyhow::Result<()> {
-    let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
     let transport = super::cluster::client_transport(&ticket)?;
     let (_, scene_settings, bundle) = crate::assets::load_view(&args.scene)?;
     let settings = flight_settings(args, path, scene_settings)?;

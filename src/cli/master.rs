@@ -42,8 +42,12 @@ pub struct MasterArgs {
     #[arg(long)]
     pub identity: Option<PathBuf>,
     /// Shared secret slaves and viewers must prove (generated if absent).
-    #[arg(long)]
+    #[arg(long, env = "ISIN_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// Also write the join ticket to this file, readable by its owner only
+    /// (mode 0600), for slaves to read with `--ticket-file`.
+    #[arg(long, value_name = "PATH")]
+    pub ticket_out: Option<PathBuf>,
     /// Tile edge in pixels (halved, down to 16, while a frame would have fewer
     /// than 8 tiles per render thread in the cluster).
     #[arg(long, default_value_t = 32, value_parser = super::bounded::tile)]
@@ -95,10 +99,13 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
         let listener = transport.listen(&args.listen).await?;
         let addr = listener.local_addr();
         let ticket = Ticket { transport: kind, token, addr: addr.clone(), fingerprint };
+        if let Some(path) = &args.ticket_out {
+            cluster::write_private(path, format!("{ticket}\n").as_bytes())?;
+        }
         let mut out = std::io::stdout().lock();
         writeln!(out, "listening {addr}")?;
         writeln!(out, "ticket {ticket}")?;
-        writeln!(out, "join with: isin slave --connect {ticket}")?;
+        writeln!(out, "join with: {}", super::ticket::join_hint(&ticket))?;
         out.flush()?;
         drop(out);
         if addr.starts_with("0.0.0.0") || addr.starts_with("[::]") {

@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 pub struct RenderArgs {
     /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
-    /// Output PNG file.
-    #[arg(short, long, default_value = "out.png")]
+    /// Output image file (PNG, or JPEG named .jpg / .jpeg).
+    #[arg(short, long, value_name = "FILE", default_value = "out.png")]
     pub output: PathBuf,
     /// Image width in pixels (default: the scene's; alone, the height follows
     /// at the scene's aspect ratio). An image of another shape than the
@@ -35,15 +35,15 @@ pub struct RenderArgs {
     /// Do not draw a progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// Render through the cluster of this join ticket (`isin://TOKEN@HOST:PORT?fp=…`)
-    /// instead of locally: SCENE goes to the master (unless it holds it
-    /// already) and the frame is batch work, after people flying. If the
-    /// master restarts, the render reconnects and goes on.
-    #[arg(long)]
-    pub cluster: Option<String>,
-    /// With --cluster: give up after this many seconds (waiting for slaves,
-    /// or for a master that is down, included).
-    #[arg(long, value_name = "SECONDS", requires = "cluster", value_parser = super::bounded::timeout)]
+    /// Render through the cluster of a join ticket instead of locally: SCENE
+    /// goes to the master (unless it holds it already) and the frame is batch
+    /// work, after people flying. If the master restarts, the render
+    /// reconnects and goes on.
+    #[command(flatten)]
+    pub cluster: super::ticket::TicketArgs,
+    /// With a ticket: give up after this many seconds (waiting for slaves, or
+    /// for a master that is down, included).
+    #[arg(long, value_name = "SECONDS", value_parser = super::bounded::timeout)]
     pub timeout: Option<u64>,
 }
 
@@ -103,7 +103,7 @@ impl Drop for Output {
 /// Runs `isin render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let output = Output::create(&args.output)?;
-    if let Some(ticket) = &args.cluster {
+    if let Some(ticket) = args.cluster.ticket()? {
         return run_cluster(&args, ticket, output);
     }
     let (scene, _bundle, load) = load_scene_file_timed(&args.scene)?;
@@ -160,9 +160,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `isin render --cluster TICKET`: one frame through a running cluster.
-fn run_cluster(args: &RenderArgs, ticket: &str, output: Output) -> anyhow::Result<()> {
-    let ticket = super::cluster::ticket(ticket, None, isin_transport::TransportKind::Tcp)?;
+/// `isin render --connect TICKET`: one frame through a running cluster.
+fn run_cluster(args: &RenderArgs, ticket: isin_transport::Ticket, output: Output) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let (frame, stats, scene, wire) = super::cluster::render_frame(
         &ticket,

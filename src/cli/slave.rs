@@ -10,17 +10,9 @@ use std::sync::Arc;
 /// Arguments of `isin slave`.
 #[derive(Args, Debug)]
 pub struct SlaveArgs {
-    /// The master's join ticket as it printed it (`isin://TOKEN@HOST:PORT?fp=…`,
-    /// `isin+quic://…?fp=…`, or `isin+tcp-insecure://…`), or `HOST:PORT` with
-    /// `--token` and `--transport tcp-insecure` (plaintext masters only).
-    #[arg(long)]
-    pub connect: String,
-    /// The shared secret, when `--connect` is a bare address.
-    #[arg(long)]
-    pub token: Option<String>,
-    /// Transport, when `--connect` is a bare address.
-    #[arg(long, default_value = "tcp")]
-    pub transport: isin_transport::TransportKind,
+    /// The master to join.
+    #[command(flatten)]
+    pub master: super::ticket::TicketArgs,
     /// Render threads (default, or 0: one per core).
     #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
@@ -36,7 +28,7 @@ pub struct SlaveArgs {
 
 /// Runs `isin slave` until refused or killed.
 pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
-    let ticket = cluster::ticket(&args.connect, args.token.as_deref(), args.transport)?;
+    let ticket = args.master.require()?;
     let transport = cluster::client_transport(&ticket)?;
     let mut opts = SlaveOptions::default();
     // 0 means one per core, as for every command.

@@ -11,13 +11,21 @@ use std::fmt::Write;
 /// Arguments of `isin status`.
 #[derive(Args, Debug)]
 pub struct StatusArgs {
-    /// The join ticket the master printed (`isin://TOKEN@HOST:PORT?fp=…`).
-    pub ticket: String,
+    /// The join ticket the master printed (`isin://TOKEN@HOST:PORT?fp=…`);
+    /// without it, `--ticket-file` or `ISIN_TICKET`.
+    #[arg(value_name = "TICKET")]
+    pub ticket: Option<String>,
+    /// Where else the ticket may come from.
+    #[command(flatten)]
+    pub cluster: super::ticket::TicketArgs,
 }
 
 /// Runs `isin status`.
 pub fn run(args: StatusArgs) -> anyhow::Result<()> {
-    let ticket = cluster::ticket(&args.ticket, None, isin_transport::TransportKind::Tcp)?;
+    let ticket = match &args.ticket {
+        Some(t) => super::ticket::parse(t, args.cluster.token.as_deref(), args.cluster.transport)?,
+        None => args.cluster.require()?,
+    };
     let transport = cluster::client_transport(&ticket)?;
     let status = actix::System::new().block_on(async {
         let join = client::Join::viewer("status", Work::Batch);

@@ -6,7 +6,6 @@
 //! [`run_with_source`]: it needs only the source, the starting camera, the
 //! render settings and the scene's size (for navigation speeds).
 
-use super::cluster;
 use super::remote::Remote;
 use crate::assets::load_scene_file;
 use anyhow::Context;
@@ -136,22 +135,13 @@ impl Default for WindowArgs {
 /// Arguments of `isin view`.
 #[derive(Args, Debug)]
 pub struct ViewArgs {
-    /// Scene file (TOML) or mesh file (.gltf, .glb, .obj). With --connect it
-    /// is sent to the master and flown on the cluster; without, the master's
+    /// Scene file (TOML) or mesh file (.gltf, .glb, .obj). With a ticket it is
+    /// sent to the master and flown on the cluster; without one, the master's
     /// own scene is shown.
-    #[arg(required_unless_present = "connect")]
     pub scene: Option<PathBuf>,
-    /// Show what a cluster renders: the join ticket the master printed
-    /// (`isin://TOKEN@HOST:PORT?fp=…`), or `HOST:PORT` with `--token` for a
-    /// plaintext (`--insecure`) master.
-    #[arg(long, value_name = "TICKET")]
-    pub connect: Option<String>,
-    /// The shared secret, when `--connect` is a bare address.
-    #[arg(long, requires = "connect")]
-    pub token: Option<String>,
-    /// Transport, when `--connect` is a bare address.
-    #[arg(long, default_value = "tcp")]
-    pub transport: isin_transport::TransportKind,
+    /// Show what a cluster renders instead.
+    #[command(flatten)]
+    pub cluster: super::ticket::TicketArgs,
     #[command(flatten)]
     pub window: WindowArgs,
     /// Render threads (default, or 0: one per core; without --connect).
@@ -167,8 +157,7 @@ pub struct ViewArgs {
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // Fail before the (possibly slow) scene load or connection when no window can open.
     isin_viewer::check_display()?;
-    if let Some(connect) = &args.connect {
-        let ticket = cluster::ticket(connect, args.token.as_deref(), args.transport)?;
+    if let Some(ticket) = args.cluster.ticket()? {
         let own = match &args.scene {
             None => None,
             Some(path) => {
@@ -180,7 +169,9 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         };
         return run_remote(ticket, None, own, &args.window);
     }
-    let scene_path = args.scene.context("a scene file is needed without --connect")?;
+    let scene_path = args
+        .scene
+        .context("a scene file is needed without a ticket (--connect, --ticket-file or ISIN_TICKET)")?;
     let (scene, _bundle) = load_scene_file(&scene_path)?;
     let camera = scene.camera;
     let settings = scene.settings;

@@ -1,5 +1,5 @@
 //! End-to-end tests of the cluster: real `isin master`, `isin slave` and
-//! `isin render --cluster` processes on loopback sockets.
+//! `isin render --connect` processes on loopback sockets.
 //!
 //! Each test body takes the transport it runs over; `cluster_test!` expands
 //! it once per transport, so the same assertions hold for TLS over TCP and
@@ -9,7 +9,7 @@
 //!
 //! Contents:
 //! - `identical`: a frame through master + 3 slaves equals `isin render`.
-//! - `fly_through_the_cluster…`: `fly --cluster --frames 10..16` writes the frames `fly` writes here.
+//! - `fly_through_the_cluster…`: `fly --connect --frames 10..16` writes the frames `fly` writes here.
 //! - `another_aspect…`: `--width`/`--height` of another shape give the local render's pixels.
 //! - `kill_mid_frame`: `kill -9` of a slave holding tiles; the frame completes, identical.
 //! - `hot_join`: a 4th slave joining mid-session receives tiles.
@@ -29,6 +29,7 @@
 //! - [`hostile`]: peers that know the token and lie in the protocol.
 //! - [`clients`]: several viewers on one cluster at once.
 //! - [`jobs`]: scenes clients bring, and a flight surviving `kill -9` of its master.
+//! - [`secrets`]: tickets read from a file or the environment, never the command line.
 
 mod util;
 
@@ -71,6 +72,7 @@ macro_rules! cluster_test {
 mod clients;
 mod hostile;
 mod jobs;
+mod secrets;
 
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a
@@ -83,7 +85,7 @@ cluster_test!(fly_through_the_cluster_equals_fly_here_frame_for_frame, |t| {
     let fly = |out: &std::path::Path, cluster: Option<&str>| {
         let mut args = vec!["fly", scene.to_str().unwrap(), "--path", path.to_str().unwrap()];
         args.extend([
-            "--out",
+            "--out-dir",
             out.to_str().unwrap(),
             "--width",
             "160",
@@ -92,7 +94,7 @@ cluster_test!(fly_through_the_cluster_equals_fly_here_frame_for_frame, |t| {
             "--frames",
             "10..16",
         ]);
-        args.extend(cluster.map(|t| ["--cluster", t]).into_iter().flatten());
+        args.extend(cluster.map(|t| ["--connect", t]).into_iter().flatten());
         let mut p = Proc::spawn("fly", &args, "warn");
         assert!(p.wait_exit().success(), "fly failed\n{}", p.dump());
     };
@@ -166,7 +168,7 @@ cluster_test!(wrong_token, |t: Transport| {
     let (mut p, out) = {
         let scene = util::scene();
         let o = c.dir.path().join("intruder.png");
-        let args = ["render", scene.to_str().unwrap(), "--cluster", &wrong, "-o", o.to_str().unwrap()];
+        let args = ["render", scene.to_str().unwrap(), "--connect", &wrong, "-o", o.to_str().unwrap()];
         (Proc::spawn("intruder render", &args, "info"), o)
     };
     assert!(!p.wait_exit().success());

@@ -204,9 +204,18 @@ impl Proc {
 
     /// [`Proc::spawn`] in working directory `dir`.
     pub fn spawn_in(name: &str, dir: &Path, args: &[&str], log: &str) -> Proc {
+        Self::spawn_with_env(name, dir, args, log, &[])
+    }
+
+    /// [`Proc::spawn_in`] with the environment variables `env` set.
+    pub fn spawn_with_env(name: &str, dir: &Path, args: &[&str], log: &str, env: &[(&str, &str)]) -> Proc {
         let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
             .current_dir(dir)
             .args(args)
+            // No ticket from the environment the tests run in.
+            .env_remove("ISIN_TICKET")
+            .env_remove("ISIN_TOKEN")
+            .envs(env.iter().copied())
             .env("RUST_LOG", log)
             .env("RUST_BACKTRACE", "0")
             // Headless: `isin` with no arguments must not try to open a window.
@@ -397,16 +406,16 @@ impl Cluster {
         }
     }
 
-    /// Starts `isin render --cluster` writing `name`; the caller waits on it.
+    /// Starts `isin render --connect` writing `name`; the caller waits on it.
     pub fn render_async(&self, name: &str, extra: &[&str]) -> (Proc, PathBuf) {
         let out = self.dir.path().join(name);
         let scene = scene();
         let mut args =
-            vec!["render", scene.to_str().unwrap(), "--cluster", &self.ticket, "-o", out.to_str().unwrap()];
+            vec!["render", scene.to_str().unwrap(), "--connect", &self.ticket, "-o", out.to_str().unwrap()];
         args.extend_from_slice(extra);
         let args: Vec<String> = args.into_iter().map(String::from).collect();
         let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-        (Proc::spawn("render --cluster", &refs, "info"), out)
+        (Proc::spawn("render --connect", &refs, "info"), out)
     }
 
     /// The master's ticket with its token replaced by `token`.

@@ -5,8 +5,8 @@
 
 use super::procs::{ChildGuard, cpu_secs, start_master};
 use super::{loadavg, parse_list};
-use crate::assets::load_scene_file;
-use crate::cli::cluster;
+use crate::client as cluster;
+use crate::client::load_scene_file;
 use anyhow::Context;
 use clap::Args;
 use isin_actors::viewer;
@@ -36,7 +36,7 @@ pub struct ClusterBenchArgs {
     #[arg(long)]
     threads: Option<usize>,
     /// Where to write the JSON results.
-    #[arg(long, default_value = "bench-cluster.json")]
+    #[arg(short, long = "output", alias = "out", value_name = "FILE", default_value = "bench-cluster.json")]
     out: PathBuf,
 }
 

@@ -21,7 +21,7 @@ use super::modes;
 use super::procs::{ChildGuard, cpu_secs, start_master, start_slave, wait_joined};
 use super::report::{self, Series, quantile};
 use super::{loadavg, parse_list, parse_sizes};
-use crate::cli::cluster;
+use crate::client as cluster;
 use crate::netlab::{self, Lab, LinkSpec, Support};
 use anyhow::Context;
 use clap::Args;
@@ -87,7 +87,7 @@ pub struct TransportsArgs {
     #[arg(long)]
     from_json: Option<PathBuf>,
     /// Directory for transports.json, transports.md and transports.svg.
-    #[arg(long, default_value = "target/bench")]
+    #[arg(long, value_name = "DIR", default_value = "target/bench")]
     out_dir: PathBuf,
 }
 

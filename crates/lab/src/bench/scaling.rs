@@ -27,7 +27,7 @@ use super::procs::{ChildGuard, MachineStat, SchedStat, cpu_secs, start_master, s
 use super::replay;
 use super::report::{self, Series, median, quantile};
 use super::{loadavg, parse_list, parse_sizes};
-use crate::cli::cluster;
+use crate::client as cluster;
 use crate::netlab::{self, CpuCgroup, Lab, LinkSpec, Support, netns::IfCounters};
 use anyhow::Context;
 use clap::Args;
@@ -107,7 +107,7 @@ pub struct ScalingArgs {
     #[arg(long)]
     from_json: Option<PathBuf>,
     /// Directory for scaling.json, scaling.md and scaling.svg.
-    #[arg(long, default_value = "target/bench")]
+    #[arg(long, value_name = "DIR", default_value = "target/bench")]
     out_dir: PathBuf,
 }
 
