@@ -123,9 +123,27 @@ pub const HEARTBEAT_TIMEOUT_MS: Bound = Bound {
     why: "peers heartbeat every 500 ms: below two heartbeats healthy peers die; above an hour nothing is noticed",
 };
 
+/// Frames a keyframed camera path may be sampled into.
+pub const PATH_FRAMES: Bound = Bound {
+    name: "camera path frames",
+    min: 1,
+    max: 100_000,
+    why: "over an hour at 24 fps; a key's time typed in milliseconds instead of seconds would ask for millions",
+};
+
 /// Every bound, for documentation and `isin --help`.
-pub const ALL: &[Bound] =
-    &[IMAGE_SIDE, IMAGE_PIXELS, SPP, LIGHT_SAMPLES, DEPTH, THREADS, TILE, QUEUE_DEPTH, HEARTBEAT_TIMEOUT_MS];
+pub const ALL: &[Bound] = &[
+    IMAGE_SIDE,
+    IMAGE_PIXELS,
+    SPP,
+    LIGHT_SAMPLES,
+    DEPTH,
+    THREADS,
+    TILE,
+    QUEUE_DEPTH,
+    HEARTBEAT_TIMEOUT_MS,
+    PATH_FRAMES,
+];
 
 /// Checks a frame's settings against the bounds: size, samples, light
 /// samples and depth.
