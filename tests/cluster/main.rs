@@ -29,6 +29,7 @@
 //! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
 //! - [`hostile`]: peers that know the token and lie in the protocol.
 //! - [`clients`]: several viewers on one cluster at once.
+//! - [`paths`]: keyframed camera paths flown through a cluster.
 
 mod util;
 
@@ -70,6 +71,7 @@ macro_rules! cluster_test {
 
 mod clients;
 mod hostile;
+mod paths;
 
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];
 /// Long enough (≈ 0.5 s on 2 cores) that a frame is surely in flight when a

@@ -310,8 +310,9 @@ impl Keyframes {
             return Err(KeyframeError::Fps(fps));
         }
         let span = self.end() - self.start();
+        // Finite times and rate: never NaN, at most infinite.
         let frames = (span * fps + 1e-9).floor() + 1.0;
-        if !(frames <= limits::PATH_FRAMES.max as f64) {
+        if frames > limits::PATH_FRAMES.max as f64 {
             return Err(KeyframeError::TooManyFrames { span, fps, frames });
         }
         Ok(frames as usize)

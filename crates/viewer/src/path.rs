@@ -176,10 +176,10 @@ impl KeyDef {
                 if view.length() <= 1e-6 * eye.length().max(1.0) {
                     return Err((Some("look_at"), format!("`look_at` {target} is the eye: look somewhere")));
                 }
-                if up.length() == 0.0 {
+                let Some(unit_up) = up.try_normalize() else {
                     return Err((Some("up"), "`up` has zero length".into()));
-                }
-                if view.normalize().cross(up.normalize()).length() <= 1e-6 {
+                };
+                if view.normalize().cross(unit_up).length() <= 1e-6 {
                     return Err((Some("up"), format!("`up` {up} is parallel to the viewing direction")));
                 }
                 let fov = self.fov.unwrap_or_else(|| Camera::default().hfov_degrees());
