@@ -8,7 +8,7 @@
 //! - the **eye** along a straight line ([`Interpolation::Linear`]) or a
 //!   centripetal Catmull-Rom spline through the eyes of all keys
 //!   ([`Interpolation::CatmullRom`]), which passes through every key, turns
-//!   smoothly, and never overshoots into a loop or cusp between two keys;
+//!   smoothly, and forms no cusp or loop between two keys;
 //! - the **orientation** as a unit quaternion built from the plane's right,
 //!   up and back axes: spherical linear interpolation (slerp), or for
 //!   Catmull-Rom the same spline drawn with slerps in place of straight
