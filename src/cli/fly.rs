@@ -20,7 +20,8 @@ use std::time::{Duration, Instant};
 pub struct FlyArgs {
     /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
-    /// Camera path file (TOML, as written by `isin view --record`).
+    /// Camera path file (TOML): cameras recorded by `isin view --record`, or
+    /// keyframes sampled at the file's `fps` (README, "Camera paths").
     #[arg(long)]
     pub path: PathBuf,
     /// Directory for `frame_NNNN.png` (created if missing); without it frames

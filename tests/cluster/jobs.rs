@@ -23,7 +23,7 @@ cluster_test!(a_render_of_another_scene_during_a_flight_is_that_scenes_render, |
     let local_cornell = util::render_local_of(&cornell, &size);
     let local_paper = util::render_local(&size);
     let out = c.dir.path().join("cornell.png");
-    let args = ["render", cornell.to_str().unwrap(), "--cluster", &c.ticket, "-o", out.to_str().unwrap()];
+    let args = ["render", cornell.to_str().unwrap(), "--connect", &c.ticket, "-o", out.to_str().unwrap()];
     let mut args: Vec<&str> = args.to_vec();
     args.extend(size);
     let mut render = Proc::spawn("render cornell --cluster", &args, "info");
@@ -93,7 +93,7 @@ cluster_test!(a_flight_survives_kill_9_of_its_master_with_every_frame_once_and_i
         let mut a =
             vec!["fly".to_string(), scene.display().to_string(), "--path".into(), path.display().to_string()];
         for x in [
-            "--out",
+            "--out-dir",
             out.to_str().unwrap(),
             "--width",
             "240",
@@ -109,7 +109,7 @@ cluster_test!(a_flight_survives_kill_9_of_its_master_with_every_frame_once_and_i
         a
     };
     let mut args = fly_args(&there);
-    args.extend(["--cluster".to_string(), ticket.clone(), "--timeout".into(), "120".into()]);
+    args.extend(["--connect".to_string(), ticket.clone(), "--timeout".into(), "120".into()]);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let mut fly = Proc::spawn("fly --cluster", &args, "info");
     fly.wait_for_n(Stream::Out, " done at ", 3);

@@ -30,6 +30,7 @@
 //! - [`clients`]: several viewers on one cluster at once.
 //! - [`jobs`]: scenes clients bring, and a flight surviving `kill -9` of its master.
 //! - [`secrets`]: tickets read from a file or the environment, never the command line.
+//! - [`paths`]: keyframed camera paths flown through a cluster.
 
 mod util;
 
@@ -72,6 +73,7 @@ macro_rules! cluster_test {
 mod clients;
 mod hostile;
 mod jobs;
+mod paths;
 mod secrets;
 
 const SMALL: &[&str] = &["--width", "160", "--height", "120"];

@@ -21,7 +21,8 @@
 //!
 //! Modules are named for what they hold: [`geometry`] (rays, boxes),
 //! [`shapes`] (triangle intersection), [`bvh`] (the acceleration structure),
-//! [`cameras`], [`materials`], [`lights`], [`textures`], [`sampling`],
+//! [`cameras`], [`keyframes`] (the cameras between a path's keyed ones),
+//! [`materials`], [`lights`], [`textures`], [`sampling`],
 //! [`meshes`] (built-in primitives), [`shadows`] (what can block shadow rays,
 //! per region of space), [`scene`] (the built, renderable scene),
 //! [`scenefile`] (the human-editable description and its loaders),
@@ -32,6 +33,7 @@ pub mod bvh;
 pub mod cameras;
 pub mod geometry;
 pub mod integrator;
+pub mod keyframes;
 pub mod lights;
 pub mod limits;
 pub mod materials;

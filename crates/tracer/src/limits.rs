@@ -131,6 +131,14 @@ pub const CLIENT_TIMEOUT_S: Bound = Bound {
     why: "a week covers any overnight or weekend job; 0 would give up before starting",
 };
 
+/// Frames a keyframed camera path may be sampled into.
+pub const PATH_FRAMES: Bound = Bound {
+    name: "camera path frames",
+    min: 1,
+    max: 100_000,
+    why: "over an hour at 24 fps; a key's time typed in milliseconds instead of seconds would ask for millions",
+};
+
 /// Every bound, for documentation and `isin --help`.
 pub const ALL: &[Bound] = &[
     IMAGE_SIDE,
@@ -143,6 +151,7 @@ pub const ALL: &[Bound] = &[
     QUEUE_DEPTH,
     HEARTBEAT_TIMEOUT_MS,
     CLIENT_TIMEOUT_S,
+    PATH_FRAMES,
 ];
 
 /// Checks a frame's settings against the bounds: size, samples, light

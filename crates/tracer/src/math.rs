@@ -83,6 +83,18 @@ pub fn atan2(y: f32, x: f32) -> f32 {
     libm::atan2f(y, x)
 }
 
+/// Sine in double precision, computed identically on every platform.
+#[inline]
+pub fn sin_f64(x: f64) -> f64 {
+    libm::sin(x)
+}
+
+/// Arc-cosine in double precision, computed identically on every platform.
+#[inline]
+pub fn acos_f64(x: f64) -> f64 {
+    libm::acos(x)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -33,6 +33,16 @@ pub enum ViewerError {
         /// What is wrong with it.
         message: String,
     },
+    /// A camera path file is malformed at a line.
+    #[error("camera path {path}:{line}: {message}")]
+    PathAt {
+        /// The file.
+        path: PathBuf,
+        /// The line (1-based).
+        line: usize,
+        /// What is wrong there.
+        message: String,
+    },
     /// An image could not be encoded or written.
     #[error("cannot write image {path}: {message}")]
     Image {

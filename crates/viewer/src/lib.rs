@@ -19,7 +19,7 @@
 //!   renders. [`LocalSource`] ([`local`]) renders in-process on a rayon pool;
 //!   [`ChannelSource`] ([`channel`]) is fed from another thread — the adapter
 //!   for the cluster's viewer actor.
-//! - [`path`]: camera paths — recorded by `isin view --record`, replayed by
+//! - [`path`]: camera paths — recorded by `isin view --record` or keyframed, replayed by
 //!   `isin fly` (headless) and `isin view --play` (in the window, measuring
 //!   motion-to-photon latency); [`stats`] summarises the timings.
 //!
@@ -49,7 +49,7 @@ pub use channel::{ChannelSource, SourceFeed, channel_source};
 pub use error::ViewerError;
 pub use input::{Command, Controls, Move};
 pub use local::LocalSource;
-pub use path::{CameraPath, PathFrame, Recorder};
+pub use path::{CameraPath, PathFrame, Recorder, Sampling};
 pub use resolution::{Divisor, MovingResolution};
 pub use session::{FrameReport, PassKind, Quality, Session, SessionConfig};
 pub use source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker, Worker};
