@@ -6,6 +6,8 @@
 //!   slave PCs (network namespaces, rate-limited links, CPU quotas);
 //! - [`transports`]: `isin bench transports`, TCP against QUIC under rate
 //!   limits and packet loss;
+//! - [`shared`]: `isin bench shared`, two viewers and a batch job on one
+//!   emulated cluster at once;
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
 //!   and reading their CPU time; [`modes`]: the transport and compression
 //!   modes the benches run; [`report`]: statistics, tables and plots;
@@ -17,6 +19,7 @@ pub mod procs;
 pub mod replay;
 pub mod report;
 mod scaling;
+mod shared;
 mod transports;
 
 use clap::{Args, Subcommand};
@@ -36,6 +39,8 @@ enum BenchCommand {
     Scaling(scaling::ScalingArgs),
     /// TCP against QUIC: frames/s, bytes, latency and CPU under rate limits and loss.
     Transports(transports::TransportsArgs),
+    /// Two viewers flying and a batch job on one emulated cluster: frames/s of each, utilisation.
+    Shared(shared::SharedArgs),
 }
 
 /// Runs `isin bench`.
@@ -44,6 +49,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Cluster(a) => cluster::run_cluster(a),
         BenchCommand::Scaling(a) => scaling::run(a),
         BenchCommand::Transports(a) => transports::run(a),
+        BenchCommand::Shared(a) => shared::run(a),
     }
 }
 
