@@ -6,6 +6,8 @@
 //!   slave PCs (network namespaces, rate-limited links, CPU quotas);
 //! - [`transports`]: `isin bench transports`, TCP against QUIC under rate
 //!   limits and packet loss;
+//! - [`master`]: `isin bench master`, the master alone at a thousand
+//!   simulated slaves;
 //! - [`shared`]: `isin bench shared`, two viewers and a batch job on one
 //!   emulated cluster at once;
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
@@ -14,6 +16,7 @@
 //!   [`replay`]: replaying a camera path, one frame at a time or pipelined.
 
 mod cluster;
+mod master;
 pub mod modes;
 pub mod procs;
 pub mod replay;
@@ -41,6 +44,8 @@ enum BenchCommand {
     Transports(transports::TransportsArgs),
     /// Two viewers flying and a batch job on one emulated cluster: frames/s of each, utilisation.
     Shared(shared::SharedArgs),
+    /// The master alone at a thousand simulated slaves: scheduler and routing cost, failure detection.
+    Master(master::MasterBenchArgs),
 }
 
 /// Runs `isin bench`.
@@ -50,6 +55,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Scaling(a) => scaling::run(a),
         BenchCommand::Transports(a) => transports::run(a),
         BenchCommand::Shared(a) => shared::run(a),
+        BenchCommand::Master(a) => master::run(a),
     }
 }
 

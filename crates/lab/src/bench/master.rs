@@ -1,0 +1,417 @@
+//! `isin bench master`: the master alone at a thousand slaves — no tracer, no
+//! network. Two measurements:
+//!
+//! - **The scheduler**, driven directly: `N` slaves, frames queued two
+//!   ahead, every assigned tile answered in the order it was handed out (a
+//!   virtual clock advancing a microsecond a result). It gives the
+//!   scheduler's CPU time per tile.
+//! - **The whole master** (core and actor) over the in-memory transport, with
+//!   `N` simulated slaves that answer each tile at once with blank pixels
+//!   (on a thread of their own) and a viewer replaying frames (on another):
+//!   the most tiles per second the master routes, its own thread's CPU time
+//!   per tile, memory per slave, and how long it takes to find out that 100
+//!   slaves vanished (silent, connections open) and to hand their tiles to
+//!   the others.
+
+use super::loadavg;
+use super::report;
+use anyhow::Context;
+use clap::Args;
+use isin_actors::client::{self, Join};
+use isin_actors::master::{GetStatus, Master, MasterConfig};
+use isin_actors::slave::thread_cpu_time;
+use isin_actors::viewer;
+use isin_cluster::codec::Codec;
+use isin_cluster::protocol::{self, Message, TileResult};
+use isin_cluster::scheduler::{FrameOrder, Output, Scheduler, SchedulerConfig, Work};
+use isin_tracer::{Camera, RenderSettings, SceneBundle};
+use isin_transport::mem::MemTransport;
+use isin_transport::{Delivery, Ticket, Transport, TransportKind};
+use serde::Serialize;
+use serde_bytes::ByteBuf;
+use std::collections::{BTreeMap, VecDeque};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Arguments of `isin bench master`.
+#[derive(Args, Debug)]
+pub struct MasterBenchArgs {
+    /// Simulated slaves.
+    #[arg(long, default_value_t = 1000)]
+    slaves: usize,
+    /// Render threads each slave says it has.
+    #[arg(long, default_value_t = 2)]
+    threads: u32,
+    /// Frame size, `WxH`.
+    #[arg(long, default_value = "1920x1080")]
+    size: String,
+    /// Seconds the whole master routes tiles for.
+    #[arg(long, default_value_t = 10)]
+    seconds: u64,
+    /// Slaves that vanish at once, after the timed span.
+    #[arg(long, default_value_t = 100)]
+    vanish: usize,
+    /// The master's heartbeat timeout in milliseconds.
+    #[arg(long, default_value_t = 2000)]
+    heartbeat_timeout_ms: u64,
+    /// Directory for master.json and master.md.
+    #[arg(long, value_name = "DIR", default_value = "target/bench")]
+    out_dir: PathBuf,
+}
+
+#[derive(Serialize)]
+struct MasterReport {
+    slaves: usize,
+    threads: u32,
+    width: u32,
+    height: u32,
+    /// The scheduler alone: tiles handled and nanoseconds per tile.
+    scheduler_tiles: u64,
+    scheduler_ns_per_tile: f64,
+    /// The whole master: tiles routed per second, its thread's CPU per tile.
+    routed_tiles: u64,
+    routed_per_second: f64,
+    master_cpu_us_per_tile: f64,
+    master_cpu_share: f64,
+    /// Resident memory added per connected slave (master and the slave's
+    /// simulation together), bytes.
+    rss_per_slave: f64,
+    vanished: usize,
+    heartbeat_timeout_ms: u64,
+    /// From the slaves going silent to the master declaring the last of them
+    /// dead (their tiles handed to others in the same step), ms.
+    detect_ms: Option<f64>,
+    cores: usize,
+    loadavg: String,
+    unix_time: u64,
+}
+
+/// Runs `isin bench master`.
+pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
+    let (w, h) = *super::parse_sizes(&args.size)?.first().context("no size")?;
+    anyhow::ensure!(args.slaves >= 1 && args.vanish < args.slaves, "--vanish must be below --slaves");
+    let (scheduler_tiles, secs) = scheduler_alone(args.slaves, args.threads, w, h, 6);
+    println!(
+        "scheduler alone, {} slaves × {} threads: {scheduler_tiles} tiles in {:.3} s, {:.0} ns a tile",
+        args.slaves,
+        args.threads,
+        secs,
+        secs * 1e9 / scheduler_tiles.max(1) as f64
+    );
+    let whole = whole_master(&args, w, h)?;
+    let report = MasterReport {
+        slaves: args.slaves,
+        threads: args.threads,
+        width: w,
+        height: h,
+        scheduler_tiles,
+        scheduler_ns_per_tile: secs * 1e9 / scheduler_tiles.max(1) as f64,
+        routed_tiles: whole.tiles,
+        routed_per_second: whole.tiles as f64 / whole.wall,
+        master_cpu_us_per_tile: whole.master_cpu * 1e6 / whole.tiles.max(1) as f64,
+        master_cpu_share: whole.master_cpu / whole.wall,
+        rss_per_slave: whole.rss_per_slave,
+        vanished: args.vanish,
+        heartbeat_timeout_ms: args.heartbeat_timeout_ms,
+        detect_ms: whole.detect.map(|d| d.as_secs_f64() * 1e3),
+        cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        loadavg: loadavg(),
+        unix_time: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+    };
+    let md = markdown(&report);
+    print!("\n{md}");
+    report::write(&args.out_dir.join("master.json"), &serde_json::to_string_pretty(&report)?)?;
+    report::write(&args.out_dir.join("master.md"), &md)?;
+    println!("wrote master.json and master.md in {}", args.out_dir.display());
+    Ok(())
+}
+
+/// Drives a [`Scheduler`] of `slaves` slaves through `frames` frames of
+/// `w × h`; returns the tiles handled and the seconds it took.
+pub fn scheduler_alone(slaves: usize, threads: u32, w: u32, h: u32, frames: usize) -> (u64, f64) {
+    let cfg = SchedulerConfig { heartbeat_timeout: Duration::from_secs(3600), ..SchedulerConfig::default() };
+    let mut s = Scheduler::new(cfg);
+    let mut now = Duration::ZERO;
+    for id in 0..slaves as u64 {
+        s.handle_join(now, id, format!("s{id}"), threads);
+    }
+    let order =
+        FrameOrder { client: 1, work: Work::Interactive, width: w, height: h, samples: 1, queue: true };
+    let (mut opened, mut done, mut tiles) = (0u64, 0usize, 0u64);
+    let mut out: VecDeque<(u64, u64, u32)> = VecDeque::new();
+    let t0 = Instant::now();
+    while done < frames {
+        while opened < (done as u64 + 2).min(frames as u64) {
+            opened += 1;
+            let _ = s.open(now, opened, order);
+        }
+        while let Some(o) = s.poll_output(now) {
+            match o {
+                Output::Assign { slave, frame, tiles: t, .. } => {
+                    out.extend(t.iter().map(|j| (slave, frame, j.id)))
+                }
+                Output::FrameDone { .. } => done += 1,
+                _ => {}
+            }
+        }
+        let Some((slave, frame, tile)) = out.pop_front() else { break };
+        now += Duration::from_micros(1);
+        s.handle_result(now, slave, frame, tile);
+        tiles += 1;
+    }
+    (tiles, t0.elapsed().as_secs_f64())
+}
+
+struct Whole {
+    tiles: u64,
+    wall: f64,
+    master_cpu: f64,
+    rss_per_slave: f64,
+    detect: Option<Duration>,
+}
+
+/// Resident set size of this process, bytes.
+fn rss() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let kb = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().split(' ').next()?.parse::<f64>().ok());
+    kb.unwrap_or(0.0) * 1024.0
+}
+
+fn fake_scene() -> SceneBundle {
+    SceneBundle {
+        name: "bench.toml".into(),
+        source: "a scene no slave renders".into(),
+        assets: BTreeMap::new(),
+    }
+}
+
+/// A slave that answers every tile at once with blank pixels; after `vanish`
+/// is set it says nothing more, its connection left open.
+async fn sim_slave(
+    t: MemTransport,
+    ticket: Ticket,
+    name: String,
+    threads: u32,
+    vanish: Arc<AtomicBool>,
+) -> anyhow::Result<()> {
+    let (mut conn, welcome) =
+        client::handshake(&t, &ticket, Join::slave(&name, threads, &[], &[Codec::Raw])).await?;
+    if welcome.scene.is_some() {
+        loop {
+            if let Message::SceneSync { .. } =
+                client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(60)).await?
+            {
+                break;
+            }
+        }
+    }
+    client::send_message(&conn, &Message::Ready { hash: welcome.scene.map(|s| s.hash) })?;
+    let heartbeat = protocol::encode(&Message::Heartbeat)?;
+    let mut beat = tokio::time::interval(Duration::from_millis(500));
+    loop {
+        let frame = tokio::select! {
+            f = conn.receiver.recv() => f,
+            _ = beat.tick() => {
+                if vanish.load(Ordering::Relaxed) {
+                    // Silent from now on, the connection still open.
+                    std::future::pending::<()>().await;
+                }
+                let _ = conn.sender.send(heartbeat.clone());
+                continue;
+            }
+        };
+        let Some(Ok(frame)) = frame else { return Ok(()) };
+        if vanish.load(Ordering::Relaxed) {
+            std::future::pending::<()>().await;
+        }
+        if let Ok(Message::TileAssignment(a)) = protocol::decode(&frame, protocol::DEFAULT_MAX_FRAME) {
+            for job in a.tiles {
+                let pixels = ByteBuf::from(vec![0u8; job.tile.pixel_count() * 3]);
+                let r = TileResult {
+                    frame: a.frame,
+                    id: job.id,
+                    tile: job.tile,
+                    render_micros: 100,
+                    codec: Codec::Raw,
+                    pixels,
+                };
+                let _ =
+                    conn.sender.send_as(protocol::encode(&Message::TileResult(r))?, Delivery::Independent);
+            }
+        }
+    }
+}
+
+fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole> {
+    let t = MemTransport::new();
+    let token = "bench".to_string();
+    let ticket = Ticket {
+        transport: TransportKind::TcpInsecure,
+        token: token.clone(),
+        addr: "master".into(),
+        fingerprint: None,
+    };
+    // The master on a thread of its own, answering CPU-time questions there.
+    let (cpu_tx, mut cpu_rx) = tokio::sync::mpsc::unbounded_channel::<std::sync::mpsc::Sender<f64>>();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let (mt, timeout) = (t.clone(), Duration::from_millis(args.heartbeat_timeout_ms));
+    std::thread::Builder::new().name("isin-master".into()).spawn(move || {
+        actix::System::new().block_on(async move {
+            let mut cfg =
+                match MasterConfig::new(token, fake_scene(), Camera::default(), RenderSettings::default()) {
+                    Ok(c) => c,
+                    Err(e) => return drop(ready_tx.send(Err(anyhow::Error::new(e)))),
+                };
+            cfg.cluster.scheduler.heartbeat_timeout = timeout;
+            cfg.cluster.budgets.max_peers = 1 << 16;
+            cfg.cluster.budgets.max_handshaking = 1 << 16;
+            let listener = match mt.listen("master").await {
+                Ok(l) => l,
+                Err(e) => return drop(ready_tx.send(Err(e.into()))),
+            };
+            let addr = match Master::new(cfg) {
+                Ok(m) => m.serve(listener),
+                Err(e) => return drop(ready_tx.send(Err(e.into()))),
+            };
+            let _ = ready_tx.send(Ok(addr));
+            while let Some(reply) = cpu_rx.recv().await {
+                let _ = reply.send(thread_cpu_time().map_or(0.0, |d| d.as_secs_f64()));
+            }
+        });
+    })?;
+    let master = ready_rx.recv()??;
+    let master_cpu = || -> f64 {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let _ = cpu_tx.send(tx);
+        rx.recv().unwrap_or(0.0)
+    };
+    let rss0 = rss();
+    // The slaves on a thread of their own.
+    let vanish: Vec<Arc<AtomicBool>> = (0..args.slaves).map(|_| Arc::new(AtomicBool::new(false))).collect();
+    let st = t.clone();
+    let (sticket, svanish, threads) = (ticket.clone(), vanish.clone(), args.threads);
+    std::thread::Builder::new().name("isin-sim-slaves".into()).spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a runtime");
+        rt.block_on(async move {
+            let local = tokio::task::LocalSet::new();
+            local
+                .run_until(async move {
+                    for (i, v) in svanish.into_iter().enumerate() {
+                        let (t, tk) = (st.clone(), sticket.clone());
+                        tokio::task::spawn_local(async move {
+                            if let Err(e) = sim_slave(t, tk, format!("sim{i}"), threads, v).await {
+                                tracing::warn!("simulated slave {i}: {e}");
+                            }
+                        });
+                    }
+                    std::future::pending::<()>().await;
+                })
+                .await;
+        });
+    })?;
+    let sys = actix::System::new();
+    let status = |m: &actix::Addr<Master>| sys.block_on(m.send(GetStatus));
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while status(&master)?.slaves.len() < args.slaves {
+        anyhow::ensure!(Instant::now() < deadline, "the simulated slaves did not all join within 2 minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let rss_per_slave = (rss() - rss0) / args.slaves as f64;
+    println!("{} simulated slaves joined ({:.1} kB each)", args.slaves, rss_per_slave / 1e3);
+    // The viewer: frames queued three ahead, for the timed span.
+    let routed = Arc::new(AtomicU64::new(0));
+    let stop = Arc::new(AtomicBool::new(false));
+    let (vt, vticket, vrouted, vstop) = (t.clone(), ticket.clone(), routed.clone(), stop.clone());
+    let viewer_thread = std::thread::Builder::new().name("isin-bench-viewer".into()).spawn(
+        move || -> anyhow::Result<()> {
+            actix::System::new().block_on(async move {
+                let (v, _, mut events) =
+                    viewer::connect_as(&vt, &vticket, "bench", Work::Interactive).await?;
+                let settings = RenderSettings { width: w, height: h, spp: 1, ..RenderSettings::default() };
+                let cameras: Vec<Camera> = (0..100_000).map(|_| Camera::default()).collect();
+                let run =
+                    viewer::collect_frames(&v, &mut events, &cameras, None, settings, 3, |_, _, stats| {
+                        vrouted.fetch_add(u64::from(stats.tiles), Ordering::Relaxed);
+                        if vstop.load(Ordering::Relaxed) { anyhow::bail!("stopped") } else { anyhow::Ok(()) }
+                    });
+                let _ = run.await;
+                anyhow::Ok(())
+            })
+        },
+    )?;
+    // Warm-up: the first frames.
+    while routed.load(Ordering::Relaxed) == 0 {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let (tiles0, cpu0, t0) = (routed.load(Ordering::Relaxed), master_cpu(), Instant::now());
+    std::thread::sleep(Duration::from_secs(args.seconds.max(1)));
+    let (tiles, cpu, wall) =
+        (routed.load(Ordering::Relaxed) - tiles0, master_cpu() - cpu0, t0.elapsed().as_secs_f64());
+    println!(
+        "routed {tiles} tiles in {wall:.1} s: {:.0} tiles/s, master thread {:.2} µs CPU a tile",
+        tiles as f64 / wall,
+        cpu * 1e6 / tiles.max(1) as f64
+    );
+    // 100 slaves vanish at once: how long until the master knows.
+    let deaths0 = status(&master)?.deaths;
+    let gone = Instant::now();
+    for v in vanish.iter().take(args.vanish) {
+        v.store(true, Ordering::Relaxed);
+    }
+    let mut detect = None;
+    let limit = gone + Duration::from_millis(args.heartbeat_timeout_ms) * 3;
+    while Instant::now() < limit {
+        if status(&master)?.deaths >= deaths0 + args.vanish as u64 {
+            detect = Some(gone.elapsed());
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    stop.store(true, Ordering::Relaxed);
+    let _ = viewer_thread.join();
+    Ok(Whole { tiles, wall, master_cpu: cpu, rss_per_slave, detect })
+}
+
+fn markdown(r: &MasterReport) -> String {
+    let detect = r.detect_ms.map_or_else(|| "not within 3 timeouts".to_string(), |d| format!("{d:.0} ms"));
+    format!(
+        "The master at {} simulated slaves ({} threads each), {}x{} frames:\n\n\
+         | measure | value |\n|---|---:|\n\
+         | scheduler CPU per tile | {:.0} ns |\n\
+         | tiles routed per second (whole master, one thread) | {:.0} |\n\
+         | master thread CPU per tile | {:.2} µs |\n\
+         | master thread busy | {:.0} % |\n\
+         | memory per slave (master + its simulation) | {:.1} kB |\n\
+         | {} slaves vanish: declared dead after (timeout {} ms) | {detect} |\n",
+        r.slaves,
+        r.threads,
+        r.width,
+        r.height,
+        r.scheduler_ns_per_tile,
+        r.routed_per_second,
+        r.master_cpu_us_per_tile,
+        r.master_cpu_share * 100.0,
+        r.rss_per_slave / 1e3,
+        r.vanished,
+        r.heartbeat_timeout_ms,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scheduler_alone_finishes_every_frame_it_opens() {
+        let (tiles, _) = scheduler_alone(50, 2, 320, 240, 3);
+        // Every tile of three frames at least (end-of-frame splits add some).
+        assert!(tiles >= 3 * 300, "{tiles}");
+    }
+}
