@@ -760,6 +760,9 @@ impl Cluster {
     fn remove(&mut self, now: Duration, id: PeerId, reason: String) {
         let Some(p) = self.peers.remove(&id) else { return };
         tracing::debug!(peer = %p.name, addr = %p.addr, "connection closed: {reason}");
+        if matches!(p.state, PeerState::Viewer { .. }) {
+            tracing::info!(viewer = %p.name, "viewer {} left ({reason})", p.name);
+        }
         self.out.push_back(Transmit::Close { peer: id, reason });
         match p.state {
             PeerState::AwaitHello { .. } => self.handshaking -= 1,
@@ -819,7 +822,7 @@ impl Cluster {
                     self.status.frames_done += 1;
                     self.status.last_frame = Some(stats.clone());
                     let Some(spec) = self.frames.remove(&frame) else { continue };
-                    tracing::info!(
+                    tracing::debug!(
                         frame,
                         "frame done in {:.1} ms: {} tiles, {} moved, {} duplicated, {} requeued",
                         stats.micros as f64 / 1e3,
