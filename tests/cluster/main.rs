@@ -29,6 +29,7 @@
 //! - `tls_ticket_never_falls_back_to_plaintext`: a TLS ticket aimed at a plaintext master fails.
 //! - [`hostile`]: peers that know the token and lie in the protocol.
 //! - [`clients`]: several viewers on one cluster at once.
+//! - [`contrib`]: the systemd unit's slave command joins a master.
 //! - [`logs`]: what the default log level says, and what it leaves to DEBUG.
 //! - [`secrets`]: tickets read from a file or the environment, never the command line.
 
@@ -71,6 +72,7 @@ macro_rules! cluster_test {
 }
 
 mod clients;
+mod contrib;
 mod hostile;
 mod logs;
 mod secrets;
