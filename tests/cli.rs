@@ -145,3 +145,12 @@ fn every_bench_command_has_help() {
         assert!(stdout(&out).contains("Usage: isin bench"), "isin {args:?}: {}", stdout(&out));
     }
 }
+
+#[test]
+fn a_ticket_is_given_one_way_at_a_time() {
+    let out = isin(&["slave", "--connect", "isin+tcp-insecure://t@127.0.0.1:9", "--ticket-file", "ticket"]);
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("cannot be used with"), "{}", stderr(&out));
+    let out = isin(&["slave", "--ticket-file", "no-such-ticket-file"]);
+    assert!(stderr(&out).contains("cannot read ticket file no-such-ticket-file"), "{}", stderr(&out));
+}

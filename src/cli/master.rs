@@ -109,9 +109,16 @@ pub fn run(args: MasterArgs) -> anyhow::Result<()> {
         out.flush()?;
         drop(out);
         if addr.starts_with("0.0.0.0") || addr.starts_with("[::]") {
-            tracing::info!(
-                "listening on all interfaces: give slaves this machine's address in place of {addr}"
-            );
+            match &args.ticket_out {
+                Some(path) => tracing::warn!(
+                    "listening on all interfaces: the ticket in {} names {addr}, which slaves cannot \
+                     reach; put this machine's address in its place, or listen on it (--listen ADDR:PORT)",
+                    path.display()
+                ),
+                None => tracing::info!(
+                    "listening on all interfaces: give slaves this machine's address in place of {addr}"
+                ),
+            }
         }
         let _master = Master::new(cfg)?.serve(listener);
         std::future::pending::<()>().await;

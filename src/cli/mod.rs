@@ -3,6 +3,7 @@
 mod bounded;
 mod cluster;
 mod fly;
+mod logging;
 mod master;
 mod remote;
 mod render;
@@ -57,8 +58,9 @@ enum Command {
     Slave(slave::SlaveArgs),
     /// Print a cluster's slaves, clients and jobs.
     Status(status::StatusArgs),
-    /// Benchmarks of whole clusters, run from the checkout (their default scenes and output
-    /// folders are relative to it; `scaling` and `transports` need root).
+    /// Benchmarks of whole clusters (run from the checkout; `scaling` and `transports` need root).
+    ///
+    /// Their default scenes and output folders are relative to the checkout.
     Bench(isin_lab::bench::BenchArgs),
     /// Print a shell completion script (e.g. `isin completions bash > /etc/bash_completion.d/isin`).
     Completions {
@@ -71,7 +73,7 @@ enum Command {
 
 /// Parses the command line and runs the chosen command.
 pub fn run() -> anyhow::Result<()> {
-    init_logging();
+    logging::init();
     let cli = Cli::parse_from(view_shorthand(std::env::args_os().collect()));
     match cli.command {
         Some(Command::Render(args)) => render::run(args),
@@ -106,15 +108,4 @@ fn view_shorthand(mut args: Vec<OsString>) -> Vec<OsString> {
         args.insert(1, "view".into());
     }
     args
-}
-
-fn init_logging() {
-    use tracing_subscriber::EnvFilter;
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
-    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_ansi(ansi)
-        .with_writer(std::io::stderr)
-        .try_init();
 }

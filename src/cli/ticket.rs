@@ -27,8 +27,9 @@ pub struct TicketArgs {
     /// which keeps the secret out of the command line.
     #[arg(long, value_name = "PATH")]
     pub ticket_file: Option<PathBuf>,
-    /// The shared secret, when the ticket is a bare `HOST:PORT`.
-    #[arg(long, env = "ISIN_TOKEN", hide_env_values = true)]
+    /// The shared secret, when the ticket is a bare `HOST:PORT` (a whole
+    /// `isin+tcp-insecure://` ticket in a file keeps it off the command line).
+    #[arg(long)]
     pub token: Option<String>,
     /// Transport, when the ticket is a bare `HOST:PORT`.
     #[arg(long, default_value = "tcp")]

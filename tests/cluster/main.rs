@@ -29,6 +29,8 @@
 //! - [`hostile`]: peers that know the token and lie in the protocol.
 //! - [`clients`]: several viewers on one cluster at once.
 //! - [`jobs`]: scenes clients bring, and a flight surviving `kill -9` of its master.
+//! - [`contrib`]: the systemd unit's slave command joins a master.
+//! - [`logs`]: what the default log level says, and what it leaves to DEBUG.
 //! - [`secrets`]: tickets read from a file or the environment, never the command line.
 //! - [`paths`]: keyframed camera paths flown through a cluster.
 
@@ -71,8 +73,10 @@ macro_rules! cluster_test {
 }
 
 mod clients;
+mod contrib;
 mod hostile;
 mod jobs;
+mod logs;
 mod paths;
 mod secrets;
 

@@ -95,3 +95,32 @@ fn a_slave_without_any_ticket_says_where_one_may_come_from() {
         assert!(said.contains(source), "the error does not name {source}: {said}");
     }
 }
+
+#[test]
+fn a_ticket_file_naming_all_interfaces_is_warned_about() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let ticket_file = dir.path().join("ticket");
+    let scene = util::scene();
+    let args = [
+        "master",
+        scene.to_str().unwrap(),
+        "--listen",
+        "0.0.0.0:0",
+        "--ticket-out",
+        ticket_file.to_str().unwrap(),
+    ];
+    let master = Proc::spawn("master", &args, "warn");
+    let warning = master.wait_for(Stream::Err, "which slaves cannot reach");
+    assert!(warning.contains(ticket_file.to_str().unwrap()), "{warning}");
+    assert!(std::fs::read_to_string(&ticket_file).unwrap().contains("@0.0.0.0:"));
+}
+
+#[test]
+fn the_masters_token_may_come_from_the_environment() {
+    let scene = util::scene();
+    let args = ["master", scene.to_str().unwrap(), "--listen", "127.0.0.1:0"];
+    let env = [("ISIN_TOKEN", "from-the-environment")];
+    let master = Proc::spawn_with_env("master", std::path::Path::new("."), &args, "warn", &env);
+    let ticket = master.wait_for(Stream::Out, "ticket ");
+    assert!(ticket.contains("://from-the-environment@127.0.0.1:"), "{ticket}");
+}

@@ -207,16 +207,21 @@ impl Proc {
         Self::spawn_with_env(name, dir, args, log, &[])
     }
 
-    /// [`Proc::spawn_in`] with the environment variables `env` set.
+    /// [`Proc::spawn_in`] with the environment variables `env` set; an
+    /// empty `log` leaves `RUST_LOG` unset (isin's default levels).
     pub fn spawn_with_env(name: &str, dir: &Path, args: &[&str], log: &str, env: &[(&str, &str)]) -> Proc {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_isin"))
+        let mut command = Command::new(env!("CARGO_BIN_EXE_isin"));
+        match log {
+            "" => command.env_remove("RUST_LOG"),
+            log => command.env("RUST_LOG", log),
+        };
+        let mut child = command
             .current_dir(dir)
             .args(args)
             // No ticket from the environment the tests run in.
             .env_remove("ISIN_TICKET")
             .env_remove("ISIN_TOKEN")
             .envs(env.iter().copied())
-            .env("RUST_LOG", log)
             .env("RUST_BACKTRACE", "0")
             // Headless: `isin` with no arguments must not try to open a window.
             .env_remove("DISPLAY")

@@ -1123,6 +1123,9 @@ impl Cluster {
     fn remove(&mut self, now: Duration, id: PeerId, reason: String) {
         let Some(p) = self.peers.remove(&id) else { return };
         tracing::debug!(peer = %p.name, addr = %p.addr, "connection closed: {reason}");
+        if matches!(p.state, PeerState::Viewer(_)) {
+            tracing::info!(viewer = %p.name, "viewer {} left ({reason})", p.name);
+        }
         self.out.push_back(Transmit::Close { peer: id, reason });
         match p.state {
             PeerState::AwaitHello { .. } => self.handshaking -= 1,

@@ -24,10 +24,11 @@ impl ChildGuard {
         Self::spawn_cmd(netlab::netns::command(None, None, &exe, &args))
     }
 
-    /// Starts `cmd` with piped stdout and stderr and `RUST_LOG=info`.
+    /// Starts `cmd` with piped stdout and stderr, logging at INFO and the
+    /// master's per-frame lines (DEBUG), which the benches time.
     pub fn spawn_cmd(mut cmd: Command) -> anyhow::Result<(Self, BufReader<ChildStdout>)> {
         let mut child = cmd
-            .env("RUST_LOG", "info")
+            .env("RUST_LOG", "info,isin_cluster::cluster=debug")
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
