@@ -1150,7 +1150,7 @@ impl Cluster {
                     let Some(spec) = self.frames.get(&frame) else { continue };
                     if reassigned > 0 {
                         let name = self.peers.get(&slave).map_or("?", |p| p.name.as_str());
-                        tracing::info!(
+                        tracing::debug!(
                             slave = name,
                             frame,
                             "reassigned {reassigned} tiles of dead slaves to {name}"

@@ -68,6 +68,7 @@
 //! tick, after [`Scheduler::handle_timeout`]), drain [`Scheduler::poll_output`].
 
 pub mod cost;
+pub mod workload;
 
 use crate::protocol::{FrameId, FrameStats, TileId, TileJob};
 use isin_tracer::Tile;
@@ -356,6 +357,10 @@ struct FrameState {
     turnaround_sum: Duration,
     turnaround_n: u32,
     stats: FrameStats,
+    /// Tiles as they were handed out (with the time), oldest first: the
+    /// straggler to copy is near the front. Entries of tiles since
+    /// delivered, or handed out again, are skipped as they are met.
+    handed_order: VecDeque<(Duration, TileId)>,
 }
 
 /// The scheduling state machine. See the [module docs](self).
@@ -374,7 +379,23 @@ pub struct Scheduler {
     served: BTreeMap<ClientId, u64>,
     /// Tiles handed out, for [`BATCH_FLOOR`].
     handed: u64,
+    /// Slaves that may have room since work was last handed out (a result,
+    /// a cancel, a join): only they are offered tiles, so handing out a
+    /// tile does not cost a pass over every slave of a large cluster.
+    dirty: BTreeSet<SlaveId>,
+    /// Every slave may have room or there is new work (a frame opened or
+    /// closed, tiles requeued): offer tiles to all.
+    all_dirty: bool,
+    /// When every idle slave was last looked at, at the end of the work.
+    last_tail_pass: Duration,
+    /// Render threads of all slaves together.
+    total_threads: usize,
 }
+
+/// How often, at the end of the work, every idle slave is looked at for a
+/// tile to move to it or copy (slaves whose results come in are looked at
+/// at once).
+const TAIL_PASS: Duration = Duration::from_millis(1);
 
 impl Scheduler {
     /// An idle scheduler with no slaves and no frame.
@@ -392,6 +413,10 @@ impl Scheduler {
             costs: cost::CostMap::default(),
             served: BTreeMap::new(),
             handed: 0,
+            dirty: BTreeSet::new(),
+            all_dirty: false,
+            last_tail_pass: Duration::ZERO,
+            total_threads: 0,
         }
     }
 
@@ -478,10 +503,13 @@ impl Scheduler {
             pixels_done: 0,
             wasted: 0,
         };
-        if self.slaves.insert(slave, state).is_some() {
+        self.total_threads += state.threads as usize;
+        if let Some(old) = self.slaves.insert(slave, state) {
             // Rejoining under the same id: forget what it held before.
             tracing::debug!(slave, "slave re-joined under the same id");
+            self.total_threads -= old.threads as usize;
         }
+        self.dirty.insert(slave);
     }
 
     /// Any sign of life from a slave.
@@ -609,6 +637,7 @@ impl Scheduler {
                 self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
             }
         }
+        self.all_dirty = true;
         self.forget_if_idle(f.client);
     }
 
@@ -652,6 +681,7 @@ impl Scheduler {
         }
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.in_flight.remove(&(frame, tile));
+            self.dirty.insert(slave);
         }
         let Some(rec) = f.tiles.get_mut(tile as usize) else {
             self.waste(slave);
@@ -682,6 +712,7 @@ impl Scheduler {
             if let Some(s) = self.slaves.get_mut(&other)
                 && s.in_flight.remove(&(frame, tile))
             {
+                self.dirty.insert(other);
                 self.outputs.push_back(Output::Cancel { slave: other, frame, tiles: vec![tile] });
             }
         }
@@ -707,6 +738,7 @@ impl Scheduler {
                     self.outputs.push_back(Output::Cancel { slave: id, frame, tiles });
                 }
             }
+            self.all_dirty = true;
             // Keep a completed frame only while it is the newest one.
             let newest = self.frames.back().map(|f| f.id);
             self.frames.retain(|f| !f.done || Some(f.id) == newest);
@@ -769,8 +801,10 @@ impl Scheduler {
             turnaround_sum: Duration::ZERO,
             turnaround_n: 0,
             stats: FrameStats::default(),
+            handed_order: VecDeque::new(),
         });
         self.last_frame = Some(frame);
+        self.all_dirty = true;
     }
 
     fn waste(&mut self, slave: SlaveId) {
@@ -781,6 +815,7 @@ impl Scheduler {
 
     fn kill(&mut self, slave: SlaveId, cause: DeathCause) {
         let Some(s) = self.slaves.remove(&slave) else { return };
+        self.total_threads -= s.threads as usize;
         let mut requeued = 0;
         for f in self.frames.iter_mut().filter(|f| !f.done) {
             let mut n = 0;
@@ -798,6 +833,8 @@ impl Scheduler {
             f.stats.requeued += n;
             requeued += n;
         }
+        self.dirty.remove(&slave);
+        self.all_dirty = true;
         self.outputs.push_back(Output::SlaveDead { slave, name: s.name, cause, requeued });
     }
 
@@ -806,13 +843,34 @@ impl Scheduler {
             return;
         }
         let cfg = &self.config;
-        let total_threads: usize = self.slaves.values().map(|s| s.threads as usize).sum();
+        let total_threads = self.total_threads;
+        // Tiles go to the slaves that may have room (those whose results or
+        // cancels came in since), not past every slave of a large cluster;
+        // all of them after a change that concerns all (a frame opened or
+        // done, a death). At the end of the work (nothing queued), idle
+        // slaves wait for tiles to move or copy, which depends on time too:
+        // all of them are looked at again every `TAIL_PASS`.
+        let tail = !self.frames.iter().any(|f| !f.done && !f.queue.is_empty());
+        let tail_pass = tail && now >= self.last_tail_pass + TAIL_PASS;
+        if tail_pass {
+            self.last_tail_pass = now;
+        }
+        let dirty = std::mem::take(&mut self.dirty);
+        let ids: Vec<SlaveId> = if std::mem::take(&mut self.all_dirty) || tail_pass {
+            self.slaves.keys().copied().collect()
+        } else {
+            dirty.into_iter().filter(|id| self.slaves.contains_key(id)).collect()
+        };
         // Least-loaded slaves first, then round-robin one tile at a time.
-        let mut order: Vec<SlaveId> = self.slaves.keys().copied().collect();
-        order.sort_by_key(|id| {
-            let s = &self.slaves[id];
-            (s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize, *id)
-        });
+        let mut keyed: Vec<(usize, SlaveId)> = ids
+            .into_iter()
+            .map(|id| {
+                let s = &self.slaves[&id];
+                (s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize, id)
+            })
+            .collect();
+        keyed.sort_unstable();
+        let order: Vec<SlaveId> = keyed.into_iter().map(|(_, id)| id).collect();
         let mut batches: BTreeMap<(SlaveId, FrameId), Vec<TileJob>> = BTreeMap::new();
         let mut reassigned: BTreeMap<(SlaveId, FrameId), u32> = BTreeMap::new();
         'rounds: loop {
@@ -843,6 +901,7 @@ impl Scheduler {
                 rec.state = TileState::InFlight;
                 rec.hand_to(*id);
                 rec.assigned_at = now;
+                f.handed_order.push_back((now, tile));
                 if std::mem::take(&mut rec.requeued) {
                     *reassigned.entry((*id, f.id)).or_default() += 1;
                 }
@@ -872,19 +931,10 @@ impl Scheduler {
                     // The oldest tile out longer than its frame's mean turnaround.
                     let straggler = self
                         .frames
-                        .iter()
+                        .iter_mut()
                         .enumerate()
                         .filter(|(_, f)| !f.done && f.turnaround_n > 0)
-                        .flat_map(|(fi, f)| {
-                            let mean = f.turnaround_sum / f.turnaround_n;
-                            f.tiles.iter().enumerate().filter_map(move |(t, r)| {
-                                let late = r.state == TileState::InFlight
-                                    && r.holders.len() == 1
-                                    && !r.holders.contains(id)
-                                    && now.saturating_sub(r.assigned_at) > mean;
-                                late.then_some((r.assigned_at, fi, t as TileId))
-                            })
-                        })
+                        .filter_map(|(fi, f)| oldest_straggler(f, *id, now).map(|(at, t)| (at, fi, t)))
                         .min();
                     let Some((_, fi, tile)) = straggler else { break };
                     let f = &mut self.frames[fi];
@@ -924,6 +974,34 @@ fn frame_tile_size(cfg: &SchedulerConfig, width: u32, height: u32, threads: u32)
     edge
 }
 
+/// The oldest tile of `f` out longer than the frame's mean turnaround and
+/// held by one slave only, not `slave` (with when it was handed out). Entries
+/// of tiles no longer out are dropped from the front as they are met.
+fn oldest_straggler(f: &mut FrameState, slave: SlaveId, now: Duration) -> Option<(Duration, TileId)> {
+    let mean = f.turnaround_sum / f.turnaround_n.max(1);
+    let out = |f: &FrameState, (at, t): (Duration, TileId)| {
+        let r = &f.tiles[t as usize];
+        r.state == TileState::InFlight && r.assigned_at == at
+    };
+    while let Some(&front) = f.handed_order.front() {
+        if out(f, front) {
+            break;
+        }
+        f.handed_order.pop_front();
+    }
+    // The oldest first: the first late one not the slave's own is it.
+    for &(at, t) in &f.handed_order {
+        if now.saturating_sub(at) <= mean {
+            return None;
+        }
+        let r = &f.tiles[t as usize];
+        if out(f, (at, t)) && r.holders.len() == 1 && !r.holders.contains(&slave) {
+            return Some((at, t));
+        }
+    }
+    None
+}
+
 /// Gives each slave with an idle thread the newest tile waiting behind busy
 /// threads on another slave (the most backed-up one first), and tells that
 /// slave to cancel it.
@@ -935,16 +1013,21 @@ fn move_waiting_tiles(
     batches: &mut BTreeMap<(SlaveId, FrameId), Vec<TileJob>>,
     outputs: &mut VecDeque<Output>,
 ) {
+    // Tiles waiting beyond their slave's threads, the most backed-up slave
+    // on top (kept up to date as tiles move: one pass over the slaves).
+    let waiting = |s: &SlaveState| s.in_flight.len().saturating_sub(s.threads as usize);
+    let mut victims: std::collections::BinaryHeap<(usize, SlaveId)> =
+        slaves.iter().map(|(&v, s)| (waiting(s), v)).filter(|&(w, _)| w > 0).collect();
     for id in order {
         while slaves.get(id).is_some_and(|s| s.in_flight.len() < s.threads as usize) {
-            // The slave with the most tiles beyond its threads.
-            let victim = slaves
-                .iter()
-                .filter(|(v, _)| *v != id)
-                .map(|(&v, s)| (s.in_flight.len().saturating_sub(s.threads as usize), v))
-                .filter(|&(waiting, _)| waiting > 0)
-                .max();
-            let Some((_, victim)) = victim else { return };
+            // The slave with the most tiles beyond its threads, not this one.
+            let mine = victims.peek().filter(|&&(_, v)| v == *id).copied();
+            if mine.is_some() {
+                victims.pop();
+            }
+            let top = victims.pop();
+            victims.extend(mine);
+            let Some((_, victim)) = top else { return };
             let vs = slaves.get_mut(&victim).expect("victim is live");
             // Its newest sole-held tile: the one furthest back in its queue.
             let newest = vs
@@ -959,12 +1042,16 @@ fn move_waiting_tiles(
                 .max();
             let Some((_, frame, tile, fi)) = newest else { return };
             vs.in_flight.remove(&(frame, tile));
+            if waiting(vs) > 0 {
+                victims.push((waiting(vs), victim));
+            }
             outputs.push_back(Output::Cancel { slave: victim, frame, tiles: vec![tile] });
             let f = &mut frames[fi];
             let rec = &mut f.tiles[tile as usize];
             rec.holders.clear();
             rec.hand_to(*id);
             rec.assigned_at = now;
+            f.handed_order.push_back((now, tile));
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
             s.in_flight.insert((frame, tile));

@@ -23,13 +23,13 @@ use isin_actors::slave::thread_cpu_time;
 use isin_actors::viewer;
 use isin_cluster::codec::Codec;
 use isin_cluster::protocol::{self, Message, TileResult};
-use isin_cluster::scheduler::{FrameOrder, Output, Scheduler, SchedulerConfig, Work};
+use isin_cluster::scheduler::{Work, workload};
 use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use isin_transport::mem::MemTransport;
 use isin_transport::{Delivery, Ticket, Transport, TransportKind};
 use serde::Serialize;
 use serde_bytes::ByteBuf;
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -130,39 +130,10 @@ pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Drives a [`Scheduler`] of `slaves` slaves through `frames` frames of
-/// `w × h`; returns the tiles handled and the seconds it took.
-pub fn scheduler_alone(slaves: usize, threads: u32, w: u32, h: u32, frames: usize) -> (u64, f64) {
-    let cfg = SchedulerConfig { heartbeat_timeout: Duration::from_secs(3600), ..SchedulerConfig::default() };
-    let mut s = Scheduler::new(cfg);
-    let mut now = Duration::ZERO;
-    for id in 0..slaves as u64 {
-        s.handle_join(now, id, format!("s{id}"), threads);
-    }
-    let order =
-        FrameOrder { client: 1, work: Work::Interactive, width: w, height: h, samples: 1, queue: true };
-    let (mut opened, mut done, mut tiles) = (0u64, 0usize, 0u64);
-    let mut out: VecDeque<(u64, u64, u32)> = VecDeque::new();
+/// The scheduler alone ([`workload::run`]): tiles handled and seconds.
+fn scheduler_alone(slaves: usize, threads: u32, w: u32, h: u32, frames: usize) -> (u64, f64) {
     let t0 = Instant::now();
-    while done < frames {
-        while opened < (done as u64 + 2).min(frames as u64) {
-            opened += 1;
-            let _ = s.open(now, opened, order);
-        }
-        while let Some(o) = s.poll_output(now) {
-            match o {
-                Output::Assign { slave, frame, tiles: t, .. } => {
-                    out.extend(t.iter().map(|j| (slave, frame, j.id)))
-                }
-                Output::FrameDone { .. } => done += 1,
-                _ => {}
-            }
-        }
-        let Some((slave, frame, tile)) = out.pop_front() else { break };
-        now += Duration::from_micros(1);
-        s.handle_result(now, slave, frame, tile);
-        tiles += 1;
-    }
+    let tiles = workload::run(slaves, threads, w, h, frames);
     (tiles, t0.elapsed().as_secs_f64())
 }
 
@@ -402,16 +373,4 @@ fn markdown(r: &MasterReport) -> String {
         r.vanished,
         r.heartbeat_timeout_ms,
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_scheduler_alone_finishes_every_frame_it_opens() {
-        let (tiles, _) = scheduler_alone(50, 2, 320, 240, 3);
-        // Every tile of three frames at least (end-of-frame splits add some).
-        assert!(tiles >= 3 * 300, "{tiles}");
-    }
 }
