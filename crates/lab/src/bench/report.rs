@@ -326,7 +326,12 @@ mod tests {
         for s in &series {
             let xs = text_xs(&svg, &s.name);
             assert_eq!(xs.len(), 1, "legend entry `{}` missing", s.name);
-            assert!(xs[0] >= PLOT_WIDTH as f64, "legend entry `{}` at x = {} is inside the plot", s.name, xs[0]);
+            assert!(
+                xs[0] >= PLOT_WIDTH as f64,
+                "legend entry `{}` at x = {} is inside the plot",
+                s.name,
+                xs[0]
+            );
         }
         assert!(!svg.contains("log scale"), "a linear axis is not called logarithmic");
 
@@ -351,7 +356,11 @@ mod tests {
         };
         line_plot(&p, &plot).unwrap();
         let svg = std::fs::read_to_string(&p).unwrap();
-        assert_eq!(text_xs(&svg, "frames per second (log scale)").len(), 1, "the axis says it is logarithmic");
+        assert_eq!(
+            text_xs(&svg, "frames per second (log scale)").len(),
+            1,
+            "the axis says it is logarithmic"
+        );
         let y = marker_ys(&svg);
         assert_eq!(y.len(), 3);
         let (d1, d2) = (y[0] - y[1], y[1] - y[2]);

@@ -564,7 +564,8 @@ fn plot(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
                 colours.push(family);
                 colours.len() - 1
             });
-            let link = if *rate >= 1000 { format!("{} Gbit/s", rate / 1000) } else { format!("{rate} Mbit/s") };
+            let link =
+                if *rate >= 1000 { format!("{} Gbit/s", rate / 1000) } else { format!("{rate} Mbit/s") };
             Series {
                 name: format!(
                     "{}, {}, {link}, {}",
@@ -580,7 +581,9 @@ fn plot(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
                             && &r.compression == compression
                             && r.rate_mbit == Some(*rate)
                     })
-                    .filter_map(|r| losses.iter().position(|&l| l == r.loss_per_mille).map(|x| (x as f64, r.fps)))
+                    .filter_map(|r| {
+                        losses.iter().position(|&l| l == r.loss_per_mille).map(|x| (x as f64, r.fps))
+                    })
                     .collect(),
                 color,
                 dashed: transport == "quic",
