@@ -87,8 +87,8 @@ pub struct Plot<'a> {
 /// drawn to the right of it, outside the data.
 pub const PLOT_WIDTH: u32 = 640;
 const HEIGHT: u32 = 480;
-const LEGEND_FONT: u32 = 14;
-const LEGEND_ROW: i32 = 24;
+const LEGEND_FONT: u32 = 16;
+const LEGEND_ROW: i32 = 26;
 
 const PALETTE: [RGBColor; 8] = [
     RGBColor(0x1f, 0x77, 0xb4),
@@ -110,10 +110,12 @@ type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 pub fn line_plot(path: &Path, plot: &Plot) -> anyhow::Result<()> {
     let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("cannot draw {}: {e}", path.display());
     let longest = plot.series.iter().map(|s| s.name.chars().count()).max().unwrap_or(0) as u32;
-    let legend_width = (longest * LEGEND_FONT * 11 / 20 + 70).clamp(160, 520);
+    // Room for 0.55 em per character, as wide as common sans-serif fonts run (the SVG's
+    // font sizes are 1/1.24 of plotters'), so that no viewer cuts a name off.
+    let legend_width = (longest * LEGEND_FONT * 55 / 124 + 60).clamp(160, 640);
     let root = SVGBackend::new(path, (PLOT_WIDTH + legend_width, HEIGHT)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
-    let body = root.titled(plot.title, ("sans-serif", 20)).map_err(|e| err(&e))?;
+    let body = root.titled(plot.title, ("sans-serif", 22)).map_err(|e| err(&e))?;
     let (chart_area, legend_area) = body.split_horizontally(PLOT_WIDTH);
 
     let (mut x1, mut y0, mut y1) = (1.0f64, f64::INFINITY, 1.0f64);
@@ -130,7 +132,7 @@ pub fn line_plot(path: &Path, plot: &Plot) -> anyhow::Result<()> {
         None => 0.0..x1 * 1.05,
     };
     let mut builder = ChartBuilder::on(&chart_area);
-    builder.margin(12).margin_right(24).x_label_area_size(48).y_label_area_size(64);
+    builder.margin(12).margin_right(24).x_label_area_size(54).y_label_area_size(72);
     match plot.y_scale {
         YScale::Linear => {
             let chart = builder.build_cartesian_2d(x_range, 0.0..y1 * 1.08).map_err(|e| err(&e))?;
@@ -169,8 +171,8 @@ where
     let mut mesh = chart.configure_mesh();
     mesh.x_desc(plot.x_label)
         .y_desc(y_label)
-        .axis_desc_style(("sans-serif", 15))
-        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 18))
+        .label_style(("sans-serif", 15))
         .light_line_style(WHITE.mix(0.0))
         .bold_line_style(BLACK.mix(0.12))
         .x_label_formatter(&name_of)
