@@ -1,6 +1,6 @@
 //! Measures lossless tile codecs on real rendered tiles: bytes, and CPU time to
 //! encode and decode, per tile. This is how [`isin_cluster::codec`]'s default
-//! was chosen (BENCHMARKS.md, "Tile compression").
+//! was chosen (docs/performance-notes.md, "Tile compression"; BENCHMARKS.md runs it).
 //!
 //! ```text
 //! cargo run --release -p isin-cluster --example tile_codecs [-- SCENE.toml…]

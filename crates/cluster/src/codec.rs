@@ -7,8 +7,9 @@
 //!
 //! The codecs were chosen by measuring real rendered tiles (bytes, and CPU time
 //! to encode and decode): `examples/tile_codecs.rs` renders the shipped scenes
-//! and prints the table that BENCHMARKS.md quotes, against zstd levels 1–3,
-//! left-delta and median predictors before LZ4 and zstd. [`Codec::Qoi`] (the
+//! and prints the table that docs/performance-notes.md ("Tile compression")
+//! quotes, against zstd levels 1–3, left-delta and median predictors before
+//! LZ4 and zstd. [`Codec::Qoi`] (the
 //! "Quite OK Image" format: runs, a 64-colour cache and small per-channel
 //! differences, pure safe Rust) is the default: on 1-sample tiles it had the
 //! best ratio of all (2.1–2.9×, vs 1.3–1.8× for LZ4 and 1.7–2.4× for zstd-3)

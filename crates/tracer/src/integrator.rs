@@ -88,7 +88,7 @@ use std::f32::consts::PI;
 /// reflection of the ball's outer one: on the paper frame 1,732 of 76,800
 /// pixels change, by one level in most and at most 13 (a glint of the lamp
 /// in the ball), and the frame's distance to a converged one grows by
-/// 0.04 dB PSNR, for about 8 % of its time (BENCHMARKS.md).
+/// 0.04 dB PSNR, for about 8 % of its time (docs/performance-notes.md, "Shading").
 pub const MIN_THROUGHPUT: f32 = 4e-3;
 
 /// Recursion depth is capped here whatever the settings say, so a scene file

@@ -3,6 +3,8 @@
 //! Compression is negotiated at join by `isin master --compression MODE`; the
 //! bench always passes the mode explicitly.
 
+use isin_cluster::codec::Codec;
+
 /// Transports a master can listen with: `tcp` (TLS over TCP), `quic`, and
 /// `tcp-insecure` (plaintext TCP, `isin master --transport tcp --insecure`).
 pub const TRANSPORTS: &[&str] = &["tcp", "quic", "tcp-insecure"];
@@ -35,6 +37,28 @@ pub fn check_compressions(list: &[String]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A transport in plain words, for plots.
+pub fn transport_name(transport: &str) -> String {
+    match transport {
+        "tcp" => "TLS over TCP",
+        "quic" => "QUIC",
+        "tcp-insecure" => "plain TCP",
+        other => other,
+    }
+    .to_string()
+}
+
+/// What travels under a compression mode, in plain words, for plots: `auto`
+/// is named by the codec the master picks first ([`Codec::ALL`]), which
+/// every slave of this build offers.
+pub fn compression_name(compression: &str) -> String {
+    match compression {
+        "raw" => "raw tiles".to_string(),
+        "auto" => format!("{} tiles", Codec::ALL[0].name().to_uppercase()),
+        other => format!("{} tiles", other.to_uppercase()),
+    }
+}
+
 /// Extra `isin master` arguments for a transport and a compression mode.
 pub fn master_args(transport: &str, compression: &str) -> Vec<String> {
     let mut args = match transport {
@@ -56,6 +80,15 @@ mod tests {
             master_args("tcp-insecure", "raw"),
             ["--transport", "tcp", "--insecure", "--compression", "raw"]
         );
+    }
+
+    #[test]
+    fn modes_have_plain_names() {
+        assert_eq!(transport_name("tcp"), "TLS over TCP");
+        assert_eq!(transport_name("tcp-insecure"), "plain TCP");
+        assert_eq!(compression_name("raw"), "raw tiles");
+        assert_eq!(compression_name("auto"), "QOI tiles");
+        assert_eq!(compression_name("lz4"), "LZ4 tiles");
     }
 
     #[test]
