@@ -126,7 +126,12 @@ impl Spec {
     /// is `format` when given, else the file name's extension (PNG for
     /// standard output); `bits` defaults to the format's (8 for PNG and JPEG,
     /// 32 for EXR and PFM).
-    pub fn new(path: &Path, format: Option<Format>, bits: Option<u32>, passes: &[Pass]) -> anyhow::Result<Spec> {
+    pub fn new(
+        path: &Path,
+        format: Option<Format>,
+        bits: Option<u32>,
+        passes: &[Pass],
+    ) -> anyhow::Result<Spec> {
         let stdout = is_stdout(path);
         let format = match (format, stdout) {
             (Some(f), _) => f,
@@ -438,7 +443,10 @@ mod tests {
     fn channel_names_follow_the_passes() {
         assert_eq!(
             channel_names(&[Pass::Albedo, Pass::Normal, Pass::Depth]),
-            ["R", "G", "B", "albedo.R", "albedo.G", "albedo.B", "normal.X", "normal.Y", "normal.Z", "depth.Z"]
+            [
+                "R", "G", "B", "albedo.R", "albedo.G", "albedo.B", "normal.X", "normal.Y", "normal.Z",
+                "depth.Z"
+            ]
         );
         assert_eq!(pass_path(Path::new("d/out.pfm"), Pass::Normal), Path::new("d/out.normal.pfm"));
     }

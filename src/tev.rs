@@ -143,7 +143,9 @@ impl TevStream {
         }
         let mut stream = match (stream, last) {
             (Some(s), _) => s,
-            (None, Some(e)) => return Err(e).with_context(|| format!("cannot connect to tev at {addr} ({hint})")),
+            (None, Some(e)) => {
+                return Err(e).with_context(|| format!("cannot connect to tev at {addr} ({hint})"));
+            }
             (None, None) => anyhow::bail!("--tev {addr}: the name resolves to no address"),
         };
         let _ = stream.set_nodelay(true);

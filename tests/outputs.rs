@@ -131,7 +131,9 @@ fn exr_layers_read_back_and_the_beauty_is_the_pngs_pixels_before_encoding() {
 fn python_openexr_reads(exr: &Path, channels: &HashMap<String, (Vec<f32>, bool)>) {
     let probe = Command::new("python3").args(["-c", "import OpenEXR"]).output();
     if !probe.is_ok_and(|o| o.status.success()) {
-        println!("skipped the Python OpenEXR check: `python3 -c 'import OpenEXR'` fails (pip install OpenEXR)");
+        println!(
+            "skipped the Python OpenEXR check: `python3 -c 'import OpenEXR'` fails (pip install OpenEXR)"
+        );
         return;
     }
     let script = "import sys, OpenEXR, numpy\n\
@@ -168,7 +170,10 @@ fn half_exr_pfm_and_sixteen_bit_png_hold_the_same_image() {
     rendered(&["-o", s(&p("o16.png")), "--bit-depth", "16"]);
     let float = read_exr(&std::fs::read(p("f.exr")).unwrap());
     let half = read_exr(&std::fs::read(p("h.exr")).unwrap());
-    assert_eq!(names(&half), ["B", "G", "R", "albedo.B", "albedo.G", "albedo.R", "depth.Z"].map(String::from));
+    assert_eq!(
+        names(&half),
+        ["B", "G", "R", "albedo.B", "albedo.G", "albedo.R", "depth.Z"].map(String::from)
+    );
     for (name, (values, is_half)) in &half {
         // Depth stays 32-bit: half is too coarse for distances.
         assert_eq!(*is_half, name != "depth.Z", "{name}");
@@ -198,7 +203,9 @@ fn half_exr_pfm_and_sixteen_bit_png_hold_the_same_image() {
     }
     assert!(pfm("o.depth.pfm", 1) == float["depth.Z"].0);
     let albedo = pfm("o.albedo.pfm", 3);
-    assert!((0..albedo.len()).all(|i| albedo[i] == float[["albedo.R", "albedo.G", "albedo.B"][i % 3]].0[i / 3]));
+    assert!(
+        (0..albedo.len()).all(|i| albedo[i] == float[["albedo.R", "albedo.G", "albedo.B"][i % 3]].0[i / 3])
+    );
     assert!(!p("o.normal.pfm").exists(), "a pass not asked for");
 
     // 16-bit PNG: real 16-bit samples that round to the 8-bit PNG's.
@@ -269,7 +276,8 @@ fn what_cannot_be_written_is_refused_before_rendering_and_leaves_no_file() {
         let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
         assert!(left.is_empty(), "left behind: {left:?}");
     }
-    let (err, left) = refused_in(dir.path(), &["-o", s(&p("x.pfm")), "--passes", "albedo", "--tev", "127.0.0.1:9"]);
+    let (err, left) =
+        refused_in(dir.path(), &["-o", s(&p("x.pfm")), "--passes", "albedo", "--tev", "127.0.0.1:9"]);
     assert!(err.contains("cannot connect to tev at 127.0.0.1:9"), "{err}");
     assert!(left.is_empty(), "left behind: {left:?}");
     // The cluster carries RGB8 only: HDR output through it is refused, saying so.
@@ -327,7 +335,8 @@ fn fake_tev(mut stream: std::net::TcpStream) -> Tev {
                 let (x, y, w, h) = (r.i32(), r.i32(), r.i32(), r.i32());
                 let offsets: Vec<i64> = (0..n).map(|_| r.i64()).collect();
                 let strides: Vec<i64> = (0..n).map(|_| r.i64()).collect();
-                let data: Vec<f32> = r.b[r.at..].chunks(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+                let data: Vec<f32> =
+                    r.b[r.at..].chunks(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
                 let width = tev.created[0].1;
                 for px in 0..(w * h) as usize {
                     let (tx, ty) = (px as i32 % w, px as i32 / w);

@@ -131,7 +131,14 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     };
     let t1 = Instant::now();
     let (buffers, rays) = pool.install(|| {
-        isin_tracer::render::render_frame_hdr(&scene, &camera, &settings, args.tile, !passes.is_empty(), &on_tile)
+        isin_tracer::render::render_frame_hdr(
+            &scene,
+            &camera,
+            &settings,
+            args.tile,
+            !passes.is_empty(),
+            &on_tile,
+        )
     });
     let render_time = t1.elapsed();
     bar.finish_and_clear();
