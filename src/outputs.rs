@@ -49,6 +49,16 @@ impl Format {
     pub fn is_linear(self) -> bool {
         matches!(self, Format::Exr | Format::Pfm)
     }
+
+    /// Its name in messages.
+    fn name(self) -> &'static str {
+        match self {
+            Format::Png => "PNG",
+            Format::Jpg => "JPEG",
+            Format::Exr => "EXR",
+            Format::Pfm => "PFM",
+        }
+    }
 }
 
 /// A pass written beside the beauty (`--passes`).
@@ -173,18 +183,6 @@ impl Spec {
     /// Whether the image needs more than the RGB8 pixels of a [`Frame`].
     pub fn needs_linear(&self) -> bool {
         self.format.is_linear() || self.bits > 8 || !self.passes.is_empty()
-    }
-}
-
-impl Format {
-    /// Its name in messages.
-    fn name(self) -> &'static str {
-        match self {
-            Format::Png => "PNG",
-            Format::Jpg => "JPEG",
-            Format::Exr => "EXR",
-            Format::Pfm => "PFM",
-        }
     }
 }
 

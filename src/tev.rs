@@ -14,7 +14,9 @@
 //!   floats), then the `f32` samples: isin interleaves them per pixel, so
 //!   channel `c`'s offset is `c` and every stride the channel count.
 
+use crate::outputs::{self, Pass};
 use anyhow::Context;
+use isin_tracer::{FrameBuffers, Tile};
 use std::io::Write;
 use std::net::{TcpStream, ToSocketAddrs};
 use std::sync::mpsc;
@@ -167,16 +169,26 @@ impl TevStream {
     }
 
     /// Queues a packet.
-    pub fn send(&self, packet: Vec<u8>) {
+    fn send(&self, packet: Vec<u8>) {
         if let Some(tx) = &self.tx {
             // Fails only once the writer has given up, which it has logged.
             let _ = tx.send(packet);
         }
     }
 
-    /// A handle to queue packets from other threads.
-    pub fn sender(&self) -> Option<mpsc::Sender<Vec<u8>>> {
-        self.tx.clone()
+    /// Creates a `width × height` image `name` in tev with the beauty's
+    /// channels and those of `passes` ([`outputs::channel_names`]), for
+    /// [`TevImage::send_tile`] to fill.
+    pub fn create_image(
+        self,
+        name: &str,
+        width: u32,
+        height: u32,
+        passes: &[Pass],
+    ) -> anyhow::Result<TevImage> {
+        let channels = outputs::channel_names(passes);
+        self.send(create_image(name, width, height, &channels)?);
+        Ok(TevImage { stream: self, name: name.to_owned(), passes: passes.to_vec(), channels })
     }
 
     /// Waits until every queued packet is written (or the writer gave up).
@@ -189,6 +201,34 @@ impl TevStream {
         if let Some(w) = self.writer.take() {
             let _ = w.join();
         }
+    }
+}
+
+/// An image created in tev, filled tile by tile (from any thread).
+pub struct TevImage {
+    stream: TevStream,
+    name: String,
+    passes: Vec<Pass>,
+    channels: Vec<String>,
+}
+
+impl TevImage {
+    /// Queues `tile`'s pixels, `buffers` as [`isin_tracer::render::render_tile_hdr`]
+    /// made them (with the image's passes).
+    pub fn send_tile(&self, tile: Tile, buffers: &FrameBuffers) {
+        let mut samples = Vec::with_capacity(tile.pixel_count() * self.channels.len());
+        for i in 0..tile.pixel_count() {
+            outputs::channel_values(buffers, &self.passes, i, &mut samples);
+        }
+        match update_image(&self.name, &self.channels, (tile.x, tile.y, tile.w, tile.h), &samples) {
+            Ok(packet) => self.stream.send(packet),
+            Err(e) => tracing::warn!("tile not sent to tev: {e:#}"),
+        }
+    }
+
+    /// Waits until every queued tile is written (or the connection failed).
+    pub fn close(self) {
+        self.stream.close();
     }
 }
 

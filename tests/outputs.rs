@@ -409,3 +409,16 @@ fn tiles_stream_into_tev_as_the_exr_has_them() {
         assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "channel {c} differs from the EXR");
     }
 }
+
+#[test]
+fn a_tev_that_goes_away_does_not_stop_the_render() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    // Takes the connection and hangs up at once.
+    let server = std::thread::spawn(move || drop(listener.accept().unwrap()));
+    let dir = tempfile::tempdir().unwrap();
+    let exr = dir.path().join("kept.exr");
+    rendered(&["-o", s(&exr), "--passes", "albedo", "--tile", "8", "--tev", &addr]);
+    server.join().unwrap();
+    assert_eq!(names(&read_exr(&std::fs::read(&exr).unwrap())).len(), 6);
+}

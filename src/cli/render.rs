@@ -108,25 +108,15 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
             .expect("static template"),
     );
     let passes = output.spec().passes.clone();
-    let channels = outputs::channel_names(&passes);
     let tev_name = tev_image_name(&args);
-    let tev_tx = tev.as_ref().and_then(|t| t.sender());
-    if let Some(t) = &tev {
-        t.send(crate::tev::create_image(&tev_name, settings.width, settings.height, &channels)?);
-    }
+    let tev = match tev {
+        Some(t) => Some(t.create_image(&tev_name, settings.width, settings.height, &passes)?),
+        None => None,
+    };
     let on_tile = |tile: isin_tracer::Tile, buffers: &isin_tracer::FrameBuffers| {
         bar.inc(tile.pixel_count() as u64);
-        if let Some(tx) = &tev_tx {
-            let mut samples = Vec::with_capacity(tile.pixel_count() * channels.len());
-            for i in 0..tile.pixel_count() {
-                outputs::channel_values(buffers, &passes, i, &mut samples);
-            }
-            match crate::tev::update_image(&tev_name, &channels, (tile.x, tile.y, tile.w, tile.h), &samples) {
-                Ok(packet) => {
-                    let _ = tx.send(packet);
-                }
-                Err(e) => tracing::warn!("tile not sent to tev: {e:#}"),
-            }
+        if let Some(t) = &tev {
+            t.send_tile(tile, buffers);
         }
     };
     let t1 = Instant::now();
@@ -142,7 +132,6 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     });
     let render_time = t1.elapsed();
     bar.finish_and_clear();
-    drop(tev_tx);
     if let Some(t) = tev {
         t.close();
     }

@@ -13,6 +13,12 @@
 //! [`RenderSettings::seed`] only, so any tiling on any number of threads or
 //! machines produces the same bytes. The `_stats` variants also count the rays
 //! traced, for Mrays/s figures.
+//!
+//! [`render_tile_hdr`] and [`render_frame_hdr`] give the same pixels before
+//! that encoding — linear, unclamped floats ([`FrameBuffers`]) — and, when
+//! asked, the first-hit albedo, normal and depth passes ([`Passes`]) for
+//! denoisers and compositing; the passes cost only what finding the first
+//! hit's surface costs, and the beauty's encoding is the RGB8 path's bytes.
 
 use crate::bvh::PACKET_LANES;
 use crate::cameras::Camera;
