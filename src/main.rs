@@ -3,6 +3,8 @@
 mod assets;
 mod cli;
 mod frame_cache;
+mod outputs;
+mod tev;
 
 /// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
 #[global_allocator]

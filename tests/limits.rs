@@ -72,9 +72,9 @@ fn a_ticket_whose_port_cannot_exist_is_refused_not_retried() {
 #[test]
 fn an_output_isin_cannot_write_is_refused_before_rendering_and_leaves_nothing() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let exr = dir.path().join("x.exr");
-    let err = refused(&["render", "scenes/cornell.toml", "-o", exr.to_str().unwrap(), "--width", "64"]);
-    assert!(err.contains("PNG or JPEG"), "{err}");
+    let tiff = dir.path().join("x.tiff");
+    let err = refused(&["render", "scenes/cornell.toml", "-o", tiff.to_str().unwrap(), "--width", "64"]);
+    assert!(err.contains("png, jpg (or jpeg), exr, pfm"), "{err}");
     let missing = dir.path().join("no/such/dir/x.png");
     let err = refused(&["render", "scenes/cornell.toml", "-o", missing.to_str().unwrap(), "--width", "64"]);
     assert!(err.contains("cannot write"), "{err}");

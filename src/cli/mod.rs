@@ -43,7 +43,7 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Render a scene to a PNG file (locally, or through a cluster with --connect).
+    /// Render a scene to an image file: PNG, JPEG, EXR or PFM (locally, or through a cluster with --connect).
     Render(render::RenderArgs),
     /// Fly through a scene in a window (keyboard and mouse navigation).
     #[command(after_help = view::KEYS_HELP)]

@@ -1,9 +1,12 @@
-//! `isin render`: one frame of a scene to a PNG file.
+//! `isin render`: one frame of a scene to an image file (see
+//! [`crate::outputs`]), or to standard output; optionally streamed to tev.
 
 use crate::assets::load_scene_file_timed;
+use crate::outputs::{self, Format, Output, Pass, Spec};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -12,9 +15,29 @@ use std::time::{Duration, Instant};
 pub struct RenderArgs {
     /// Scene file (TOML), or a mesh file (.gltf, .glb, .obj) to make a scene around.
     pub scene: PathBuf,
-    /// Output image file (PNG, or JPEG named .jpg / .jpeg).
+    /// Output image: .png (sRGB), .jpg / .jpeg, .exr (linear float) or .pfm
+    /// (linear float); `-` writes to standard output (PNG unless --format
+    /// says otherwise; the report then goes to standard error).
     #[arg(short, long, value_name = "FILE", default_value = "out.png")]
     pub output: PathBuf,
+    /// Image format, whatever the file is named (default: by the file's
+    /// extension; PNG for `-o -`).
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
+    /// Bits per channel: PNG 8 (default) or 16; EXR 32 (float, default) or
+    /// 16 (half); JPEG 8; PFM 32.
+    #[arg(long, value_name = "BITS")]
+    pub bit_depth: Option<u32>,
+    /// First-hit passes to write beside the beauty, comma-separated: EXR
+    /// layers in the same file (albedo.R…, normal.X…, depth.Z), or for PFM
+    /// files beside it (NAME.albedo.pfm …). Local renders only.
+    #[arg(long, value_enum, value_delimiter = ',', value_name = "PASSES")]
+    pub passes: Vec<Pass>,
+    /// Stream tiles, as they finish, into a running tev image viewer
+    /// listening at HOST:PORT (tev's default: 127.0.0.1:14158); the passes
+    /// go along as layers. Local renders only.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub tev: Option<String>,
     /// Image width in pixels (default: the scene's; alone, the height follows
     /// at the scene's aspect ratio). An image of another shape than the
     /// scene's widens the view (or heightens it) about the centre: never stretched.
@@ -47,65 +70,23 @@ pub struct RenderArgs {
     pub timeout: Option<u64>,
 }
 
-/// An output image being written: the format checked and the file created
-/// (as `NAME.part` beside it) before any rendering, renamed into place once
-/// the image is whole, removed if it never is — a failed render leaves
-/// nothing behind.
-struct Output {
-    path: PathBuf,
-    part: PathBuf,
-    format: image::ImageFormat,
-}
-
-impl Output {
-    fn create(path: &std::path::Path) -> anyhow::Result<Self> {
-        let format = match image::ImageFormat::from_path(path) {
-            Ok(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg)) => f,
-            _ => anyhow::bail!(
-                "cannot write {}: isin writes PNG or JPEG images (name the file .png, .jpg or .jpeg)",
-                path.display()
-            ),
-        };
-        let mut name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
-        name.push(".part");
-        let part = path.with_file_name(name);
-        std::fs::File::create(&part).with_context(|| format!("cannot write {}", path.display()))?;
-        Ok(Self { path: path.to_owned(), part, format })
-    }
-
-    fn write(self, frame: &isin_tracer::Frame) -> anyhow::Result<()> {
-        let file = std::fs::File::create(&self.part)
-            .with_context(|| format!("cannot write {}", self.path.display()))?;
-        let mut w = std::io::BufWriter::new(file);
-        image::write_buffer_with_format(
-            &mut w,
-            &frame.rgb,
-            frame.width,
-            frame.height,
-            image::ColorType::Rgb8,
-            self.format,
-        )
-        .with_context(|| format!("cannot write {}", self.path.display()))?;
-        std::io::Write::flush(&mut w).with_context(|| format!("cannot write {}", self.path.display()))?;
-        drop(w);
-        std::fs::rename(&self.part, &self.path)
-            .with_context(|| format!("cannot write {}", self.path.display()))
-    }
-}
-
-impl Drop for Output {
-    fn drop(&mut self) {
-        // Renamed away when written; otherwise a leftover.
-        let _ = std::fs::remove_file(&self.part);
-    }
-}
-
 /// Runs `isin render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
-    let output = Output::create(&args.output)?;
+    let spec = Spec::new(&args.output, args.format, args.bit_depth, &args.passes)?;
+    let output = Output::create(&args.output, spec)?;
     if let Some(ticket) = args.cluster.ticket()? {
+        if output.spec().needs_linear() {
+            anyhow::bail!(
+                "a cluster render (--connect) carries RGB8 tiles only: EXR, PFM, 16-bit PNG and \
+                 --passes need a local render (leave out --connect)"
+            );
+        }
+        if args.tev.is_some() {
+            anyhow::bail!("--tev streams local renders only: leave out --connect or --tev");
+        }
         return run_cluster(&args, ticket, output);
     }
+    let tev = args.tev.as_deref().map(crate::tev::TevStream::connect).transpose()?;
     let (scene, _bundle, load) = load_scene_file_timed(&args.scene)?;
 
     let mut settings = scene.settings.resized(args.width, args.height);
@@ -126,38 +107,79 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent}% ({eta})")
             .expect("static template"),
     );
+    let passes = output.spec().passes.clone();
+    let tev_name = tev_image_name(&args);
+    let tev = match tev {
+        Some(t) => Some(t.create_image(&tev_name, settings.width, settings.height, &passes)?),
+        None => None,
+    };
+    let on_tile = |tile: isin_tracer::Tile, buffers: &isin_tracer::FrameBuffers| {
+        bar.inc(tile.pixel_count() as u64);
+        if let Some(t) = &tev {
+            t.send_tile(tile, buffers);
+        }
+    };
     let t1 = Instant::now();
-    let (frame, rays) = pool.install(|| {
-        isin_tracer::render::render_frame_stats(&scene, &camera, &settings, args.tile, &|n| bar.inc(n))
+    let (buffers, rays) = pool.install(|| {
+        isin_tracer::render::render_frame_hdr(
+            &scene,
+            &camera,
+            &settings,
+            args.tile,
+            !passes.is_empty(),
+            &on_tile,
+        )
     });
     let render_time = t1.elapsed();
     bar.finish_and_clear();
+    if let Some(t) = tev {
+        t.close();
+    }
 
-    output.write(&frame)?;
+    let wrote = output.display();
+    output.write(&buffers)?;
 
     let secs = render_time.as_secs_f64();
-    println!("scene      {}", args.scene.display());
-    println!(
+    let mut r = String::new();
+    writeln!(r, "scene      {}", args.scene.display())?;
+    writeln!(
+        r,
         "resolution {}x{}, {} spp, {} threads",
         settings.width,
         settings.height,
         settings.spp,
         pool.current_num_threads()
-    );
-    println!("triangles  {}", scene.triangle_count());
-    println!("load       {:.1} ms", load.parse.as_secs_f64() * 1e3);
-    println!("BVH build  {:.1} ms", load.bvh.as_secs_f64() * 1e3);
-    println!("render     {:.1} ms", render_time.as_secs_f64() * 1e3);
-    println!(
+    )?;
+    writeln!(r, "triangles  {}", scene.triangle_count())?;
+    writeln!(r, "load       {:.1} ms", load.parse.as_secs_f64() * 1e3)?;
+    writeln!(r, "BVH build  {:.1} ms", load.bvh.as_secs_f64() * 1e3)?;
+    writeln!(r, "render     {:.1} ms", render_time.as_secs_f64() * 1e3)?;
+    writeln!(
+        r,
         "rays       {:.2} M ({:.2} M primary, {:.2} M secondary, {:.2} M shadow): {:.2} Mrays/s",
         rays.total() as f64 / 1e6,
         rays.primary as f64 / 1e6,
         rays.secondary as f64 / 1e6,
         rays.shadow as f64 / 1e6,
         rays.total() as f64 / secs / 1e6
-    );
-    println!("wrote      {}", args.output.display());
+    )?;
+    if let Some(addr) = &args.tev {
+        writeln!(r, "tev        {addr} (image {tev_name})")?;
+    }
+    writeln!(r, "wrote      {wrote}")?;
+    report(&args, &r);
     Ok(())
+}
+
+/// The name of the image in tev: the output file's name, or the scene's for `-o -`.
+fn tev_image_name(args: &RenderArgs) -> String {
+    let path = if outputs::is_stdout(&args.output) { &args.scene } else { &args.output };
+    path.file_name().map_or_else(|| "isin".into(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Prints the render's report: to standard output, unless the image goes there.
+fn report(args: &RenderArgs, text: &str) {
+    if outputs::is_stdout(&args.output) { eprint!("{text}") } else { print!("{text}") }
 }
 
 /// `isin render --connect TICKET`: one frame through a running cluster.
@@ -172,24 +194,29 @@ fn run_cluster(args: &RenderArgs, ticket: isin_transport::Ticket, output: Output
         args.timeout.map(Duration::from_secs),
     )?;
     let elapsed = t0.elapsed();
-    output.write(&frame)?;
-    println!("scene      {scene} (via cluster {})", ticket.addr);
-    println!("resolution {}x{}", frame.width, frame.height);
+    let wrote = output.display();
+    output.write_frame(&frame)?;
+    let mut r = String::new();
+    writeln!(r, "scene      {scene} (via cluster {})", ticket.addr)?;
+    writeln!(r, "resolution {}x{}", frame.width, frame.height)?;
     let per: Vec<String> = stats.per_slave.iter().map(|(k, n)| format!("{k}: {n}")).collect();
-    println!(
+    writeln!(
+        r,
         "tiles      {} ({}), {} moved, {} duplicated, {} requeued",
         stats.tiles,
         per.join(", "),
         stats.moved,
         stats.duplicated,
         stats.requeued
-    );
-    println!(
+    )?;
+    writeln!(
+        r,
         "render     {:.1} ms (master: {:.1} ms)",
         elapsed.as_secs_f64() * 1e3,
         stats.micros as f64 / 1e3
-    );
-    println!("wire       {:.2} MB received", wire as f64 / 1e6);
-    println!("wrote      {}", args.output.display());
+    )?;
+    writeln!(r, "wire       {:.2} MB received", wire as f64 / 1e6)?;
+    writeln!(r, "wrote      {wrote}")?;
+    report(args, &r);
     Ok(())
 }

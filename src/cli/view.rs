@@ -36,13 +36,23 @@ Keys:
   Shift+W / Shift+S         strafe up / down
   left mouse drag           look around
   Home                      back to the scene's camera
-  F12 / P                   save a screenshot PNG (the rendered image)
+  F12 / P                   save a screenshot (the rendered image; --screenshot-format)
   O / Tab                   tile-ownership overlay (tile borders coloured per slave)
   H                         status text (fps, frame time, slaves, tiles, bytes/s, transport)
   + / -                     double / halve the move and strafe steps
   Escape                    quit
 A held move key keeps moving, in frames made as small as needed to hold --target-fps; a still
 view is redrawn at full resolution, then refined until --max-spp samples per pixel.";
+
+/// Screenshot formats (`--screenshot-format`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScreenshotKind {
+    /// PNG.
+    Png,
+    /// JPEG.
+    #[value(alias = "jpeg")]
+    Jpg,
+}
 
 /// Options of the window itself, shared by every way of starting a viewer.
 #[derive(Args, Debug, Clone, PartialEq)]
@@ -74,6 +84,10 @@ pub struct WindowArgs {
     /// Directory screenshots (F12 / P) are saved to.
     #[arg(long, default_value = ".")]
     pub screenshot_dir: PathBuf,
+    /// Screenshot format: the displayed image is 8-bit sRGB (the cluster
+    /// sends RGB8 tiles), so PNG or JPEG; for EXR use `isin render -o x.exr`.
+    #[arg(long, value_enum, default_value_t = ScreenshotKind::Png)]
+    pub screenshot_format: ScreenshotKind,
     /// Print a line "frame N complete: ..." on stdout as each pass is shown
     /// (for scripts and tests); with a cluster, also a "status: ..." line
     /// (live slaves, tiles per slave, bytes received, transport, dead slaves).
@@ -120,6 +134,7 @@ impl Default for WindowArgs {
             moving_scale: None,
             target_fps: 30.0,
             screenshot_dir: PathBuf::from("."),
+            screenshot_format: ScreenshotKind::Png,
             print_frames: false,
             play: None,
             exit_after_play: false,
@@ -260,6 +275,10 @@ pub fn run_with_source(
     let options = ViewerOptions {
         title,
         screenshot_dir: window.screenshot_dir.clone(),
+        screenshot_format: match window.screenshot_format {
+            ScreenshotKind::Png => isin_viewer::ScreenshotFormat::Png,
+            ScreenshotKind::Jpg => isin_viewer::ScreenshotFormat::Jpeg,
+        },
         exit_after_playback: window.exit_after_play,
         on_event: Box::new(move |event| match event {
             ViewerEvent::FramePresented(r) => {

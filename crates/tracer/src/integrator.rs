@@ -301,6 +301,28 @@ pub fn uv_per_world(v: &[Vec3; 3], uvs: &[Vec2; 3]) -> f32 {
     if world2 > 0.0 { (uv2 / world2).sqrt() } else { 0.0 }
 }
 
+/// The surface a camera ray hits first, as the albedo, normal and depth
+/// passes record it ([`Integrator::first_hit`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FirstHit {
+    /// The surface's colour, clamped to `[0, 1]`: a Phong surface's diffuse
+    /// albedo (texture included), a glTF surface's base colour (texture and
+    /// vertex colour included), the tint of a mirror or of glass, an
+    /// emitter's radiance; zero where the ray escapes.
+    pub albedo: Vec3,
+    /// The unit shading normal in world space (interpolated, normal-mapped,
+    /// turned to face the camera); zero where the ray escapes.
+    pub normal: Vec3,
+    /// Distance from the camera's eye along the (unit) ray; `+∞` where the
+    /// ray escapes.
+    pub depth: f32,
+}
+
+impl FirstHit {
+    /// What a ray that hits nothing records.
+    pub const NOTHING: FirstHit = FirstHit { albedo: Vec3::ZERO, normal: Vec3::ZERO, depth: f32::INFINITY };
+}
+
 /// Which camera sample of which pixel a ray serves: the key of its random
 /// numbers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -668,6 +690,48 @@ impl<'a> Integrator<'a> {
         p.shade(look(&p.base_texture), look(&p.metallic_roughness), look(&p.emissive_texture), colour)
     }
 
+    /// A Phong surface's diffuse albedo at `hit`: the constant, or the
+    /// texture filtered over the ray cone's footprint times its tint.
+    #[inline]
+    fn phong_albedo(&self, albedo: &Albedo, ray: &Ray, hit: &Hit, sp: &SurfacePoint, cone: RayCone) -> Vec3 {
+        let scene = self.scene;
+        match *albedo {
+            Albedo::Constant(c) => c,
+            Albedo::Texture { texture, tint } => match scene.textures.get(texture as usize) {
+                Some(t) => {
+                    let i = hit.prim as usize;
+                    let fp = sp.uv_footprint_from(
+                        scene.uv_gradients(hit.prim),
+                        &scene.triangles[i].v,
+                        ray.dir,
+                        cone.width_at(hit.t),
+                    );
+                    tint * t.eval_rect(sp.uv, fp)
+                }
+                None => tint,
+            },
+        }
+    }
+
+    /// What a camera ray sees at its first hit, for the albedo, normal and
+    /// depth passes ([`FirstHit`]); `hit` is its nearest hit as
+    /// [`Integrator::trace_hit`] takes it (cut-out surfaces are looked
+    /// through here too). Traces no ray besides those of cut-outs.
+    pub fn first_hit(&self, ray: &Ray, hit: Option<Hit>, cone: RayCone) -> FirstHit {
+        let Some(hit) = self.scene.beyond_cutouts(ray, hit, f32::INFINITY) else {
+            return FirstHit::NOTHING;
+        };
+        let sp = self.surface(ray, &hit, cone);
+        let material = self.scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
+        let albedo = match material {
+            Material::Phong { albedo, .. } => self.phong_albedo(albedo, ray, &hit, &sp, cone),
+            Material::Mirror { tint } | Material::Dielectric { tint, .. } => *tint,
+            Material::Emissive { radiance } => *radiance,
+            Material::Pbr(p) => self.pbr_shading(p, ray, &hit, &sp, cone).base_colour,
+        };
+        FirstHit { albedo: albedo.clamp(Vec3::ZERO, Vec3::ONE), normal: sp.ns, depth: hit.t }
+    }
+
     /// Radiance leaving `hit` towards the ray's origin, given the radiance
     /// `found` along each branch of its [`Bounce`] (unused where there is
     /// no branch).
@@ -694,22 +758,7 @@ impl<'a> Integrator<'a> {
         let material = scene.materials.get(sp.material as usize).unwrap_or(&FALLBACK_MATERIAL);
         match material {
             Material::Phong { albedo, specular, shininess, reflectivity } => {
-                let albedo = match *albedo {
-                    Albedo::Constant(c) => c,
-                    Albedo::Texture { texture, tint } => match scene.textures.get(texture as usize) {
-                        Some(t) => {
-                            let i = hit.prim as usize;
-                            let fp = sp.uv_footprint_from(
-                                scene.uv_gradients(hit.prim),
-                                &scene.triangles[i].v,
-                                ray.dir,
-                                cone.width_at(hit.t),
-                            );
-                            tint * t.eval_rect(sp.uv, fp)
-                        }
-                        None => tint,
-                    },
-                };
+                let albedo = self.phong_albedo(albedo, ray, hit, sp, cone);
                 let mut c = scene.ambient * albedo;
                 c += self.direct(sp, ray.dir, albedo, *specular, *shininess, depth, weight, sample, counts);
                 if *reflectivity > 0.0 {

@@ -49,7 +49,10 @@ pub mod shapes;
 pub mod textures;
 
 pub use cameras::Camera;
-pub use render::{Frame, RenderSettings, Tile, render_frame, render_tile};
+pub use render::{
+    Frame, FrameBuffers, Passes, RenderSettings, Tile, render_frame, render_frame_hdr, render_tile,
+    render_tile_hdr,
+};
 pub use scene::Scene;
 pub use scenefile::{AssetSource, SceneBundle, SceneError, load_scene, parse_scene};
 

@@ -184,6 +184,9 @@ pub const MAX_PBR_SHININESS: f32 = 4096.0;
 /// What a [`Pbr`] material is at one point, in Phong terms.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PbrShading {
+    /// Base colour: factor × texture × vertex colour (for metals, their
+    /// reflectance at normal incidence); the albedo pass of a glTF surface.
+    pub base_colour: Vec3,
     /// Diffuse albedo (also lit by the ambient term).
     pub albedo: Vec3,
     /// Colour of the Phong highlight.
@@ -238,6 +241,7 @@ impl Pbr {
             MAX_PBR_SHININESS
         };
         PbrShading {
+            base_colour: c,
             albedo,
             specular: f0 * (1.0 - m * r2),
             shininess,

@@ -13,11 +13,17 @@
 //! [`RenderSettings::seed`] only, so any tiling on any number of threads or
 //! machines produces the same bytes. The `_stats` variants also count the rays
 //! traced, for Mrays/s figures.
+//!
+//! [`render_tile_hdr`] and [`render_frame_hdr`] give the same pixels before
+//! that encoding — linear, unclamped floats ([`FrameBuffers`]) — and, when
+//! asked, the first-hit albedo, normal and depth passes ([`Passes`]) for
+//! denoisers and compositing; the passes cost only what finding the first
+//! hit's surface costs, and the beauty's encoding is the RGB8 path's bytes.
 
 use crate::bvh::PACKET_LANES;
 use crate::cameras::Camera;
 use crate::geometry::Ray;
-use crate::integrator::{Integrator, RayCone, RayCounts, SampleId};
+use crate::integrator::{FirstHit, Integrator, RayCone, RayCounts, SampleId};
 use crate::math;
 use crate::sampling::{Sampler, ceil_sqrt, stratified_square};
 use crate::scene::Scene;
@@ -168,6 +174,80 @@ impl Frame {
             let dst = ((tile.y as usize + j) * self.width as usize + tile.x as usize) * 3;
             self.rgb[dst..dst + row].copy_from_slice(&rgb[j * row..(j + 1) * row]);
         }
+    }
+}
+
+/// A rendered image in linear floats, row-major: the beauty (the mean
+/// radiance of each pixel's samples, unclamped: what [`Frame`] holds
+/// clamped and sRGB-encoded) and, when asked for, the first-hit passes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameBuffers {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Linear RGB radiance, `width * height` pixels.
+    pub beauty: Vec<[f32; 3]>,
+    /// The albedo, normal and depth passes, if rendered.
+    pub passes: Option<Passes>,
+}
+
+/// What camera rays see at their first hits, per pixel ([`FirstHit`], for
+/// denoisers and compositing). Albedo and normal are the means over the
+/// pixel's samples (a sample that escapes counts as zero), so they are
+/// anti-aliased like the beauty and the normal need not be unit length;
+/// depth is the nearest of the samples' distances (`+∞` where every
+/// sample escapes), not a blend of surfaces in front and behind.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Passes {
+    /// Surface colour in `[0, 1]`, linear RGB.
+    pub albedo: Vec<[f32; 3]>,
+    /// World-space shading normal, facing the camera.
+    pub normal: Vec<[f32; 3]>,
+    /// Distance from the eye along the camera ray.
+    pub depth: Vec<f32>,
+}
+
+impl FrameBuffers {
+    /// A black image (zero depth and passes where `passes`; depth `+∞`).
+    pub fn new(width: u32, height: u32, passes: bool) -> Self {
+        let n = width as usize * height as usize;
+        let passes = passes.then(|| Passes {
+            albedo: vec![[0.0; 3]; n],
+            normal: vec![[0.0; 3]; n],
+            depth: vec![f32::INFINITY; n],
+        });
+        Self { width, height, beauty: vec![[0.0; 3]; n], passes }
+    }
+
+    /// Copies a tile's buffers (as returned by [`render_tile_hdr`], with
+    /// passes if this frame has them) into place.
+    ///
+    /// # Panics
+    /// If the tile does not lie inside the frame or its buffers do not match it.
+    pub fn blit(&mut self, tile: Tile, from: &FrameBuffers) {
+        assert_eq!((from.width, from.height), (tile.w, tile.h), "tile buffers of another size");
+        let (w, tw) = (self.width as usize, tile.w as usize);
+        fn rows<T: Copy>(to: &mut [T], from: &[T], tile: Tile, w: usize, tw: usize) {
+            for j in 0..tile.h as usize {
+                let dst = (tile.y as usize + j) * w + tile.x as usize;
+                to[dst..dst + tw].copy_from_slice(&from[j * tw..(j + 1) * tw]);
+            }
+        }
+        rows(&mut self.beauty, &from.beauty, tile, w, tw);
+        if let Some(p) = &mut self.passes {
+            let q = from.passes.as_ref().expect("tile rendered without the frame's passes");
+            rows(&mut p.albedo, &q.albedo, tile, w, tw);
+            rows(&mut p.normal, &q.normal, tile, w, tw);
+            rows(&mut p.depth, &q.depth, tile, w, tw);
+        }
+    }
+
+    /// The beauty as [`render_frame`] writes it: clamped, sRGB-encoded RGB8
+    /// ([`encode_srgb8`]).
+    pub fn to_frame(&self) -> Frame {
+        let rgb = self.beauty.iter().flatten().map(|&c| encode_srgb8_fast(c)).collect();
+        Frame { width: self.width, height: self.height, rgb }
     }
 }
 
@@ -330,6 +410,84 @@ pub fn render_tile_with(
     options: &TraceOptions,
 ) -> (Vec<u8>, RayCounts) {
     let mut out = vec![0u8; tile.pixel_count() * 3];
+    let counts = trace_tile::<false>(scene, camera, settings, tile, options, &mut |at, c, _| {
+        out[3 * at..3 * at + 3].copy_from_slice(&[
+            encode_srgb8_fast(c.x),
+            encode_srgb8_fast(c.y),
+            encode_srgb8_fast(c.z),
+        ]);
+    });
+    (out, counts)
+}
+
+/// The pixels of `tile` as linear floats ([`FrameBuffers`], `tile.w × tile.h`),
+/// with the first-hit passes when `passes` is set: the beauty is the value
+/// [`render_tile`] encodes, so `render_tile_hdr(…).to_frame().rgb` is
+/// `render_tile(…)` byte for byte. Also returns the rays traced.
+pub fn render_tile_hdr(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile: Tile,
+    passes: bool,
+) -> (FrameBuffers, RayCounts) {
+    let mut out = FrameBuffers::new(tile.w, tile.h, passes);
+    let options = TraceOptions::default();
+    let counts = if passes {
+        let FrameBuffers { beauty, passes, .. } = &mut out;
+        let p = passes.as_mut().expect("made with passes");
+        trace_tile::<true>(scene, camera, settings, tile, &options, &mut |at, c, first| {
+            beauty[at] = c.to_array();
+            p.albedo[at] = first.albedo.to_array();
+            p.normal[at] = first.normal.to_array();
+            p.depth[at] = first.depth;
+        })
+    } else {
+        trace_tile::<false>(scene, camera, settings, tile, &options, &mut |at, c, _| {
+            out.beauty[at] = c.to_array()
+        })
+    };
+    (out, counts)
+}
+
+/// The passes of a pixel so far: sums of its samples' albedos and normals,
+/// the nearest of their depths.
+#[derive(Clone, Copy)]
+struct PassSums {
+    albedo: Vec3,
+    normal: Vec3,
+    depth: f32,
+}
+
+impl PassSums {
+    const EMPTY: PassSums = PassSums { albedo: Vec3::ZERO, normal: Vec3::ZERO, depth: f32::INFINITY };
+
+    #[inline]
+    fn add(&mut self, f: FirstHit) {
+        self.albedo += f.albedo;
+        self.normal += f.normal;
+        self.depth = self.depth.min(f.depth);
+    }
+
+    /// The pixel's passes: the mean albedo and normal, the nearest depth.
+    #[inline]
+    fn finish(&self, inv_spp: f32) -> FirstHit {
+        FirstHit { albedo: self.albedo * inv_spp, normal: self.normal * inv_spp, depth: self.depth }
+    }
+}
+
+/// Traces the pixels of `tile`, handing each to `put` as (its index in the
+/// tile, row-major; its mean linear radiance; its passes, which are
+/// [`FirstHit::NOTHING`] unless `PASSES`). Without `PASSES` nothing is
+/// traced or computed that the radiance does not need.
+fn trace_tile<const PASSES: bool>(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile: Tile,
+    options: &TraceOptions,
+    put: &mut impl FnMut(usize, Vec3, &FirstHit),
+) -> RayCounts {
     let mut counts = RayCounts::default();
     let integrator = Integrator::new(scene, settings)
         .with_adaptive_shadows(options.adaptive_shadows)
@@ -346,28 +504,33 @@ pub fn render_tile_with(
         let o = pixel_offset(x, y, s, spp, seed);
         camera.ray((x as f32 + o.x) / w, (y as f32 + o.y) / h)
     };
-    let mut put = |x: u32, y: u32, sum: Vec3| {
-        let c = sum * inv_spp;
-        let at = (((y - tile.y) * tile.w + (x - tile.x)) * 3) as usize;
-        out[at..at + 3].copy_from_slice(&[
-            encode_srgb8_fast(c.x),
-            encode_srgb8_fast(c.y),
-            encode_srgb8_fast(c.z),
-        ]);
+    let mut put = |x: u32, y: u32, sum: Vec3, passes: &PassSums| {
+        let at = ((y - tile.y) * tile.w + (x - tile.x)) as usize;
+        let first = if PASSES { passes.finish(inv_spp) } else { FirstHit::NOTHING };
+        put(at, sum * inv_spp, &first);
     };
     if !options.packets {
         for y in tile.y..tile.y + tile.h {
             for x in tile.x..tile.x + tile.w {
                 let pixel = Sampler::pixel(x, y, seed);
                 let mut sum = Vec3::ZERO;
+                let mut passes = PassSums::EMPTY;
                 for s in 0..spp {
                     let sample = SampleId { pixel, index: s };
-                    sum += integrator.trace(&camera_ray(x, y, s), cone, &sample, &mut counts);
+                    let ray = camera_ray(x, y, s);
+                    if PASSES {
+                        // What `trace` does, with the hit kept for the passes.
+                        let hit = scene.intersect_visible(&ray, 0.0, f32::INFINITY);
+                        passes.add(integrator.first_hit(&ray, hit, cone));
+                        sum += integrator.trace_hit(&ray, hit, cone, &sample, &mut counts);
+                    } else {
+                        sum += integrator.trace(&ray, cone, &sample, &mut counts);
+                    }
                 }
-                put(x, y, sum);
+                put(x, y, sum, &passes);
             }
         }
-        return (out, counts);
+        return counts;
     }
     // Each pixel sums its samples in the same order as above, and a packet
     // finds exactly the single-ray hits, so the bytes are the same.
@@ -385,6 +548,7 @@ pub fn render_tile_with(
             }
             let lanes = || (0..PACKET_LANES as u32).filter(move |l| active & (1 << l) != 0);
             let mut sums = [Vec3::ZERO; PACKET_LANES];
+            let mut passes = [PassSums::EMPTY; PACKET_LANES];
             for s in 0..spp {
                 // Image coordinates of every lane (those past the tile's edge
                 // too: their rays are made but not traced), then the rays
@@ -401,6 +565,12 @@ pub fn render_tile_with(
                 let rays: [Ray; PACKET_LANES] = std::array::from_fn(|j| quads[j / 4][j % 4]);
                 let hits =
                     scene.bvh.intersect8(&rays, [0.0; PACKET_LANES], [f32::INFINITY; PACKET_LANES], active);
+                if PASSES {
+                    for lane in lanes() {
+                        let l = lane as usize;
+                        passes[l].add(integrator.first_hit(&rays[l], hits[l], cone));
+                    }
+                }
                 let samples = pixels.map(|pixel| SampleId { pixel, index: s });
                 let radiance = integrator.trace_packet(&rays, &hits, cone, &samples, active, &mut counts);
                 for lane in lanes() {
@@ -409,11 +579,11 @@ pub fn render_tile_with(
             }
             for lane in lanes() {
                 let (x, y) = lane_xy(bx, by, lane);
-                put(x, y, sums[lane as usize]);
+                put(x, y, sums[lane as usize], &passes[lane as usize]);
             }
         }
     }
-    (out, counts)
+    counts
 }
 
 /// Renders a whole frame, tiles spread over the current rayon pool; `progress`
@@ -461,6 +631,36 @@ pub fn render_frame_with(
     let mut counts = RayCounts::default();
     for (tile, rgb, c) in &rendered {
         frame.blit(*tile, rgb);
+        counts.add(c);
+    }
+    (frame, counts)
+}
+
+/// [`render_frame_stats`] in linear floats, with the first-hit passes when
+/// `passes` is set; `on_tile` is called with each tile's buffers as it is
+/// finished (on the rendering thread), e.g. to stream them to a viewer.
+/// The beauty's [`FrameBuffers::to_frame`] is [`render_frame`]'s frame.
+pub fn render_frame_hdr(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tile_size: u32,
+    passes: bool,
+    on_tile: &(dyn Fn(Tile, &FrameBuffers) + Sync),
+) -> (FrameBuffers, RayCounts) {
+    let tiles = Tile::grid(settings.width, settings.height, tile_size);
+    let rendered: Vec<(Tile, FrameBuffers, RayCounts)> = tiles
+        .par_iter()
+        .map(|&tile| {
+            let (buffers, counts) = render_tile_hdr(scene, camera, settings, tile, passes);
+            on_tile(tile, &buffers);
+            (tile, buffers, counts)
+        })
+        .collect();
+    let mut frame = FrameBuffers::new(settings.width, settings.height, passes);
+    let mut counts = RayCounts::default();
+    for (tile, buffers, c) in &rendered {
+        frame.blit(*tile, buffers);
         counts.add(c);
     }
     (frame, counts)
@@ -629,6 +829,78 @@ mod tests {
         assert_eq!(ca, cb);
         assert!(a == b, "SIMD and scalar traversal differ");
         assert!(a.iter().any(|&c| c != a[0]));
+    }
+
+    #[test]
+    fn linear_buffers_encode_to_the_same_bytes_at_any_tiling_with_or_without_passes() {
+        let scene = shadow_test_scene();
+        let s = RenderSettings { spp: 4, ..scene.settings };
+        let reference = render_frame(&scene, &scene.camera, &s, 32, &|_| {});
+        let mut seen = Vec::new();
+        for (tile, passes) in [(32, false), (7, true), (96, true)] {
+            let tiles = std::sync::atomic::AtomicUsize::new(0);
+            let on_tile = |_: Tile, b: &FrameBuffers| {
+                assert_eq!(b.passes.is_some(), passes);
+                tiles.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            };
+            let (hdr, _) = render_frame_hdr(&scene, &scene.camera, &s, tile, passes, &on_tile);
+            assert!(hdr.to_frame() == reference, "tile {tile}, passes {passes}: other bytes");
+            assert_eq!(tiles.into_inner(), Tile::grid(s.width, s.height, tile).len());
+            seen.push(hdr);
+        }
+        assert_eq!(seen[0].beauty, seen[1].beauty);
+        assert!(seen[1] == seen[2], "passes depend on the tiling");
+    }
+
+    #[test]
+    fn packets_and_single_rays_give_the_same_passes() {
+        let scene = shadow_test_scene();
+        let s = RenderSettings { spp: 2, ..scene.settings };
+        let tile = Tile { x: 5, y: 3, w: 41, h: 29 };
+        let run = |packets: bool| {
+            let mut out = Vec::new();
+            let options = TraceOptions { packets, ..TraceOptions::default() };
+            trace_tile::<true>(&scene, &scene.camera, &s, tile, &options, &mut |at, c, f| {
+                out.push((at, c, *f))
+            });
+            out
+        };
+        let (a, b) = (run(true), run(false));
+        assert_eq!(a.len(), tile.pixel_count());
+        let sorted = |mut v: Vec<(usize, Vec3, FirstHit)>| {
+            v.sort_by_key(|p| p.0);
+            v
+        };
+        assert!(sorted(a) == sorted(b));
+    }
+
+    #[test]
+    fn passes_record_the_first_hit() {
+        let scene = shadow_test_scene();
+        let s = scene.settings;
+        let (hdr, _) = render_frame_hdr(&scene, &scene.camera, &s, 16, true, &|_, _| {});
+        let p = hdr.passes.as_ref().unwrap();
+        // The centre pixel looks at the bare floor by the origin (default
+        // material, albedo 0.7) from (0, 9, 9).
+        let (x, y) = (s.width / 2, s.height / 2);
+        let i = (y * s.width + x) as usize;
+        assert_eq!(p.normal[i], [0.0, 1.0, 0.0]);
+        assert_eq!(p.albedo[i], [0.7; 3]);
+        let eye = scene.camera.eye;
+        let ray = scene.camera.ray((x as f32 + 0.5) / s.width as f32, (y as f32 + 0.5) / s.height as f32);
+        let t = -eye.y / ray.dir.y;
+        assert!((p.depth[i] - t).abs() < 1e-3 * t, "depth {} vs {t}", p.depth[i]);
+        assert!((t - eye.length()).abs() < 0.5);
+        // Pixels that see nothing have no albedo or normal and lie at infinity;
+        // every other depth is finite and positive.
+        for ((a, n), d) in p.albedo.iter().zip(&p.normal).zip(&p.depth) {
+            assert_eq!(*d == f32::INFINITY, *n == [0.0; 3], "depth {d}, normal {n:?}");
+            if *d == f32::INFINITY {
+                assert_eq!(*a, [0.0; 3]);
+            } else {
+                assert!(*d > 0.0 && (Vec3::from_array(*n).length() - 1.0).abs() < 1e-4);
+            }
+        }
     }
 
     #[test]

@@ -24,7 +24,7 @@
 //! | `Shift`+`W`/`S`, `Shift`+`↑`/`↓` | strafe up / down |
 //! | mouse drag (left button) | look around |
 //! | `Home` | back to the scene's camera |
-//! | `F12` / `P` | save a screenshot PNG |
+//! | `F12` / `P` | save a screenshot (PNG or JPEG) |
 //! | `O` / `Tab` | toggle the tile-ownership overlay |
 //! | `H` | toggle the status text |
 //! | `Escape` | quit |

@@ -53,4 +53,4 @@ pub use path::{CameraPath, PathFrame, Recorder, Sampling};
 pub use resolution::{Divisor, MovingResolution};
 pub use session::{FrameReport, PassKind, Quality, Session, SessionConfig};
 pub use source::{FrameId, FrameRequest, FrameSource, SourceEvent, SourceStatus, TileUpdate, Waker, Worker};
-pub use window::{ViewerEvent, ViewerOptions, check_display, run};
+pub use window::{ScreenshotFormat, ViewerEvent, ViewerOptions, check_display, run, save_screenshot};

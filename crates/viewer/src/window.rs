@@ -38,6 +38,56 @@ pub enum ViewerEvent {
     ScreenshotSaved(PathBuf),
 }
 
+/// The file format of screenshots: the displayed image is sRGB RGB8 (as the
+/// cluster's tiles are), so 8-bit formats only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ScreenshotFormat {
+    /// PNG, lossless.
+    #[default]
+    Png,
+    /// JPEG.
+    Jpeg,
+}
+
+impl ScreenshotFormat {
+    /// The file extension.
+    pub fn extension(self) -> &'static str {
+        match self {
+            ScreenshotFormat::Png => "png",
+            ScreenshotFormat::Jpeg => "jpg",
+        }
+    }
+}
+
+/// Writes a `width × height` RGB8 screenshot into `dir` as the first free
+/// `isin-screenshot-NNNN.EXT`: whole to `NAME.part`, then renamed into place,
+/// so no partial or empty file is ever seen under the name.
+pub fn save_screenshot(
+    dir: &std::path::Path,
+    format: ScreenshotFormat,
+    (width, height): (u32, u32),
+    rgb: &[u8],
+) -> Result<PathBuf, ViewerError> {
+    let ext = format.extension();
+    let path = (0..10_000)
+        .map(|i| dir.join(format!("isin-screenshot-{i:04}.{ext}")))
+        .find(|p| !p.exists())
+        .unwrap_or_else(|| dir.join(format!("isin-screenshot.{ext}")));
+    let part = path.with_extension(format!("{ext}.part"));
+    let image_format = match format {
+        ScreenshotFormat::Png => image::ImageFormat::Png,
+        ScreenshotFormat::Jpeg => image::ImageFormat::Jpeg,
+    };
+    let fail = |e: String| {
+        let _ = std::fs::remove_file(&part);
+        ViewerError::Image { path: path.clone(), message: e }
+    };
+    image::save_buffer_with_format(&part, rgb, width, height, image::ColorType::Rgb8, image_format)
+        .map_err(|e| fail(e.to_string()))?;
+    std::fs::rename(&part, &path).map_err(|e| fail(e.to_string()))?;
+    Ok(path)
+}
+
 /// Window settings.
 pub struct ViewerOptions {
     /// Window title.
@@ -46,6 +96,8 @@ pub struct ViewerOptions {
     pub window_size: Option<(u32, u32)>,
     /// Where screenshots go.
     pub screenshot_dir: PathBuf,
+    /// Their file format.
+    pub screenshot_format: ScreenshotFormat,
     /// Show the status text at start.
     pub show_status: bool,
     /// Close the window once a playback ([`Session::play`]) has finished.
@@ -60,6 +112,7 @@ impl Default for ViewerOptions {
             title: "isin".into(),
             window_size: None,
             screenshot_dir: PathBuf::from("."),
+            screenshot_format: ScreenshotFormat::Png,
             show_status: true,
             exit_after_playback: false,
             on_event: Box::new(|_| {}),
@@ -243,14 +296,13 @@ impl App<'_> {
     }
 
     fn screenshot(&mut self) -> Result<PathBuf, ViewerError> {
-        let dir = &self.options.screenshot_dir;
-        let path = (0..10_000)
-            .map(|i| dir.join(format!("isin-screenshot-{i:04}.png")))
-            .find(|p| !p.exists())
-            .unwrap_or_else(|| dir.join("isin-screenshot.png"));
         let img = self.session.image();
-        image::save_buffer(&path, &img.to_rgb8(), img.width(), img.height(), image::ColorType::Rgb8)
-            .map_err(|e| ViewerError::Image { path: path.clone(), message: e.to_string() })?;
+        let path = save_screenshot(
+            &self.options.screenshot_dir,
+            self.options.screenshot_format,
+            (img.width(), img.height()),
+            &img.to_rgb8(),
+        )?;
         tracing::info!("screenshot saved to {}", path.display());
         Ok(path)
     }
@@ -412,5 +464,30 @@ impl ApplicationHandler<Wake> for App<'_> {
             // The status line's timer (held keys' timer redraws when tiles land).
             self.request_redraw();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn screenshots_are_numbered_in_their_format_and_leave_no_part_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let rgb: Vec<u8> = (0..6 * 4 * 3).map(|i| (i * 7) as u8).collect();
+        let a = save_screenshot(dir.path(), ScreenshotFormat::Png, (6, 4), &rgb).unwrap();
+        let b = save_screenshot(dir.path(), ScreenshotFormat::Png, (6, 4), &rgb).unwrap();
+        let c = save_screenshot(dir.path(), ScreenshotFormat::Jpeg, (6, 4), &rgb).unwrap();
+        assert_eq!(a, dir.path().join("isin-screenshot-0000.png"));
+        assert_eq!(b, dir.path().join("isin-screenshot-0001.png"));
+        assert_eq!(c, dir.path().join("isin-screenshot-0000.jpg"));
+        assert_eq!(image::open(&a).unwrap().to_rgb8().into_raw(), rgb);
+        let jpeg = std::fs::read(&c).unwrap();
+        assert_eq!(image::guess_format(&jpeg).unwrap(), image::ImageFormat::Jpeg);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3, "a .part file was left");
+        // A failed write leaves nothing either.
+        let missing = dir.path().join("no/such/dir");
+        assert!(save_screenshot(&missing, ScreenshotFormat::Png, (6, 4), &rgb).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
     }
 }
