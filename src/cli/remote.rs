@@ -221,6 +221,14 @@ impl Link {
             match self.serve(&mut requests, &mut events).await {
                 Ended::WindowClosed => break,
                 Ended::Lost(why) => {
+                    // The old master's slaves are not this one's: nothing is known until it is back.
+                    self.feed.update_status(|s| {
+                        *s = SourceStatus {
+                            bytes_received: s.bytes_received,
+                            transport: s.transport.clone(),
+                            ..SourceStatus::default()
+                        }
+                    });
                     let addr = &self.ticket.addr;
                     self.feed
                         .send(SourceEvent::Lost(format!("lost the master at {addr} ({why}); reconnecting…")));
@@ -286,7 +294,9 @@ impl Link {
                 tokio::select! {
                     c = &mut connect => break c,
                     // Requests meanwhile are dropped: the window asks again once back.
-                    r = requests.recv() => if r.is_none() { return None },
+                    r = requests.recv() => {
+                        r?; // the window closed
+                    }
                 }
             }
         };
