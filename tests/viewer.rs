@@ -175,6 +175,15 @@ impl Viewer {
         }
     }
 
+    /// The first line accepted by `want` that the viewer printed after its
+    /// log's line `since`: already read, or waited for.
+    fn line_since(&mut self, since: usize, what: &str, want: impl Fn(&str) -> bool) -> String {
+        match self.log.iter().skip(since).find(|l| want(l)) {
+            Some(l) => l.clone(),
+            None => self.wait_line(what, want),
+        }
+    }
+
     /// Waits until view `view` is fully refined (its image no longer changes).
     fn wait_view_final(&mut self, view: u32) {
         self.wait_line(&format!("view {view} at {MAX_SPP} spp"), |l| {
@@ -351,6 +360,12 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     let mut v = open_viewer(&display, &args);
 
     v.wait_view_final(0);
+    // `isin view SCENE` renders on a cluster of its own: one local slave.
+    let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+    let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
+    assert_eq!((status.live, status.transport.as_str()), (1, "tcp"), "{line}");
+    let slaves: Vec<u32> = status.tiles.iter().filter(|(_, n)| *n > 0).map(|(id, _)| *id).collect();
+    assert_eq!(slaves.len(), 1, "{line}");
     let before = v.screenshot(&artefacts.join("before.png"));
     assert_eq!(before.dimensions(), (320, 240), "the window opens at the render size");
 
@@ -370,12 +385,13 @@ fn view_moves_on_key_presses_and_quits_on_escape() {
     own.save(artefacts.join("f12.png")).unwrap();
 
     // The ownership overlay: tile borders (32-pixel tiles, drawn 1:1) in the
-    // colour of the render thread that made each tile. Shown from the next frame on.
+    // colour of the slave that made each tile. Shown from the next frame on.
     v.press("o");
     v.press("s");
     v.wait_view_final(3);
-    let owners: Vec<[u8; 3]> = (0..2)
-        .map(|i| {
+    let owners: Vec<[u8; 3]> = slaves
+        .iter()
+        .map(|&i| {
             let c = isin_viewer::raster::owner_colour(i);
             [(c >> 16) as u8, (c >> 8) as u8, c as u8]
         })
@@ -528,6 +544,10 @@ fn a_key_held_while_the_window_gains_focus_does_not_act() {
     );
     let mut v = open_viewer(&display, &args);
     v.wait_line("the first frame", |l| parse_done(l).is_some());
+    let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+    let slaves: Vec<u32> =
+        parse_status(&line).map(|s| s.tiles.iter().map(|t| t.0).collect()).unwrap_or_default();
+    assert!(!slaves.is_empty(), "{line}");
     let root = Command::new("xwininfo").arg("-root").env("DISPLAY", &display).output().unwrap();
     let root = String::from_utf8_lossy(&root.stdout);
     let root =
@@ -546,7 +566,7 @@ fn a_key_held_while_the_window_gains_focus_does_not_act() {
     // Now one real press: the overlay must be on (on and off again if the
     // held key had acted).
     v.press("o");
-    let on = |img: &image::RgbImage| (0..2).map(|owner| overlay_pixels(img, owner)).sum::<usize>();
+    let on = |img: &image::RgbImage| slaves.iter().map(|&owner| overlay_pixels(img, owner)).sum::<usize>();
     let shot = v.screenshot_when(&artefacts.join("after.png"), |img| on(img) >= 20);
     assert!(on(&shot) >= 20, "one press of O after a held one shows no overlay; output:\n{:#?}", v.log);
 }
@@ -825,4 +845,129 @@ fn a_held_key_moves_without_still_passes_then_sharpens_on_release() {
     v.xdotool(&["key", "Escape"]);
     let exit = v.wait_exit();
     assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
+}
+
+#[test]
+fn the_render_resolution_follows_the_window_when_it_is_resized() {
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr(), "SKIPPED the_render_resolution_follows_the_window: {why}");
+            return;
+        }
+    };
+    for tool in ["xdotool", "import"] {
+        assert!(tool_exists(tool), "{tool} is needed (apt-get install xdotool imagemagick)");
+    }
+    let artefacts = repo().join("target/test-artifacts/viewer-resize");
+    std::fs::create_dir_all(&artefacts).unwrap();
+    let shots = tempfile::tempdir().unwrap();
+    let mut args: Vec<OsString> = vec!["view".into(), repo().join("scenes/paper.toml").into()];
+    args.extend(
+        ["--width", "320", "--height", "240", "--threads", "2", "--print-frames", "--max-spp", "1"]
+            .map(OsString::from),
+    );
+    args.extend(["--screenshot-dir".into(), shots.path().into()]);
+    let mut v = open_viewer(&display, &args);
+    let first = v.wait_line("the first frame", |l| parse_done(l).is_some());
+    assert!(first.contains("size 320x240"), "{first}");
+
+    // Wider and flatter than the scene: the next full-resolution pass is the
+    // window's size in pixels, not the old image enlarged.
+    v.xdotool(&["windowsize", "--sync", &v.window, "400", "200"]);
+    let line = v.wait_line("a full-resolution pass after the resize", |l| {
+        parse_pass(l).is_some_and(|p| p.view >= 1) && l.contains(" scale 1 ")
+    });
+    assert!(line.contains("size 400x200"), "{line}");
+    // With --max-spp 1 that pass is the view's last: the image no longer changes.
+    v.press("F12");
+    let line = v.wait_line("a screenshot", |l| l.starts_with("screenshot "));
+    let saved = image::open(line.trim_start_matches("screenshot ")).unwrap().to_rgb8();
+    assert_eq!(saved.dimensions(), (400, 200), "the rendered image is the window's size");
+    // Drawn 1:1: the window below the status text is the rendered image.
+    let rows = |img: &image::RgbImage| -> Vec<u8> {
+        img.enumerate_pixels().filter(|(_, y, _)| *y >= 120).flat_map(|(_, _, p)| p.0).collect()
+    };
+    let diff = |img: &image::RgbImage| {
+        let (a, b) = (rows(&saved), rows(img));
+        let sum: u64 = a.iter().zip(&b).map(|(&x, &y)| (x as i32 - y as i32).unsigned_abs() as u64).sum();
+        sum as f64 / a.len().max(1) as f64
+    };
+    let shot = v.screenshot_when(&artefacts.join("resized.png"), |img| {
+        img.dimensions() == (400, 200) && diff(img) < 3.0
+    });
+    assert_eq!(shot.dimensions(), (400, 200));
+    let d = diff(&shot);
+    assert!(d < 3.0, "the window does not show the rendered image 1:1 (mean difference {d:.2})");
+    v.press("Escape");
+    let exit = v.wait_exit();
+    assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
+}
+
+/// The viewer of a cluster with no slave shows how to start one; once the
+/// master is killed it says it reconnects, and when the master is back (same
+/// address, token and identity) it shows frames again without being touched.
+#[test]
+fn the_viewer_hints_at_slaves_and_survives_a_restart_of_its_master() {
+    use util::{Proc, Stream, Transport};
+    let (_xvfb, display) = match start_xvfb() {
+        Ok(x) => x,
+        Err(why) => {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr(), "SKIPPED the_viewer_survives_a_restart_of_its_master: {why}");
+            return;
+        }
+    };
+    let t = Transport::Tcp;
+    let addr = t.free_addr();
+    let identity = tempfile::tempdir().unwrap();
+    let (identity_args, ticket) = t.prepared_ticket(identity.path(), "tok", &addr);
+    let scene = util::scene();
+    let start_master = || {
+        let mut args = vec!["master", scene.to_str().unwrap(), "--listen", &addr, "--token", "tok"];
+        args.extend(t.master_args());
+        args.extend(identity_args.iter().map(String::as_str));
+        let m = Proc::spawn("master", &args, "info");
+        m.wait_for(Stream::Out, "ticket ");
+        m
+    };
+    let mut master = start_master();
+    let args: Vec<OsString> = ["view", "--connect", &ticket, "--width", "160", "--height", "120"]
+        .into_iter()
+        .chain(["--print-frames", "--max-spp", "1"])
+        .map(OsString::from)
+        .collect();
+    let mut v = open_viewer(&display, &args);
+    // No slave yet: the window says how to start one.
+    let hint = v.wait_line("the no-slaves hint", |l| l.starts_with("notice: no slaves"));
+    let hinted = v.log.len();
+    assert!(hint.contains("isin slave --connect") && hint.contains(&addr), "{hint}");
+    let slave =
+        Proc::spawn("slave", &["slave", "--connect", &ticket, "--threads", "1", "--name", "s0"], "info");
+    v.wait_line("the first frame", |l| parse_done(l).is_some());
+    let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+    assert_eq!(parse_status(&line).map(|s| s.live), Some(1), "{line}");
+    v.line_since(hinted, "the hint gone once a slave joined", |l| l == "notice: none");
+
+    master.kill9();
+    v.wait_line("the viewer saying it reconnects", |l| {
+        l.starts_with("notice: lost the master") && l.contains("reconnecting")
+    });
+    let lost = v.log.len();
+    let master = start_master();
+    master.wait_for(Stream::Err, "joined with");
+    let back = Instant::now();
+    let frame = v.wait_line("a frame after the restart", |l| parse_done(l).is_some());
+    let took = back.elapsed();
+    println!("a frame {took:?} after the slave rejoined: {frame}");
+    assert!(took < Duration::from_secs(5), "the viewer took {took:?} to show frames again: {:#?}", v.log);
+    let line = v.wait_line("a status line", |l| l.starts_with("status: "));
+    let status = parse_status(&line).unwrap_or_else(|| panic!("unparsable status line {line:?}"));
+    assert_eq!((status.live, status.dead), (1, 0), "the restarted master's slaves, not stale ones: {line}");
+    v.line_since(lost, "the notice cleared", |l| l == "notice: none");
+    v.press("Escape");
+    let exit = v.wait_exit();
+    assert!(exit.success(), "exit status {exit:?}; output:\n{:#?}", v.log);
+    drop(slave);
 }

@@ -201,11 +201,17 @@ fn default_scene() -> anyhow::Result<(isin_tracer::Scene, isin_tracer::SceneBund
     Ok((scene, bundle))
 }
 
-/// Starts a master on loopback and `slaves` local slaves splitting the cores;
-/// must run inside an actix system. Returns the master and its ticket.
-async fn start_embedded(cfg: MasterConfig, slaves: usize) -> anyhow::Result<(Addr<Master>, Ticket)> {
+/// Starts a master on loopback and `slaves` local slaves splitting `threads`
+/// render threads (0: one per core); must run inside an actix system.
+/// Returns the master and its ticket.
+async fn start_embedded(
+    cfg: MasterConfig,
+    slaves: usize,
+    threads: usize,
+) -> anyhow::Result<(Addr<Master>, Ticket)> {
+    let slaves = slaves.max(1);
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-    let threads = (cores / slaves).max(1);
+    let threads = (if threads == 0 { cores } else { threads } / slaves).max(1);
     // TLS even on loopback: the printed ticket lets slaves of other processes join.
     let identity = Identity::generate()?;
     let tcp: Arc<dyn Transport> = Arc::new(TcpTransport::both(&identity, identity.fingerprint())?);
@@ -261,12 +267,28 @@ fn run_default_window(window: &super::view::WindowArgs) -> anyhow::Result<()> {
     let extent = super::view::scene_extent(&scene);
     let cfg = MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
     drop(scene);
+    run_embedded_window(cfg, DEFAULT_SLAVES, 0, extent, window)
+}
+
+/// The viewer window on a cluster of its own: a master serving `cfg`'s
+/// default scene and `slaves` local slaves with `threads` render threads in
+/// all (0: one per core), on a thread of their own, the window on the main
+/// thread. `isin view SCENE` and the default `isin` both render this way, the
+/// same path as a remote cluster's. `extent` (the scene's size) scales the
+/// navigation steps.
+pub fn run_embedded_window(
+    cfg: MasterConfig,
+    slaves: usize,
+    threads: usize,
+    extent: f32,
+    window: &super::view::WindowArgs,
+) -> anyhow::Result<()> {
     let (ticket_tx, ticket_rx) = std::sync::mpsc::channel();
     std::thread::Builder::new()
         .name("isin-embedded-cluster".into())
         .spawn(move || {
             actix::System::new().block_on(async move {
-                let started = start_embedded(cfg, DEFAULT_SLAVES).await;
+                let started = start_embedded(cfg, slaves, threads).await;
                 let ok = started.is_ok();
                 let _ = ticket_tx.send(started.map(|(_, ticket)| ticket));
                 if ok {
@@ -290,7 +312,7 @@ fn run_default_headless() -> anyhow::Result<()> {
     let camera: Camera = scene.camera;
     drop(scene);
     actix::System::new().block_on(async move {
-        let (master, ticket) = start_embedded(cfg, DEFAULT_SLAVES).await?;
+        let (master, ticket) = start_embedded(cfg, DEFAULT_SLAVES, 0).await?;
         let tcp = client_transport(&ticket)?;
         let (v, _, mut events) = viewer::connect(tcp.as_ref(), &ticket, "embedded-viewer").await?;
         // A few camera moves, as a user at the viewer would make.

@@ -13,6 +13,17 @@
 //! whenever a slave joins or dies), each with the tiles this viewer received
 //! from it.
 //!
+//! The status comes from what the master pushes (the slave list when a slave
+//! joins or dies, and the connection's byte counters kept by the viewer
+//! actor): nothing is asked of the master. When it lists no live slave, the
+//! status carries the hint to start one (`isin slave --connect TICKET`).
+//!
+//! When the connection to the master is lost (a restart, a crash), the link
+//! says "reconnecting…" ([`SourceEvent::Lost`]) and reconnects with capped
+//! backoff ([`cluster::connect_client`], as slaves do), bringing its scene
+//! again; once back it sends [`SourceEvent::Reconnected`], on which the window
+//! clears its errors and asks for the current view again.
+//!
 //! When the window closes, its end of the channel is dropped; the thread then
 //! disconnects from the master (which keeps its slaves for the next viewer)
 //! and stops its system.
@@ -26,9 +37,10 @@ use isin_actors::viewer::{
 use isin_cluster::protocol::SceneInfo;
 use isin_cluster::scheduler::Work;
 use isin_tracer::SceneBundle;
-use isin_transport::Ticket;
+use isin_transport::{Ticket, Transport};
 use isin_viewer::{ChannelSource, FrameRequest, SourceEvent, SourceFeed, SourceStatus, TileUpdate, Worker};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -73,15 +85,12 @@ impl Remote {
                             return;
                         }
                     };
-                    let setup = viewer::Setup {
-                        name: &name,
-                        work: Work::Interactive,
-                        scene: own.as_ref().map(|(_, b)| b),
-                        job: None,
-                    };
+                    let (own_info, own) = own.map_or((None, None), |(info, bundle)| (Some(info), Some(bundle)));
+                    let setup =
+                        viewer::Setup { name: &name, work: Work::Interactive, scene: own.as_ref(), job: None };
                     let connected = viewer::connect_with(transport.as_ref(), &ticket, setup).await;
                     let scene = match connected {
-                        Ok(c) => match own.map(|(info, _)| info).or(c.default_scene.clone()) {
+                        Ok(c) => match own_info.or(c.default_scene.clone()) {
                             Some(scene) => Ok((c, scene)),
                             None => Err(anyhow::anyhow!(
                                 "the master serves no scene of its own: name one (isin view SCENE --connect TICKET)"
@@ -101,9 +110,15 @@ impl Remote {
                     let link = Link {
                         viewer,
                         feed: thread_feed,
-                        transport: ticket.transport.to_string(),
+                        transport_name: ticket.transport.to_string(),
+                        hint: format!("no slaves: start one with `{}`", super::ticket::join_hint(&ticket)),
+                        transport,
+                        ticket,
+                        name,
+                        own,
                         current: None,
                         tiles: BTreeMap::new(),
+                        told_waiting: false,
                     };
                     link.run(request_rx, events).await;
                     actix::System::current().stop();
@@ -132,21 +147,40 @@ impl Remote {
 struct Link {
     viewer: actix::Addr<ViewerActor>,
     feed: SourceFeed,
-    transport: String,
+    /// The transport's name, for the status line.
+    transport_name: String,
+    /// What to say when the master has no slave.
+    hint: String,
+    /// What a reconnection needs: how, where, as whom and with which scene.
+    transport: Arc<dyn Transport>,
+    ticket: Ticket,
+    name: String,
+    own: Option<SceneBundle>,
     /// The latest request and when it was posted.
     current: Option<(u64, Instant)>,
-    /// Tiles received per slave id, over the whole session.
+    /// Tiles received per slave id since the connection was made.
     tiles: BTreeMap<u32, u64>,
+    /// The master said that frames wait for a slave to join.
+    told_waiting: bool,
+}
+
+/// What ended a connection: the window closed, or the master went away.
+enum Ended {
+    WindowClosed,
+    Lost(String),
 }
 
 /// The status line's counters from the master's slave list and the tiles
 /// received per slave: every listed slave (live first, with 0 tiles if it sent
 /// none yet), then any other slave that sent tiles (one since forgotten).
+/// `hint` is the notice for a master that lists no live slave (or said
+/// frames wait for one, before its list arrived).
 fn status_of(
     list: &SlaveList,
     tiles: &BTreeMap<u32, u64>,
     bytes_received: u64,
     transport: &str,
+    (hint, told_waiting): (&str, bool),
 ) -> SourceStatus {
     let owner = |id: u64| u32::try_from(id).unwrap_or(u32::MAX);
     let listed = list.slaves.as_deref().unwrap_or_default();
@@ -162,12 +196,18 @@ fn status_of(
             tiles_per_slave.push((id, n));
         }
     }
+    let live_slaves = workers.iter().filter(|w| w.alive).count();
+    let none = match &list.slaves {
+        Some(_) => live_slaves == 0,
+        None => told_waiting,
+    };
     SourceStatus {
-        live_slaves: workers.iter().filter(|w| w.alive).count(),
+        live_slaves,
         tiles_per_slave,
         bytes_received,
         transport: transport.to_string(),
         workers,
+        notice: none.then(|| hint.to_string()),
     }
 }
 
@@ -177,13 +217,49 @@ impl Link {
         mut requests: mpsc::UnboundedReceiver<FrameRequest>,
         mut events: mpsc::UnboundedReceiver<ViewerEvent>,
     ) {
+        loop {
+            match self.serve(&mut requests, &mut events).await {
+                Ended::WindowClosed => break,
+                Ended::Lost(why) => {
+                    // The old master's slaves are not this one's: nothing is known until it is back.
+                    self.feed.update_status(|s| {
+                        *s = SourceStatus {
+                            bytes_received: s.bytes_received,
+                            transport: s.transport.clone(),
+                            ..SourceStatus::default()
+                        }
+                    });
+                    let addr = &self.ticket.addr;
+                    self.feed
+                        .send(SourceEvent::Lost(format!("lost the master at {addr} ({why}); reconnecting…")));
+                    match self.reconnect(&mut requests).await {
+                        Some(e) => {
+                            events = e;
+                            tracing::info!("reconnected to the master at {}", self.ticket.addr);
+                            self.feed.send(SourceEvent::Reconnected);
+                        }
+                        None => return,
+                    }
+                }
+            }
+        }
+        // Closes the connection: the master drops this viewer and keeps its slaves.
+        let _ = self.viewer.send(Disconnect).await;
+    }
+
+    /// Relays one connection until it ends.
+    async fn serve(
+        &mut self,
+        requests: &mut mpsc::UnboundedReceiver<FrameRequest>,
+        events: &mut mpsc::UnboundedReceiver<ViewerEvent>,
+    ) -> Ended {
         let mut poll = tokio::time::interval(WIRE_POLL);
         poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         self.update_status().await;
         loop {
             tokio::select! {
                 r = requests.recv() => {
-                    let Some(r) = r else { break }; // the window closed
+                    let Some(r) = r else { return Ended::WindowClosed };
                     self.current = Some((r.frame_id, Instant::now()));
                     self.viewer.do_send(RequestFrameAs {
                         request: r.frame_id,
@@ -192,24 +268,57 @@ impl Link {
                     });
                 }
                 ev = events.recv() => {
-                    let Some(ev) = ev else {
-                        self.feed.send(SourceEvent::Failed("the connection to the master closed".into()));
-                        break;
-                    };
-                    if !self.on_event(ev).await {
-                        break;
+                    let Some(ev) = ev else { return Ended::Lost("the connection closed".into()) };
+                    if let Some(end) = self.on_event(ev).await {
+                        return end;
                     }
                 }
                 _ = poll.tick() => self.update_status().await,
             }
         }
-        // Closes the connection: the master drops this viewer and keeps its slaves.
-        let _ = self.viewer.send(Disconnect).await;
     }
 
-    /// Handles one event of the viewer actor; false when the link is over.
-    async fn on_event(&mut self, ev: ViewerEvent) -> bool {
-        match ev {
+    /// Connects again, with capped backoff, until the master is back (the
+    /// new connection's events), the window closes or the master refuses
+    /// for good (`None` for both; a refusal is shown).
+    async fn reconnect(
+        &mut self,
+        requests: &mut mpsc::UnboundedReceiver<FrameRequest>,
+    ) -> Option<mpsc::UnboundedReceiver<ViewerEvent>> {
+        let setup =
+            viewer::Setup { name: &self.name, work: Work::Interactive, scene: self.own.as_ref(), job: None };
+        let connected = {
+            let connect = cluster::connect_client(self.transport.as_ref(), &self.ticket, setup);
+            tokio::pin!(connect);
+            loop {
+                tokio::select! {
+                    c = &mut connect => break c,
+                    // Requests meanwhile are dropped: the window asks again once back.
+                    r = requests.recv() => {
+                        r?; // the window closed
+                    }
+                }
+            }
+        };
+        match connected {
+            Ok(c) => {
+                self.viewer = c.addr;
+                // The restarted master numbers its slaves anew.
+                self.tiles.clear();
+                self.told_waiting = false;
+                self.current = None;
+                Some(c.events)
+            }
+            Err(e) => {
+                self.feed.send(SourceEvent::Failed(format!("{e:#}")));
+                None
+            }
+        }
+    }
+
+    /// Handles one event of the viewer actor; `Some` when the connection is over.
+    async fn on_event(&mut self, ev: ViewerEvent) -> Option<Ended> {
+        let open = match ev {
             ViewerEvent::Tile { request, slave, tile, pixels, .. } => {
                 let owner = u32::try_from(slave).unwrap_or(u32::MAX);
                 *self.tiles.entry(owner).or_default() += 1;
@@ -224,16 +333,16 @@ impl Link {
                 self.feed.send(SourceEvent::FrameComplete { frame_id: request, elapsed })
             }
             ViewerEvent::Error(message) => self.feed.send(SourceEvent::Failed(message)),
-            // The status line shows the slave count; the terminal says why frames wait.
+            // The window shows the hint (the status's notice) until a slave joins.
             ViewerEvent::Notice(message) => {
                 tracing::warn!("master: {message}");
+                self.told_waiting = true;
+                self.update_status().await;
                 true
             }
-            ViewerEvent::Closed(message) => {
-                self.feed.send(SourceEvent::Failed(message));
-                false
-            }
-        }
+            ViewerEvent::Closed(message) => return Some(Ended::Lost(message)),
+        };
+        (!open).then_some(Ended::WindowClosed)
     }
 
     async fn update_status(&self) {
@@ -242,7 +351,8 @@ impl Link {
             Err(_) => self.feed.status().bytes_received,
         };
         let list = self.viewer.send(GetSlaves).await.unwrap_or_default();
-        self.feed.set_status(status_of(&list, &self.tiles, bytes_received, &self.transport));
+        let hint = (self.hint.as_str(), self.told_waiting);
+        self.feed.set_status(status_of(&list, &self.tiles, bytes_received, &self.transport_name, hint));
     }
 }
 
@@ -261,15 +371,23 @@ mod tests {
             SlaveList { version: 2, slaves: Some(vec![entry(7, false), entry(5, true), entry(3, true)]) };
         // Slave 5 has not sent a tile yet; 9 sent some but is no longer listed.
         let tiles = BTreeMap::from([(3, 40), (7, 12), (9, 1)]);
-        let s = status_of(&list, &tiles, 1234, "tcp");
+        let s = status_of(&list, &tiles, 1234, "tcp", ("start one", false));
         assert_eq!(s.live_slaves, 2);
         assert_eq!(s.tiles_per_slave, [(3, 40), (5, 0), (7, 12), (9, 1)]);
         let ids: Vec<(u32, bool)> = s.workers.iter().map(|w| (w.id, w.alive)).collect();
         assert_eq!(ids, [(3, true), (5, true), (7, false)], "live first, then the dead");
         assert_eq!((s.bytes_received, s.transport.as_str()), (1234, "tcp"));
         // Before the master's list arrives: no live slaves claimed.
-        let none = status_of(&SlaveList::default(), &tiles, 0, "quic");
+        assert_eq!(s.notice, None, "no hint while slaves are live");
+        let none = status_of(&SlaveList::default(), &tiles, 0, "quic", ("start one", false));
         assert_eq!(none.live_slaves, 0);
         assert_eq!(none.tiles_per_slave.len(), 3);
+        assert_eq!(none.notice, None, "the list has not come yet: nothing known");
+        let waiting = status_of(&SlaveList::default(), &tiles, 0, "quic", ("start one", true));
+        assert_eq!(waiting.notice.as_deref(), Some("start one"), "the master said frames wait");
+        // Every slave dead: the hint.
+        let dead = SlaveList { version: 3, slaves: Some(vec![entry(7, false)]) };
+        let s = status_of(&dead, &BTreeMap::new(), 0, "tcp", ("start one", false));
+        assert_eq!((s.live_slaves, s.notice.as_deref()), (0, Some("start one")));
     }
 }

@@ -1,8 +1,9 @@
 //! `isin view`: the interactive window.
 //!
-//! `isin view SCENE` renders in-process ([`LocalSource`]); `isin view --connect
-//! TICKET` shows what a cluster renders ([`run_remote`], through
-//! [`super::remote::Remote`]). Any [`FrameSource`] plugs in through
+//! `isin view --connect TICKET` shows what a cluster renders ([`run_remote`],
+//! through [`super::remote::Remote`]); `isin view SCENE` starts a cluster of its
+//! own (a master and one local slave, [`super::cluster::run_embedded_window`])
+//! and shows it the same way: one rendering path. Any [`FrameSource`] plugs in through
 //! [`run_with_source`]: it needs only the source, the starting camera, the
 //! render settings and the scene's size (for navigation speeds).
 
@@ -15,14 +16,13 @@ use isin_transport::Ticket;
 use isin_viewer::stats::Summary;
 use isin_viewer::{CameraPath, Divisor, FrameReport, MovingResolution};
 use isin_viewer::{
-    Controls, FrameSource, LocalSource, Quality, Recorder, Session, SessionConfig, SourceStatus, ViewerEvent,
+    Controls, FrameSource, Quality, Recorder, Session, SessionConfig, SourceStatus, ViewerEvent,
     ViewerOptions,
 };
 use std::cell::RefCell;
 use std::io::Write;
 use std::path::PathBuf;
 use std::rc::Rc;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// The key bindings, shown by `isin view --help`.
@@ -57,14 +57,21 @@ pub enum ScreenshotKind {
 /// Options of the window itself, shared by every way of starting a viewer.
 #[derive(Args, Debug, Clone, PartialEq)]
 pub struct WindowArgs {
-    /// Render width in pixels (default: the scene's; alone, the height follows
-    /// at the scene's aspect). Another shape than the scene's widens the view
-    /// about its centre; the window scales the image, letterboxed, never stretched.
+    /// Width of the window as it opens, in pixels (default: the scene's; alone,
+    /// the height follows at the scene's aspect). The render resolution follows
+    /// the window (times --scale), also when it is resized: another shape than
+    /// the scene's widens the view about its centre, never stretched.
     #[arg(long, value_parser = super::bounded::side)]
     pub width: Option<u32>,
-    /// Render height in pixels (default: the scene's; alone, the width follows).
+    /// Height of the window as it opens, in pixels (default: the scene's; alone,
+    /// the width follows).
     #[arg(long, value_parser = super::bounded::side)]
     pub height: Option<u32>,
+    /// Render resolution per window pixel: 0.5 renders a quarter of the
+    /// pixels and shows them enlarged, 2 renders four samples' worth of
+    /// pixels per window pixel (from 0.1 to 4).
+    #[arg(long, default_value_t = 1.0, value_parser = parse_scale)]
+    pub scale: f32,
     /// Record the navigation (one camera per move) to this camera-path file (TOML).
     #[arg(long, value_name = "PATH")]
     pub record: Option<PathBuf>,
@@ -129,6 +136,7 @@ impl Default for WindowArgs {
         Self {
             width: None,
             height: None,
+            scale: 1.0,
             record: None,
             max_spp: 64,
             moving_scale: None,
@@ -159,7 +167,7 @@ pub struct ViewArgs {
     pub cluster: super::ticket::TicketArgs,
     #[command(flatten)]
     pub window: WindowArgs,
-    /// Render threads (default, or 0: one per core; without --connect).
+    /// Render threads of the local slave (default, or 0: one per core; without --connect).
     #[arg(long, value_parser = super::bounded::threads)]
     pub threads: Option<usize>,
     /// Tile edge in pixels.
@@ -167,8 +175,8 @@ pub struct ViewArgs {
     pub tile: u32,
 }
 
-/// Runs `isin view SCENE` with an in-process renderer, or `isin view
-/// --connect TICKET` on a cluster.
+/// Runs `isin view SCENE` on a cluster of its own, or `isin view --connect
+/// TICKET` on a running one.
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // Fail before the (possibly slow) scene load or connection when no window can open.
     isin_viewer::check_display()?;
@@ -187,13 +195,15 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let scene_path = args
         .scene
         .context("a scene file is needed without a ticket (--connect, --ticket-file or ISIN_TICKET)")?;
-    let (scene, _bundle) = load_scene_file(&scene_path)?;
-    let camera = scene.camera;
-    let settings = scene.settings;
+    // One rendering path: the scene is served by a master of our own, with
+    // one local slave, as a remote cluster would render it.
+    let (scene, bundle) = load_scene_file(&scene_path)?;
     let extent = scene_extent(&scene);
-    let source = LocalSource::new(Arc::new(scene), args.threads.unwrap_or(0), args.tile)?;
-    let title = format!("isin — {}", scene_path.display());
-    run_with_source(Box::new(source), camera, settings, extent, &args.window, title, None)
+    let token = isin_cluster::auth::generate_token()?;
+    let mut cfg = isin_actors::master::MasterConfig::new(token, bundle, scene.camera, scene.settings)?;
+    cfg.cluster.scheduler.tile_size = args.tile.max(1);
+    drop(scene);
+    super::cluster::run_embedded_window(cfg, 1, args.threads.unwrap_or(0), extent, &args.window)
 }
 
 /// Opens the viewer on the cluster of `ticket`: the master's scene, camera and
@@ -249,6 +259,9 @@ pub fn run_with_source(
     status: Option<StatusFn>,
 ) -> anyhow::Result<()> {
     settings = settings.resized(window.width, window.height);
+    let window_size = (settings.width, settings.height);
+    (settings.width, settings.height) =
+        isin_viewer::session::render_size(settings.width, settings.height, window.scale);
     isin_tracer::limits::check_settings(&settings)?;
     // Another shape than the scene's widens the view; never stretched.
     let camera = camera.fit_aspect(settings.width as f32 / settings.height as f32);
@@ -274,6 +287,8 @@ pub fn run_with_source(
     let log = moving.clone();
     let options = ViewerOptions {
         title,
+        window_size: Some(window_size),
+        render_scale: window.scale,
         screenshot_dir: window.screenshot_dir.clone(),
         screenshot_format: match window.screenshot_format {
             ScreenshotKind::Png => isin_viewer::ScreenshotFormat::Png,
@@ -321,6 +336,17 @@ pub fn run_with_source(
                 let _ = out.flush();
             }
             ViewerEvent::ScreenshotSaved(path) => println!("screenshot {}", path.display()),
+            // What the window says on screen besides the counters, for scripts and tests.
+            ViewerEvent::Notices(lines) if print_frames => {
+                let mut out = std::io::stdout().lock();
+                if lines.is_empty() {
+                    let _ = writeln!(out, "notice: none");
+                }
+                for line in lines {
+                    let _ = writeln!(out, "notice: {line}");
+                }
+                let _ = out.flush();
+            }
             _ => {}
         }),
         ..ViewerOptions::default()
@@ -393,6 +419,16 @@ fn parse_positive(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
         Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
         _ => Err(format!("expected a positive number, not {s:?}")),
+    }
+}
+
+/// Parses `--scale`: render pixels per window pixel, from 0.1 to 4.
+fn parse_scale(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if (0.1..=4.0).contains(&f) => Ok(f),
+        _ => {
+            Err(format!("expected a render scale from 0.1 to 4 (render pixels per window pixel), not {s:?}"))
+        }
     }
 }
 

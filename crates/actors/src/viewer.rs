@@ -338,15 +338,18 @@ pub struct Connected {
 /// large scene over a slow link.
 pub const SETUP_TIMEOUT: Duration = Duration::from_secs(600);
 
-/// Waits for the answer `pick` takes, skipping what a master says meanwhile.
+/// Waits for the answer `pick` takes, skipping what a master says meanwhile
+/// but its slave list (kept in `slaves`: it is sent once, on joining).
 async fn answer<T>(
     conn: &mut isin_transport::Connection,
+    slaves: &mut Option<Vec<SlaveEntry>>,
     mut pick: impl FnMut(Message) -> Option<Result<T, JoinError>>,
 ) -> Result<T, JoinError> {
     loop {
         match client::recv_message(conn, protocol::DEFAULT_MAX_FRAME, SETUP_TIMEOUT).await? {
             Message::Error { message } => return Err(JoinError::Rejected(message)),
             Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
+            Message::Slaves { slaves: list } => *slaves = Some(list),
             m => {
                 if let Some(out) = pick(m) {
                     return out;
@@ -365,6 +368,7 @@ pub async fn connect_with(
 ) -> Result<Connected, JoinError> {
     let (mut conn, welcome) =
         client::handshake(transport, ticket, client::Join::viewer(setup.name, setup.work)).await?;
+    let mut slaves = None;
     let scene = match setup.scene {
         None => None,
         Some(bundle) => {
@@ -375,7 +379,7 @@ pub async fn connect_with(
             client::send_message(&conn, &Message::SceneUpload { hash, bytes: frame.len() as u64 })?;
             let mut frame = Some(frame);
             let sender = conn.sender.clone();
-            answer(&mut conn, |m| match m {
+            answer(&mut conn, &mut slaves, |m| match m {
                 Message::SceneStored { hash: h } if h == hash => Some(Ok(())),
                 Message::SceneWanted { hash: h } if h == hash => {
                     tracing::info!("sending scene {} to the master", bundle.name);
@@ -392,7 +396,7 @@ pub async fn connect_with(
         None => Vec::new(),
         Some(job) => {
             client::send_message(&conn, &Message::SubmitJob(job.clone()))?;
-            answer(&mut conn, |m| match m {
+            answer(&mut conn, &mut slaves, |m| match m {
                 Message::JobAccepted { key, done } if key == job.key => Some(Ok(done)),
                 _ => None,
             })
@@ -401,8 +405,8 @@ pub async fn connect_with(
     };
     let (sink, events) = mpsc::unbounded_channel();
     let isin_transport::Connection { sender, mut receiver, .. } = conn;
-    let actor =
-        ViewerActor { sender, sink, next_request: 0, slaves: None, slaves_version: 0, scene, status: None };
+    let slaves_version = u64::from(slaves.is_some());
+    let actor = ViewerActor { sender, sink, next_request: 0, slaves, slaves_version, scene, status: None };
     let addr = actor.start();
     let target = addr.clone();
     tokio::spawn(async move {

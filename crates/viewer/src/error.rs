@@ -14,9 +14,6 @@ pub enum ViewerError {
     /// The window or its drawing surface could not be created or drawn to.
     #[error("window system error: {0}")]
     Window(String),
-    /// The render thread pool could not be started.
-    #[error("cannot start render threads: {0}")]
-    Threads(#[from] rayon::ThreadPoolBuildError),
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {

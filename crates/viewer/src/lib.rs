@@ -16,9 +16,10 @@
 //! - [`accumulate`]: the displayed image; tiles land in it, passes of one view
 //!   are averaged in linear light, a new view paints over the old one.
 //! - [`source`]: the [`FrameSource`] interface between the window and whatever
-//!   renders. [`LocalSource`] ([`local`]) renders in-process on a rayon pool;
+//!   renders — always a cluster (`isin view SCENE` starts one in-process);
 //!   [`ChannelSource`] ([`channel`]) is fed from another thread — the adapter
-//!   for the cluster's viewer actor.
+//!   for the cluster's viewer actor. The viewer renders nothing itself: it
+//!   uses the tracer's camera, settings and tile types only.
 //! - [`path`]: camera paths — recorded by `isin view --record` or keyframed, replayed by
 //!   `isin fly` (headless) and `isin view --play` (in the window, measuring
 //!   motion-to-photon latency); [`stats`] summarises the timings.
@@ -26,7 +27,7 @@
 //! - [`resolution`]: dynamic resolution while moving — a [`Divisor`] for the
 //!   moving passes chosen from measured pass times to hold a target frame rate.
 //!
-//! The window renders at a fixed resolution and scales the image to fit;
+//! The window renders at its own size (times a scale; again after a resize);
 //! while the camera moves, passes are fast (1 sample, 1 shadow ray) and as
 //! small as needed to hold `--target-fps`; when it stops, a fast pass at full
 //! resolution sharpens the image, then passes with new seeds are averaged in
@@ -36,7 +37,6 @@ pub mod accumulate;
 pub mod channel;
 pub mod error;
 pub mod input;
-pub mod local;
 pub mod path;
 pub mod raster;
 pub mod resolution;
@@ -48,7 +48,6 @@ pub mod window;
 pub use channel::{ChannelSource, SourceFeed, channel_source};
 pub use error::ViewerError;
 pub use input::{Command, Controls, Move};
-pub use local::LocalSource;
 pub use path::{CameraPath, PathFrame, Recorder, Sampling};
 pub use resolution::{Divisor, MovingResolution};
 pub use session::{FrameReport, PassKind, Quality, Session, SessionConfig};

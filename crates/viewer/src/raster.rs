@@ -145,6 +145,35 @@ impl Canvas<'_> {
     }
 }
 
+/// `line` broken into pieces of at most `columns` characters: at spaces
+/// where it can, inside a word longer than a piece where it must. Nothing is
+/// dropped but the spaces the line breaks at.
+pub fn wrap(line: &str, columns: usize) -> Vec<String> {
+    let columns = columns.max(1);
+    let mut out = Vec::new();
+    let mut current = String::new();
+    for word in line.split(' ') {
+        let mut word: Vec<char> = word.chars().collect();
+        let len = current.chars().count();
+        if len > 0 && len + 1 + word.len() <= columns {
+            current.push(' ');
+            current.extend(word.iter());
+            continue;
+        }
+        if len > 0 {
+            out.push(std::mem::take(&mut current));
+        }
+        while word.len() > columns {
+            out.push(word.drain(..columns).collect());
+        }
+        current = word.into_iter().collect();
+    }
+    if !current.is_empty() || out.is_empty() {
+        out.push(current);
+    }
+    out
+}
+
 /// A distinct, bright colour for worker `owner` (golden-ratio hue steps).
 pub fn owner_colour(owner: u32) -> u32 {
     let hue = (owner as f32 * 0.618_034).fract() * 6.0;
@@ -164,6 +193,18 @@ pub fn owner_colour(owner: u32) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn status_text_wraps_at_spaces_and_inside_long_words_without_losing_any() {
+        assert_eq!(wrap("2 live slaves  0.12 MB/s  tcp", 40), ["2 live slaves  0.12 MB/s  tcp"]);
+        assert_eq!(wrap("2 live slaves  0.12 MB/s  tcp", 14), ["2 live slaves ", "0.12 MB/s  tcp"]);
+        let hint = "no slaves: start one with `isin slave --connect isin://0123456789abcdef@127.0.0.1:1`";
+        let parts = wrap(hint, 20);
+        assert!(parts.iter().all(|p| p.chars().count() <= 20), "{parts:?}");
+        assert_eq!(parts.concat().replace(' ', ""), hint.replace(' ', ""), "nothing dropped: {parts:?}");
+        assert_eq!(wrap("", 5), [""]);
+        assert_eq!(wrap("abc", 0), ["a", "b", "c"]);
+    }
 
     #[test]
     fn fit_keeps_aspect_and_centres() {

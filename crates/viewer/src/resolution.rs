@@ -199,6 +199,14 @@ impl Controller {
         Self { width, height, ladder, budget: HEADROOM / fps, index, costs: VecDeque::new(), since_change: 0 }
     }
 
+    /// Sizes the passes for a `width × height` image from now on (the window
+    /// was resized). The measured cost per pixel still holds, so the divisor
+    /// for the new size is chosen from it at the next measurement.
+    pub fn resize(&mut self, width: u32, height: u32) {
+        (self.width, self.height) = (width, height);
+        self.since_change = SETTLE_COARSER.max(SETTLE_FINER);
+    }
+
     /// The divisor for the next moving pass: the finest allowed until
     /// something was measured.
     pub fn divisor(&self) -> Divisor {

@@ -190,6 +190,54 @@ pub struct Session {
     dwell: Duration,
     /// When the next playback camera is due (during a dwell).
     playback_due: Option<Instant>,
+    /// Aspect ratio of the image plane the view was framed with: the plane
+    /// is resized about its centre from this shape when the window changes
+    /// ([`Session::resize`]).
+    framing: f32,
+    /// True when the next request restarts the current camera (after a
+    /// resize or a reconnection) rather than a move: not recorded.
+    restart: bool,
+    /// What the source says about its connection while it is down.
+    connection: Option<String>,
+    /// Pixels per owner of the pass in flight.
+    frame_owners: BTreeMap<u32, u64>,
+    /// Pixels per owner of the last completed pass.
+    last_owners: BTreeMap<u32, u64>,
+}
+
+/// The camera `camera` — framed for a plane of aspect `framing`, then fitted
+/// to another — fitted to an image of aspect `aspect` instead: the plane is
+/// shrunk back about its centre to the framing's shape, then widened (or
+/// heightened) with [`Camera::fit_aspect`]. Resizing back and forth therefore
+/// always returns the same plane, and nothing is stretched.
+pub fn refit(camera: &Camera, framing: f32, aspect: f32) -> Camera {
+    let current = camera.aspect();
+    if !(framing > 0.0 && framing.is_finite() && current > 0.0 && current.is_finite()) {
+        return camera.fit_aspect(aspect);
+    }
+    let (mut x, mut y) = (camera.plane_x(), camera.plane_y());
+    if current > framing {
+        x *= framing / current;
+    } else {
+        y *= current / framing;
+    }
+    let c = camera.center();
+    let (hx, hy) = (x * 0.5, y * 0.5);
+    let core = Camera::from_corners(camera.eye, [c - hx - hy, c + hx - hy, c + hx + hy, c - hx + hy]);
+    core.fit_aspect(aspect)
+}
+
+/// The size of a window of `width × height` physical pixels rendered at
+/// `scale` times its resolution, within the tracer's image limits.
+pub fn render_size(width: u32, height: u32, scale: f32) -> (u32, u32) {
+    use isin_tracer::limits::{IMAGE_PIXELS, IMAGE_SIDE};
+    let scale = if scale.is_finite() && scale > 0.0 { scale as f64 } else { 1.0 };
+    let (w, h) = (width.max(1) as f64 * scale, height.max(1) as f64 * scale);
+    let side = IMAGE_SIDE.max as f64;
+    let fit = (side / w).min(side / h).min((IMAGE_PIXELS.max as f64 / (w * h)).sqrt()).min(1.0);
+    // Rounded down when shrunk to the limits, so the product stays within them.
+    let round = |v: f64| if fit < 1.0 { (v * fit).floor() } else { v.round() };
+    ((round(w) as u32).max(1), (round(h) as u32).max(1))
 }
 
 impl Session {
@@ -201,6 +249,7 @@ impl Session {
             source,
             camera: config.camera,
             controller: Controller::new(config.quality.moving, width, height),
+            framing: config.camera.aspect(),
             config,
             view: 0,
             view_spp: 0,
@@ -225,6 +274,10 @@ impl Session {
             played: None,
             dwell: Duration::ZERO,
             playback_due: None,
+            restart: false,
+            connection: None,
+            frame_owners: BTreeMap::new(),
+            last_owners: BTreeMap::new(),
         }
     }
 
@@ -357,6 +410,51 @@ impl Session {
         self.controller.divisor()
     }
 
+    /// The render resolution: the full size of a view's passes.
+    pub fn size(&self) -> (u32, u32) {
+        (self.config.settings.width, self.config.settings.height)
+    }
+
+    /// Renders at `width × height` from now on (the window was resized): the
+    /// image plane of the camera — and of the starting camera — is resized
+    /// about its centre to the new shape ([`refit`]), the image on screen is
+    /// stretched over the new size until the new view's tiles replace it, and
+    /// the view is rendered again, fast pass first. Nothing happens when the
+    /// size is the same.
+    pub fn resize(&mut self, width: u32, height: u32) {
+        let (width, height) = (width.max(1), height.max(1));
+        if (width, height) == self.size() {
+            return;
+        }
+        let aspect = width as f32 / height as f32;
+        for camera in [&mut self.camera, &mut self.config.camera] {
+            let fitted = refit(camera, self.framing, aspect);
+            if fitted.validate().is_ok() {
+                *camera = fitted;
+            }
+        }
+        let old = std::mem::replace(&mut self.accum, Accumulator::new(width, height));
+        let whole = Tile { x: 0, y: 0, w: old.width(), h: old.height() };
+        if let Err(e) = self.accum.add_tile_of(u32::MAX, 1.0, whole, &old.to_rgb8(), (whole.w, whole.h)) {
+            tracing::debug!("the old image is not carried over: {e}");
+        }
+        (self.config.settings.width, self.config.settings.height) = (width, height);
+        self.controller.resize(width, height);
+        self.owners.clear();
+        self.owners_size = (width, height);
+        self.restart_view();
+    }
+
+    /// Renders the current camera again from its first pass (the passes in
+    /// flight are forgotten), at the next [`Session::flush`].
+    fn restart_view(&mut self) {
+        self.in_flight = None;
+        self.held_pass = None;
+        self.frame_owners.clear();
+        self.dirty = true;
+        self.restart = true;
+    }
+
     /// Mouse-drag look by `(dx, dy)` pixels.
     pub fn look(&mut self, dx: f64, dy: f64, at: Instant) {
         let mut camera = self.camera;
@@ -400,7 +498,8 @@ impl Session {
         // The first view is not a move: it starts sharp, and measures the
         // full-resolution cost the controller starts from.
         self.view_divisor = if self.next_id > 1 { self.controller.divisor() } else { Divisor::ONE };
-        if let Some(r) = &mut self.recorder {
+        let restart = std::mem::take(&mut self.restart);
+        if let Some(r) = self.recorder.as_mut().filter(|_| !restart) {
             r.record(&self.camera);
         }
         let input_at = self.pending_input.take();
@@ -436,6 +535,7 @@ impl Session {
         let (settings, divisor) = self.pass_settings(pass);
         let frame_id = self.next_id;
         self.next_id += 1;
+        self.frame_owners.clear();
         self.in_flight = Some(InFlight {
             frame_id,
             view: self.view,
@@ -472,6 +572,7 @@ impl Session {
                                 self.owners_size = f.size;
                             }
                             self.owners.insert((tile.x, tile.y), (tile, t.owner));
+                            *self.frame_owners.entry(t.owner).or_default() += t.tile.pixel_count() as u64;
                             changed = true;
                         }
                         Err(e) => tracing::warn!("dropping a tile: {e}"),
@@ -508,6 +609,9 @@ impl Session {
                     self.last_report = Some(report);
                     self.completions.push_back(now);
                     self.in_flight = None;
+                    self.last_owners = std::mem::take(&mut self.frame_owners);
+                    // A frame came through: whatever went wrong before is over.
+                    self.error = None;
                     changed = true;
                     if f.pass == 0 && self.played == Some(false) {
                         if self.dwell.is_zero() || self.playback.is_empty() {
@@ -532,6 +636,18 @@ impl Session {
                 SourceEvent::Failed(message) => {
                     tracing::error!("frame source failed: {message}");
                     self.error = Some(message);
+                    changed = true;
+                }
+                SourceEvent::Lost(message) => {
+                    tracing::warn!("{message}");
+                    self.connection = Some(message);
+                    changed = true;
+                }
+                SourceEvent::Reconnected => {
+                    tracing::info!("the frame source is back; rendering the view again");
+                    self.connection = None;
+                    self.error = None;
+                    self.restart_view();
                     changed = true;
                 }
             }
@@ -617,18 +733,27 @@ impl Session {
             first += &format!("  {}x{} (1/{}", r.size.0, r.size.1, r.divisor);
             first += if self.controller.is_dynamic() { " auto)" } else { ")" };
         }
+        let name = |id: u32| status.workers.iter().find(|w| w.id == id).map(|w| w.name.clone());
         let dead = |id: u32| status.workers.iter().any(|w| w.id == id && !w.alive);
         let tiles: Vec<String> = status
             .tiles_per_slave
             .iter()
-            .map(|&(id, n)| if dead(id) { format!("{id}:{n}(dead)") } else { format!("{id}:{n}") })
+            .map(|&(id, n)| {
+                let who = name(id).unwrap_or_else(|| format!("#{id}"));
+                if dead(id) { format!("{who}:{n}(dead)") } else { format!("{who}:{n}") }
+            })
             .collect();
+        let plural = |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
         let slaves = if status.workers.is_empty() {
-            format!("{} slaves", status.live_slaves)
+            plural(status.live_slaves, "slave", "slaves")
         } else {
             let threads: u32 = status.workers.iter().filter(|w| w.alive).map(|w| w.threads).sum();
             let gone = status.workers.len() - status.live_slaves.min(status.workers.len());
-            let mut s = format!("{} live slaves ({threads} threads)", status.live_slaves);
+            let mut s = format!(
+                "{} ({})",
+                plural(status.live_slaves, "live slave", "live slaves"),
+                plural(threads as usize, "thread", "threads")
+            );
             if gone > 0 {
                 s += &format!(", {gone} dead");
             }
@@ -639,10 +764,39 @@ impl Session {
             format!("{slaves}  {:.2} MB/s  {}", rate / 1e6, status.transport),
             format!("tiles {}", tiles.join(" ")),
         ];
-        if let Some(e) = &self.error {
-            lines.push(format!("error: {e}"));
-        }
+        lines.extend(self.notices());
         lines
+    }
+
+    /// What the viewer must say whatever else is shown: the source's
+    /// connection while it is down ("reconnecting…"), the source's notice
+    /// (e.g. how to start a slave when there is none) and the last error.
+    pub fn notices(&self) -> Vec<String> {
+        let notice = if self.connection.is_some() { None } else { self.source.status().notice };
+        let error = self.error.as_ref().map(|e| format!("error: {e}"));
+        self.connection.iter().cloned().chain(notice).chain(error).collect()
+    }
+
+    /// Each slave's share of the pixels of the last completed pass, largest
+    /// first, with its name (`#id` when the source does not name it): the
+    /// overlay's legend.
+    pub fn legend(&self) -> Vec<(u32, String, f32)> {
+        let total: u64 = self.last_owners.values().sum();
+        if total == 0 {
+            return Vec::new();
+        }
+        let workers = self.source.status().workers;
+        let mut legend: Vec<(u32, String, f32)> = self
+            .last_owners
+            .iter()
+            .map(|(&id, &px)| {
+                let name =
+                    workers.iter().find(|w| w.id == id).map_or_else(|| format!("#{id}"), |w| w.name.clone());
+                (id, name, px as f32 / total as f32)
+            })
+            .collect();
+        legend.sort_by(|a, b| b.2.total_cmp(&a.2).then(a.0.cmp(&b.0)));
+        legend
     }
 
     /// Writes the recorded camera path, if recording.
@@ -1069,7 +1223,7 @@ mod tests {
         s.pump(now);
         let lines = s.status_lines(now).join("\n");
         assert!(lines.contains("1 fps"), "{lines}");
-        assert!(lines.contains("1 slaves") && lines.contains("fake"), "{lines}");
+        assert!(lines.contains("1 slave ") && lines.contains("fake"), "{lines}");
     }
 
     #[test]
@@ -1082,6 +1236,7 @@ mod tests {
             workers: vec![worker(3, true), worker(5, true), worker(7, false)],
             transport: "quic".into(),
             bytes_received: 0,
+            notice: None,
         });
         let settings = RenderSettings { width: 4, height: 2, ..Default::default() };
         let config = SessionConfig {
@@ -1093,6 +1248,148 @@ mod tests {
         let mut s = Session::new(Box::new(fake), config);
         let lines = s.status_lines(Instant::now());
         assert_eq!(lines[1], "2 live slaves (4 threads), 1 dead  0.00 MB/s  quic");
-        assert_eq!(lines[2], "tiles 3:40 5:0 7:12(dead)");
+        assert_eq!(lines[2], "tiles w#3:40 w#5:0 w#7:12(dead)");
+        assert_eq!(lines.len(), 3, "nothing to tell: {lines:?}");
+    }
+
+    fn config(width: u32, height: u32) -> SessionConfig {
+        let settings = RenderSettings { width, height, ..Default::default() };
+        SessionConfig {
+            settings,
+            quality: Quality::for_settings(&settings),
+            controls: Controls::default(),
+            camera: Camera::default().fit_aspect(width as f32 / height as f32),
+        }
+    }
+
+    #[test]
+    fn status_lines_count_in_the_singular_and_tell_the_sources_notice() {
+        let fake = Fake::default();
+        let one = Worker { id: 4, name: "solo".into(), threads: 1, alive: true };
+        let hint = "no slaves: start one with `isin slave --connect T`";
+        *fake.status.lock().unwrap() = Some(SourceStatus {
+            live_slaves: 1,
+            tiles_per_slave: vec![(4, 2)],
+            workers: vec![one],
+            transport: "tcp".into(),
+            ..Default::default()
+        });
+        let mut s = Session::new(Box::new(fake.clone()), config(4, 2));
+        let lines = s.status_lines(Instant::now());
+        assert!(lines[1].starts_with("1 live slave (1 thread)  "), "{lines:?}");
+        assert_eq!(lines[2], "tiles solo:2");
+        assert!(s.notices().is_empty());
+        *fake.status.lock().unwrap() =
+            Some(SourceStatus { notice: Some(hint.into()), transport: "tcp".into(), ..Default::default() });
+        let lines = s.status_lines(Instant::now());
+        assert_eq!(lines.last().map(String::as_str), Some(hint), "{lines:?}");
+        assert_eq!(s.notices(), [hint]);
+    }
+
+    #[test]
+    fn a_resize_renders_at_the_new_size_with_the_plane_resized_about_its_centre() {
+        let fake = Fake::default();
+        let mut s = Session::new(Box::new(fake.clone()), config(8, 6));
+        s.start();
+        fake.deliver(&fake.last(), 40);
+        s.pump(Instant::now());
+        let before = *s.camera();
+        let requests = fake.count();
+        s.resize(16, 6);
+        assert_eq!(fake.count(), requests, "requested at the next flush");
+        assert_eq!(s.image().display().len(), 16 * 6, "the image is the new size at once…");
+        assert!(s.image().display().iter().all(|&p| p == 0x282828), "…showing the old one stretched");
+        s.flush();
+        let r = fake.last();
+        assert_eq!(r.frame_id, requests as u64 + 1);
+        // The first pass may be smaller (the moving divisor); the still ones are the new size.
+        assert!(r.settings.width as f32 / r.settings.height as f32 > 2.0, "{:?}", r.settings);
+        let cam = r.camera;
+        assert_eq!(cam.eye, before.eye);
+        assert!((cam.center() - before.center()).length() < 1e-4, "about its centre");
+        assert!((cam.aspect() - 16.0 / 6.0).abs() < 1e-3, "the new shape, not stretched: {}", cam.aspect());
+        assert!((cam.plane_y().length() - before.plane_y().length()).abs() < 1e-4, "wider, as tall");
+        fake.deliver(&r, 50);
+        s.pump(Instant::now());
+        let sharp = fake.last();
+        assert_eq!((sharp.settings.width, sharp.settings.height), (16, 6));
+        // Back to the old size: the very same plane (no drift), narrower than the wide one.
+        s.resize(8, 6);
+        s.flush();
+        let back = fake.last().camera;
+        for (a, b) in back.corners.iter().zip(before.corners.iter()) {
+            assert!((*a - *b).length() < 1e-4, "{back:?} vs {before:?}");
+        }
+        let count = fake.count();
+        s.resize(8, 6);
+        s.flush();
+        assert_eq!(fake.count(), count, "the same size requests nothing");
+    }
+
+    #[test]
+    fn the_render_size_is_the_windows_times_the_scale_within_the_limits() {
+        assert_eq!(render_size(400, 200, 1.0), (400, 200));
+        assert_eq!(render_size(400, 200, 0.5), (200, 100));
+        assert_eq!(render_size(401, 201, 0.5), (201, 101), "rounded");
+        assert_eq!(render_size(0, 0, 1.0), (1, 1));
+        assert_eq!(render_size(400, 200, f32::NAN), (400, 200));
+        let (w, h) = render_size(30_000, 10_000, 4.0);
+        assert!(w <= 16_384 && (w as u64 * h as u64) <= isin_tracer::limits::IMAGE_PIXELS.max, "{w}x{h}");
+        assert!((w as f32 / h as f32 - 3.0).abs() < 0.01, "the shape kept: {w}x{h}");
+    }
+
+    #[test]
+    fn a_lost_source_says_so_and_on_reconnection_clears_errors_and_renders_the_view_again() {
+        let fake = Fake::default();
+        let mut s = Session::new(Box::new(fake.clone()), config(4, 2));
+        s.start();
+        let first = fake.last();
+        let push = |e: SourceEvent| fake.events.lock().unwrap().push_back(e);
+        push(SourceEvent::Failed("the master refused a frame".into()));
+        push(SourceEvent::Lost("lost the master; reconnecting…".into()));
+        assert!(s.pump(Instant::now()));
+        assert_eq!(s.notices(), ["lost the master; reconnecting…", "error: the master refused a frame"]);
+        push(SourceEvent::Reconnected);
+        assert!(s.pump(Instant::now()));
+        assert!(s.notices().is_empty(), "{:?}", s.notices());
+        s.flush();
+        let again = fake.last();
+        assert!(again.frame_id > first.frame_id, "asked again");
+        assert_eq!(again.camera, first.camera, "for the same camera");
+        // The lost frame's late tiles are not shown; the new one completes.
+        fake.deliver(&first, 7);
+        s.pump(Instant::now());
+        assert_ne!(s.image().display()[0] & 0xff, 7);
+        fake.deliver(&again, 9);
+        s.pump(Instant::now());
+        assert_eq!(s.image().display()[0] & 0xff, 9);
+    }
+
+    #[test]
+    fn the_legend_gives_each_slaves_share_of_the_last_pass_with_its_name() {
+        let fake = Fake::default();
+        *fake.status.lock().unwrap() = Some(SourceStatus {
+            workers: vec![Worker { id: 3, name: "big".into(), threads: 4, alive: true }],
+            ..Default::default()
+        });
+        let mut s = Session::new(Box::new(fake.clone()), config(4, 2));
+        s.start();
+        assert!(s.legend().is_empty(), "no pass yet");
+        let r = fake.last();
+        // Three quarters of the image from slave 3, a quarter from 9 (not listed).
+        for (x, owner) in [(0, 3), (1, 3), (2, 3), (3, 9)] {
+            fake.events.lock().unwrap().push_back(SourceEvent::Tile(TileUpdate {
+                frame_id: r.frame_id,
+                tile: Tile { x, y: 0, w: 1, h: 2 },
+                rgb: vec![1; 6],
+                owner,
+            }));
+        }
+        fake.events.lock().unwrap().push_back(SourceEvent::FrameComplete {
+            frame_id: r.frame_id,
+            elapsed: Duration::from_millis(1),
+        });
+        s.pump(Instant::now());
+        assert_eq!(s.legend(), [(3, "big".to_string(), 0.75), (9, "#9".to_string(), 0.25)]);
     }
 }

@@ -5,10 +5,11 @@
 //! supersedes every older one: a source may drop tiles of superseded frames it has
 //! not rendered yet, and the window ignores tiles of frames it no longer wants.
 //!
-//! Two sources exist: [`crate::LocalSource`] renders in-process on a rayon pool;
-//! the cluster-backed source (the binary's `src/cli/remote.rs`) forwards requests
-//! to the master and relays the tiles its slaves return. Both look the same to
-//! the window, which is all the window knows about.
+//! The binary's source is cluster-backed (`src/cli/remote.rs`): it forwards
+//! requests to the master — a remote one, or the one `isin view SCENE` starts
+//! in-process with a local slave — and relays the tiles its slaves return.
+//! Sources are all the window knows about (tests and the `pattern` example
+//! bring their own).
 //!
 //! # Writing a source
 //!
@@ -55,9 +56,8 @@ pub struct TileUpdate {
     /// `tile.w * tile.h * 3` bytes of sRGB RGB8, row-major (as returned by
     /// [`isin_tracer::render_tile`]).
     pub rgb: Vec<u8>,
-    /// Who rendered it: a slave id for the cluster, the rayon thread index for
-    /// [`crate::LocalSource`]. Used for the tile-ownership overlay and the
-    /// tiles-per-slave status.
+    /// Who rendered it: a slave id. Used for the tile-ownership overlay and
+    /// the tiles-per-slave status.
     pub owner: u32,
 }
 
@@ -74,15 +74,23 @@ pub enum SourceEvent {
         /// Time from the request to the last tile.
         elapsed: Duration,
     },
-    /// The source cannot go on (e.g. the master went away); the window shows it
-    /// in the status line and keeps the last image.
+    /// The source cannot go on (e.g. the master refused it); the window shows
+    /// it in the status line and keeps the last image.
     Failed(String),
+    /// The source lost its renderers and is trying to get them back (e.g. the
+    /// master went away and the source reconnects); the message says so on
+    /// screen until [`SourceEvent::Reconnected`].
+    Lost(String),
+    /// The source is back after [`SourceEvent::Lost`]: the frames in flight
+    /// were lost with it, so the window asks for the current view again and
+    /// clears its errors.
+    Reconnected,
 }
 
 /// Counters describing the source, for the on-screen status line.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct SourceStatus {
-    /// Number of workers currently able to render (slaves, or local threads).
+    /// Number of workers currently able to render (slaves).
     pub live_slaves: usize,
     /// Tiles delivered so far per worker, as `(owner id, count)`: the
     /// [`SourceStatus::workers`] in their order, then any other owner.
@@ -94,6 +102,9 @@ pub struct SourceStatus {
     /// The workers the source knows of (a cluster's slaves as its master
     /// lists them, live ones first); empty when the source does not say.
     pub workers: Vec<Worker>,
+    /// Something to say on screen until it no longer holds, e.g. that no
+    /// slave is connected and how to start one.
+    pub notice: Option<String>,
 }
 
 /// A worker of a source: a slave of the cluster.

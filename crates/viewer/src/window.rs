@@ -1,10 +1,17 @@
 //! The window: winit 0.30 (`ApplicationHandler`) + softbuffer 0.4.
 //!
-//! The image is rendered at a fixed *render resolution* (the session's
-//! settings) and scaled to the window with nearest-neighbour sampling, keeping
-//! its aspect ratio (letterboxed). Resizing the window therefore never restarts
-//! rendering, and the slaves' work does not depend on the window's size; ask
-//! for a larger render resolution (`--width/--height`) for a sharper image.
+//! The *render resolution* follows the window: its size in physical pixels
+//! (so HiDPI screens get every pixel) times [`ViewerOptions::render_scale`].
+//! A resize is applied once the window has kept its new size for
+//! [`RESIZE_DEBOUNCE`] ([`Session::resize`]: the camera's image plane is
+//! resized about its centre, never stretched, and the view rendered again);
+//! until then the image is scaled into the window with nearest-neighbour
+//! sampling, keeping its aspect ratio (letterboxed).
+//!
+//! The status text wraps at the window's width, so none of it is cut; the
+//! notices (reconnecting, no slaves, errors) are shown even with the status
+//! text hidden. With the tile-ownership overlay on, a legend under the status
+//! text gives each slave's colour, name and share of the last pass.
 //!
 //! The loop sleeps until something happens: input, or the frame source's
 //! [`Waker`] (a winit user event) when tiles arrive. Input events are applied
@@ -13,7 +20,7 @@
 
 use crate::error::ViewerError;
 use crate::input::{Command, HeldMoves, command_for_key};
-use crate::raster::{Canvas, Placement, owner_colour};
+use crate::raster::{Canvas, Placement, owner_colour, wrap};
 use crate::session::{FrameReport, Session};
 use crate::source::Waker;
 use std::num::NonZeroU32;
@@ -36,6 +43,9 @@ pub enum ViewerEvent {
     FramePresented(FrameReport),
     /// A screenshot was written.
     ScreenshotSaved(PathBuf),
+    /// The notices on screen changed ([`Session::notices`]: reconnecting,
+    /// no slaves, errors); empty once there are none.
+    Notices(Vec<String>),
 }
 
 /// The file format of screenshots: the displayed image is sRGB RGB8 (as the
@@ -94,6 +104,9 @@ pub struct ViewerOptions {
     pub title: String,
     /// Initial inner size of the window (default: the render resolution).
     pub window_size: Option<(u32, u32)>,
+    /// Render resolution per window pixel (1: one rendered pixel per
+    /// physical pixel of the window).
+    pub render_scale: f32,
     /// Where screenshots go.
     pub screenshot_dir: PathBuf,
     /// Their file format.
@@ -111,6 +124,7 @@ impl Default for ViewerOptions {
         Self {
             title: "isin".into(),
             window_size: None,
+            render_scale: 1.0,
             screenshot_dir: PathBuf::from("."),
             screenshot_format: ScreenshotFormat::Png,
             show_status: true,
@@ -173,6 +187,8 @@ pub fn run(session: &mut Session, options: ViewerOptions) -> Result<(), ViewerEr
         held: HeldMoves::default(),
         last_present: None,
         redraw_due: None,
+        resize_due: None,
+        notices_said: Vec::new(),
     };
     event_loop.run_app(&mut app).map_err(|e| ViewerError::Window(e.to_string()))?;
     match app.error {
@@ -209,7 +225,16 @@ struct App<'a> {
     last_present: Option<Instant>,
     /// A redraw put off to keep to [`MIN_PRESENT_INTERVAL`].
     redraw_due: Option<Instant>,
+    /// The window's new size and when to render at it ([`RESIZE_DEBOUNCE`]).
+    resize_due: Option<(Instant, PhysicalSize<u32>)>,
+    /// The notices last reported ([`ViewerEvent::Notices`]).
+    notices_said: Vec<String>,
 }
+
+/// How long the window must keep a new size before the view is rendered at
+/// it: dragging a window's edge resizes it many times a second, and each
+/// size would otherwise cost a frame.
+pub const RESIZE_DEBOUNCE: Duration = Duration::from_millis(120);
 
 /// Shortest time between two redraws for tiles that arrive while a pass is
 /// rendered (a completed pass is shown at once). Each redraw scales and
@@ -240,10 +265,24 @@ impl App<'_> {
         Ok(Gfx { window, surface, _context: context })
     }
 
+    /// Renders at the size of a window of `size` physical pixels from now on.
+    fn apply_size(&mut self, size: PhysicalSize<u32>) {
+        if size.width == 0 || size.height == 0 {
+            return; // minimised: keep the view as it is
+        }
+        let (w, h) = crate::session::render_size(size.width, size.height, self.options.render_scale);
+        if (w, h) != self.session.size() {
+            tracing::debug!("window {}x{}: rendering at {w}x{h}", size.width, size.height);
+            self.session.resize(w, h);
+        }
+    }
+
     fn redraw(&mut self) -> Result<(), ViewerError> {
         let now = Instant::now();
         self.session.pump(now);
-        let status = if self.show_status { self.session.status_lines(now) } else { Vec::new() };
+        let status = if self.show_status { self.session.status_lines(now) } else { self.session.notices() };
+        let notices = self.session.notices();
+        let legend = if self.overlay { self.session.legend() } else { Vec::new() };
         let Some(gfx) = &mut self.gfx else { return Ok(()) };
         let size = gfx.window.inner_size();
         let (Some(w), Some(h)) = (NonZeroU32::new(size.width), NonZeroU32::new(size.height)) else {
@@ -262,28 +301,26 @@ impl App<'_> {
                 canvas.outline(x0, y0, x1, y1, owner_colour(owner));
             }
         }
-        if !status.is_empty() {
-            let scale = if w.get() >= 960 { 2 } else { 1 };
-            let mut y = 2 * scale;
-            for (i, line) in status.iter().enumerate() {
-                // The tiles-per-slave line in the overlay's colours when it is on.
-                if self.overlay && line.starts_with("tiles ") {
-                    let mut x = 2 * scale;
-                    for (j, part) in line.split(' ').enumerate() {
-                        let colour = match part.split(':').next().and_then(|id| id.parse::<u32>().ok()) {
-                            Some(id) if j > 0 => owner_colour(id),
-                            _ => 0x00ff_ffff,
-                        };
-                        let text = format!("{part} ");
-                        canvas.text(x, y, &text, colour, scale);
-                        x += text.len() as u32 * 8 * scale;
-                    }
-                    y += 10 * scale;
-                    continue;
-                }
-                let colour = if i == 0 { 0x00ff_ff80 } else { 0x00ff_ffff };
-                y += canvas.text(2 * scale, y, line, colour, scale);
+        // Text in whole multiples of the screen's scale factor, doubled on large windows.
+        let base = (gfx.window.scale_factor().round() as u32).max(1);
+        let scale = if w.get() >= 960 * base { 2 * base } else { base };
+        let columns = (w.get().saturating_sub(4 * scale) / (8 * scale)).max(1) as usize;
+        let mut y = 2 * scale;
+        for (i, line) in status.iter().enumerate() {
+            let colour = if i == 0 && self.show_status { 0x00ff_ff80 } else { 0x00ff_ffff };
+            for part in wrap(line, columns) {
+                y += canvas.text(2 * scale, y, &part, colour, scale);
             }
+        }
+        // The overlay's legend: a swatch of each slave's colour, its name and share.
+        for (owner, name, share) in &legend {
+            let label = format!("{name} {:.0}%", share * 100.0);
+            let (x, cols) = (12 * scale, columns.saturating_sub(2).max(1));
+            let top = y;
+            for part in wrap(&label, cols) {
+                y += canvas.text(x, y, &part, 0x00ff_ffff, scale);
+            }
+            canvas.fill_rect(2 * scale, top, 10 * scale, top + 10 * scale, owner_colour(*owner));
         }
         gfx.window.pre_present_notify();
         buffer.present().map_err(err)?;
@@ -291,6 +328,10 @@ impl App<'_> {
         self.redraw_due = None;
         for report in self.session.take_completed(Instant::now()) {
             (self.options.on_event)(&ViewerEvent::FramePresented(report));
+        }
+        if notices != self.notices_said {
+            (self.options.on_event)(&ViewerEvent::Notices(notices.clone()));
+            self.notices_said = notices;
         }
         Ok(())
     }
@@ -345,7 +386,12 @@ impl ApplicationHandler<Wake> for App<'_> {
         match self.create_window(event_loop) {
             Ok(gfx) => {
                 gfx.window.request_redraw();
+                let size = gfx.window.inner_size();
                 self.gfx = Some(gfx);
+                // The window may not get the size asked for (a window manager,
+                // a HiDPI scale factor): render at the one it has.
+                self.apply_size(size);
+                self.session.flush();
             }
             Err(e) => self.fail(event_loop, e),
         }
@@ -375,7 +421,10 @@ impl ApplicationHandler<Wake> for App<'_> {
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
-            WindowEvent::Resized(_) => self.request_redraw(),
+            WindowEvent::Resized(size) => {
+                self.resize_due = Some((Instant::now() + RESIZE_DEBOUNCE, size));
+                self.request_redraw();
+            }
             WindowEvent::RedrawRequested => {
                 if let Err(e) = self.redraw() {
                     self.fail(event_loop, e);
@@ -434,6 +483,13 @@ impl ApplicationHandler<Wake> for App<'_> {
                 self.session.move_steps(mv, steps, now);
             }
         }
+        // A resize once the window has kept its size for RESIZE_DEBOUNCE.
+        if let Some((due, size)) = self.resize_due
+            && now >= due
+        {
+            self.resize_due = None;
+            self.apply_size(size);
+        }
         // A dwelling playback's next camera, when due.
         self.session.tick(now);
         // While a move key is down the motion goes on: no still passes yet.
@@ -448,7 +504,8 @@ impl ApplicationHandler<Wake> for App<'_> {
         } else {
             None
         };
-        let wake = [wake, self.session.next_due(), self.redraw_due].into_iter().flatten().min();
+        let resize = self.resize_due.map(|(at, _)| at);
+        let wake = [wake, self.session.next_due(), self.redraw_due, resize].into_iter().flatten().min();
         event_loop.set_control_flow(wake.map_or(ControlFlow::Wait, ControlFlow::WaitUntil));
     }
 
