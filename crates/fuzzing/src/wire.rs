@@ -17,8 +17,8 @@ enum StreamEnd {
     Clean,
     /// A length prefix above the maximum.
     TooLarge(u64),
-    /// Inside a length prefix or a body.
-    Truncated,
+    /// Inside a length prefix, or inside the body of a frame of this length.
+    Truncated(Option<u64>),
 }
 
 /// The frames of `stream` as `[len: u32 BE][len bytes]` read them, and how
@@ -27,7 +27,7 @@ fn model_frames(mut stream: &[u8], max_frame: usize) -> (Vec<&[u8]>, StreamEnd) 
     let mut frames = Vec::new();
     loop {
         let Some((len, rest)) = stream.split_first_chunk::<4>() else {
-            let end = if stream.is_empty() { StreamEnd::Clean } else { StreamEnd::Truncated };
+            let end = if stream.is_empty() { StreamEnd::Clean } else { StreamEnd::Truncated(None) };
             return (frames, end);
         };
         let len = u64::from(u32::from_be_bytes(*len));
@@ -35,7 +35,7 @@ fn model_frames(mut stream: &[u8], max_frame: usize) -> (Vec<&[u8]>, StreamEnd) 
             return (frames, StreamEnd::TooLarge(len));
         }
         let Some((body, rest)) = rest.split_at_checked(len as usize) else {
-            return (frames, StreamEnd::Truncated);
+            return (frames, StreamEnd::Truncated(Some(len)));
         };
         frames.push(body);
         stream = rest;
@@ -53,41 +53,54 @@ pub fn framing(data: &[u8]) {
     let max_frame = usize::from(u16::from_be_bytes([*a, *b]));
     let budget = (*c != 0).then(|| MemoryBudget::new(usize::from(*c) * 256));
     let (want, want_end) = model_frames(stream, max_frame);
-    let runtime = tokio::runtime::Builder::new_current_thread().enable_time().build().expect("a runtime");
+    thread_local! {
+        // One runtime for every input: building one costs more than a run.
+        static RUNTIME: tokio::runtime::Runtime =
+            tokio::runtime::Builder::new_current_thread().enable_time().build().expect("a runtime");
+    }
     let bytes = stream.to_vec();
-    let (got, end, stats) = runtime.block_on(async {
-        let shared = ConnShared::new(max_frame);
-        shared.set_budget(budget.clone());
-        let reader = std::io::Cursor::new(bytes);
-        let mut conn = stream::spawn_with(reader, tokio::io::sink(), "fuzz".into(), shared, Counting::Frames);
-        let mut got = Vec::new();
-        let mut end = None;
-        while let Some(item) = conn.receiver.recv().await {
-            match item {
-                Ok(frame) => got.push(frame),
-                Err(e) => {
-                    end = Some(e);
-                    break;
+    let (got, end, stats) = RUNTIME.with(|runtime| {
+        runtime.block_on(async {
+            let shared = ConnShared::new(max_frame);
+            shared.set_budget(budget.clone());
+            let reader = std::io::Cursor::new(bytes);
+            let mut conn =
+                stream::spawn_with(reader, tokio::io::sink(), "fuzz".into(), shared, Counting::Frames);
+            let mut got = Vec::new();
+            let mut end = None;
+            while let Some(item) = conn.receiver.recv().await {
+                match item {
+                    Ok(frame) => got.push(frame),
+                    Err(e) => {
+                        end = Some(e);
+                        break;
+                    }
                 }
             }
-        }
-        if end.is_some() {
-            assert!(conn.receiver.recv().await.is_none(), "an error is the connection's last item");
-        }
-        (got, end, conn.sender.stats())
+            if end.is_some() {
+                assert!(conn.receiver.recv().await.is_none(), "an error is the connection's last item");
+            }
+            (got, end, conn.sender.stats())
+        })
     });
     assert!(got.len() <= want.len() && got.iter().zip(&want).all(|(g, w)| g == w), "frames differ");
     match (&end, &want_end) {
-        (None, StreamEnd::Clean) | (Some(TransportError::Io(_)), StreamEnd::Truncated) => {
+        (None, StreamEnd::Clean) | (Some(TransportError::Io(_)), StreamEnd::Truncated(_)) => {
             assert_eq!(got.len(), want.len(), "frames lost before the end");
         }
         (Some(TransportError::FrameTooLarge { len, max }), StreamEnd::TooLarge(want_len)) => {
             assert_eq!(got.len(), want.len());
             assert_eq!((*len, *max), (*want_len, max_frame));
         }
-        (Some(TransportError::OverBudget { len, .. }), _) => {
+        (Some(TransportError::OverBudget { len, .. }), end) => {
             let limit = budget.as_ref().map(|b| b.limit()).expect("over a budget there is none of");
-            let next = want.get(got.len()).map(|f| f.len() as u64);
+            // The budget is reserved before the body is read: a frame cut
+            // short can be refused too.
+            let next = match (want.get(got.len()), end) {
+                (Some(frame), _) => Some(frame.len() as u64),
+                (None, StreamEnd::Truncated(announced)) => *announced,
+                (None, _) => None,
+            };
             assert_eq!(Some(*len), next, "refused a frame that is not the next one");
             // Only frames queued unread may hold the budget.
             assert!(*len > 0 && *len <= max_frame as u64 && limit > 0);
