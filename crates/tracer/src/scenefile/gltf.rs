@@ -797,7 +797,10 @@ mod tests {
             )
         };
         let accessor = r#"[{"componentType":5126,"count":1,"type":"VEC3","min":[0,0,0],"max":[0,0,0]}]"#;
-        let err = |text: String| parse(text.as_bytes()).err().expect("refused");
+        let err = |text: String| match parse(text.as_bytes()) {
+            Err(e) => e,
+            Ok(_) => panic!("not refused: {text}"),
+        };
         assert!(
             err(doc(r#"[{"name":"x"}]"#, accessor)).contains("images[0] has neither a uri nor a bufferView")
         );
