@@ -190,6 +190,7 @@ fn parse(bytes: &[u8]) -> Result<(gltf::Gltf, Vec<String>), String> {
         .filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str()))
         .map(|e| format!("glTF extension {e} is not supported: rendering without it"))
         .collect();
+    check_unchecked(root)?;
     let mut errors = Vec::new();
     use gltf::json::validation::Validate;
     root.validate(root, gltf::json::Path::new, &mut |at: &dyn Fn() -> gltf::json::Path, e| {
@@ -274,6 +275,35 @@ pub(crate) fn cameras_and_lights(bytes: &[u8]) -> Result<(Option<FileCamera>, Ve
         }
     }
     Ok((camera, lights))
+}
+
+/// Refuses what the `gltf` crates (1.4) index or unwrap unchecked, and would
+/// panic on (found by fuzzing: `fuzz/regressions/gltf`, `glb`): a
+/// primitive attribute naming an accessor that does not exist (indexed by
+/// the validation itself), an image in a buffer view without a `mimeType`,
+/// an image with neither a `uri` nor a `bufferView`.
+fn check_unchecked(root: &gltf::json::Root) -> Result<(), String> {
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            if let Some(index) = prim.attributes.values().find(|i| i.value() >= root.accessors.len()) {
+                return Err(format!(
+                    "glTF: meshes[{m}].primitives[{p}] names accessor {}, but the file has {}",
+                    index.value(),
+                    root.accessors.len()
+                ));
+            }
+        }
+    }
+    for (i, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.mime_type, &image.uri) {
+            (Some(_), None, _) => {
+                return Err(format!("glTF: images[{i}] is in a buffer view but has no mimeType"));
+            }
+            (None, _, None) => return Err(format!("glTF: images[{i}] has neither a uri nor a bufferView")),
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// Rejects GLB headers whose declared length would make the `gltf` crate's
@@ -755,6 +785,33 @@ fn image_texture(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What the `gltf` crates panic on is refused, named (found by fuzzing:
+    /// `fuzz/regressions/gltf`, `glb`).
+    #[test]
+    fn images_without_a_source_and_missing_accessors_are_refused_not_panicked_on() {
+        let doc = |images: &str, accessors: &str| {
+            format!(
+                r#"{{"asset":{{"version":"2.0"}},"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+                "images":{images},"accessors":{accessors}}}"#
+            )
+        };
+        let accessor = r#"[{"componentType":5126,"count":1,"type":"VEC3","min":[0,0,0],"max":[0,0,0]}]"#;
+        let err = |text: String| match parse(text.as_bytes()) {
+            Err(e) => e,
+            Ok(_) => panic!("not refused: {text}"),
+        };
+        assert!(
+            err(doc(r#"[{"name":"x"}]"#, accessor)).contains("images[0] has neither a uri nor a bufferView")
+        );
+        let in_view = r#"[{"bufferView":0}]"#;
+        assert!(err(doc(in_view, accessor)).contains("images[0] is in a buffer view but has no mimeType"));
+        assert!(
+            err(doc("[]", "[]")).contains("meshes[0].primitives[0] names accessor 0, but the file has 0")
+        );
+        let whole = gltf::Gltf::from_slice_without_validation(doc("[]", accessor).as_bytes()).unwrap();
+        assert_eq!(check_unchecked(whole.document.as_json()), Ok(()));
+    }
 
     #[test]
     fn base64_round_trips_known_vectors() {

@@ -41,9 +41,15 @@ pub(crate) fn load(
     let loader = |mtl: &Path| {
         let rel = join(path, &mtl.to_string_lossy());
         let result = match assets.borrow_mut().read(&rel) {
-            Ok(data) => tobj::load_mtl_buf(&mut data.as_slice()).inspect_err(|e| {
-                failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
-            }),
+            Ok(data) => match grey_colours(&data) {
+                Ok(data) => tobj::load_mtl_buf(&mut &data[..]).inspect_err(|e| {
+                    failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
+                }),
+                Err(e) => {
+                    failure.borrow_mut().get_or_insert(origin.bad_asset(&rel, format!("MTL library: {e}")));
+                    Err(tobj::LoadError::MaterialParseError)
+                }
+            },
             Err(reason) => {
                 missing.borrow_mut().push(format!(
                     "{path}: MTL library {rel} cannot be read ({reason}); using default materials"
@@ -264,9 +270,64 @@ fn convert(
     Ok(Material::Phong { albedo, specular: ks, shininess: ns.max(1.0), reflectivity })
 }
 
+/// The colour keys tobj reads as exactly three numbers.
+const COLOUR_KEYS: [&str; 4] = ["Ka", "Kd", "Ks", "Ke"];
+
+/// An MTL library as tobj can take it: a colour given as one number (grey,
+/// as the format allows) is written out as three. A colour with no number or
+/// two is refused, naming its line — tobj 4.0 panics on anything but three.
+fn grey_colours(mtl: &[u8]) -> Result<std::borrow::Cow<'_, [u8]>, String> {
+    let mut out: Option<Vec<u8>> = None;
+    let mut at = 0;
+    for (i, raw) in mtl.split(|&c| c == b'\n').enumerate() {
+        let start = at;
+        at += raw.len() + 1;
+        // tobj refuses lines that are not UTF-8 itself.
+        let Ok(line) = std::str::from_utf8(raw) else { continue };
+        let mut words = line.split_whitespace();
+        let Some(key) = words.next().filter(|k| COLOUR_KEYS.contains(k)) else { continue };
+        let values: Vec<&str> = words.collect();
+        match values[..] {
+            [] | [_, _] => {
+                return Err(format!(
+                    "line {}: `{key}` takes one number (grey) or three, got {}",
+                    i + 1,
+                    values.len()
+                ));
+            }
+            [grey] if grey.parse::<f32>().is_ok() => {
+                let out = out.get_or_insert_with(|| mtl[..start].to_vec());
+                out.extend_from_slice(format!("{key} {grey} {grey} {grey}\n").as_bytes());
+                continue;
+            }
+            _ => {}
+        }
+        if let Some(out) = &mut out {
+            out.extend_from_slice(&mtl[start..(start + raw.len() + 1).min(mtl.len())]);
+        }
+    }
+    Ok(out.map_or(std::borrow::Cow::Borrowed(mtl), std::borrow::Cow::Owned))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn grey_colours_are_written_out_and_malformed_ones_refused_by_line() {
+        let mtl = b"newmtl a\nKd 0.5\nKs 1 0 0\n";
+        assert_eq!(&grey_colours(mtl).unwrap()[..], b"newmtl a\nKd 0.5 0.5 0.5\nKs 1 0 0\n");
+        assert!(matches!(grey_colours(b"Kd 1 2 3"), Ok(std::borrow::Cow::Borrowed(_))));
+        // What tobj 4.0 panics on (found by fuzzing: fuzz/regressions/mtl).
+        assert_eq!(
+            grey_colours(b"newmtl a\nKa 1 0\n").unwrap_err(),
+            "line 2: `Ka` takes one number (grey) or three, got 2"
+        );
+        assert!(grey_colours(b"Ke\n").unwrap_err().starts_with("line 1: `Ke`"));
+        let (materials, _) =
+            tobj::load_mtl_buf(&mut &grey_colours(b"newmtl g\nKd 0.25\n").unwrap()[..]).unwrap();
+        assert_eq!(materials[0].diffuse, Some([0.25; 3]));
+    }
 
     #[test]
     fn smoothing_groups_follow_the_faces() {
