@@ -14,6 +14,7 @@ const OWN_CRATES: &[&str] = &[
     "isin",
     "isin_actors",
     "isin_cluster",
+    "isin_fuzzing",
     "isin_lab",
     "isin_tracer",
     "isin_transport",
