@@ -554,7 +554,7 @@ impl<R: Renderer> SlaveActor<R> {
         }
         let waiting = self.parked.entry(a.scene).or_default();
         if waiting.is_empty() {
-            tracing::info!("fetching a scene for frame {}", a.frame);
+            tracing::info!("fetching a scene ({}) for frame {}", protocol::short_hash(&a.scene), a.frame);
             if let Ok(m) = protocol::encode(&Message::NeedScene { hash: a.scene }) {
                 let _ = self.sender.send(m);
             }
