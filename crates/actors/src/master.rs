@@ -24,7 +24,8 @@ use std::time::{Duration, Instant};
 pub struct MasterConfig {
     /// What the core decides with.
     pub cluster: ClusterConfig,
-    /// Period of the clock tick (timeouts, heartbeats).
+    /// Longest sleep between two looks at the core's timeouts (it wakes
+    /// earlier at the core's own deadlines).
     pub tick: Duration,
     /// Where uploaded scenes and batch jobs are kept across restarts.
     pub state: Option<PathBuf>,
@@ -185,14 +186,13 @@ impl Master {
             match t {
                 Transmit::Send { message, class, .. } => match protocol::encode(&message) {
                     Ok(bytes) => {
-                        let delivery = match class {
-                            Class::Control => Delivery::Ordered,
-                            Class::Tile => Delivery::Independent,
-                        };
-                        let _ = sender.send_as(bytes, delivery);
+                        let _ = sender.send_as(bytes, delivery(class));
                     }
                     Err(e) => tracing::error!("cannot encode {}: {e}", message.kind()),
                 },
+                Transmit::SendFrame { frame, class, .. } => {
+                    let _ = sender.send_as(frame, delivery(class));
+                }
                 Transmit::SendEncoded { frame, .. } => {
                     let _ = sender.send(frame.as_ref().clone());
                 }
@@ -209,6 +209,34 @@ impl Master {
     }
 }
 
+impl Master {
+    /// Runs the core's timeouts at its next deadline ([`Cluster::poll_timeout`]),
+    /// or after one tick if that comes first, then arms itself again.
+    ///
+    /// Deadlines only move later between wakes (a heartbeat pushes a slave's
+    /// back) or appear at least a tick ahead (a new peer's handshake, the
+    /// status interval), so a dead slave is declared dead at its deadline, not
+    /// up to a tick after it.
+    fn wake_at_deadline(&mut self, ctx: &mut Context<Self>) {
+        let now = self.now();
+        let next = self.core.poll_timeout().map_or(now + self.tick, |d| d.min(now + self.tick));
+        ctx.run_later(next.saturating_sub(now), |m, ctx| {
+            let now = m.now();
+            m.core.handle_timeout(now);
+            m.flush();
+            m.wake_at_deadline(ctx);
+        });
+    }
+}
+
+/// How a class of message travels.
+fn delivery(class: Class) -> Delivery {
+    match class {
+        Class::Control => Delivery::Ordered,
+        Class::Tile => Delivery::Independent,
+    }
+}
+
 fn add_stats(total: &mut ConnStats, s: ConnStats) {
     total.bytes_sent += s.bytes_sent;
     total.bytes_received += s.bytes_received;
@@ -220,11 +248,7 @@ impl Actor for Master {
     type Context = Context<Self>;
 
     fn started(&mut self, ctx: &mut Self::Context) {
-        ctx.run_interval(self.tick, |m, _| {
-            let now = m.now();
-            m.core.handle_timeout(now);
-            m.flush();
-        });
+        self.wake_at_deadline(ctx);
     }
 }
 

@@ -101,9 +101,9 @@ use crate::auth::{self, Nonces};
 use crate::codec::{self, Codec, Compression};
 use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
-    self, ClientStatus, FrameId, FrameStats, FrameTile, HANDSHAKE_MAX_FRAME, Hello, JobSpec, MAX_JOB_FRAMES,
-    Message, ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status, TileAssignment, TileResult,
-    Welcome, WireBundle,
+    self, ClientStatus, FrameId, FrameStats, HANDSHAKE_MAX_FRAME, Hello, JobSpec, MAX_JOB_FRAMES, Message,
+    ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status, TileAssignment, TileResultRef, Welcome,
+    WireBundle,
 };
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
@@ -112,7 +112,6 @@ use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use jobs::Jobs;
 use roster::Roster;
 use scenes::Scenes;
-use serde_bytes::ByteBuf;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use std::time::Duration;
@@ -141,6 +140,16 @@ pub enum Transmit {
         peer: PeerId,
         /// The message.
         message: Message,
+        /// How it travels.
+        class: Class,
+    },
+    /// Send a frame the core encoded itself (a forwarded tile, written in
+    /// place).
+    SendFrame {
+        /// The connection.
+        peer: PeerId,
+        /// The frame.
+        frame: Vec<u8>,
         /// How it travels.
         class: Class,
     },
@@ -199,6 +208,7 @@ impl Transmit {
         match self {
             Transmit::Send { peer, .. }
             | Transmit::SendEncoded { peer, .. }
+            | Transmit::SendFrame { peer, .. }
             | Transmit::Limit { peer, .. }
             | Transmit::Close { peer, .. } => *peer,
             Transmit::Store(_) => PeerId::MAX,
@@ -540,6 +550,17 @@ impl Cluster {
     pub fn handle_frame(&mut self, now: Duration, peer: PeerId, frame: &[u8]) {
         let Some(p) = self.peers.get(&peer) else { return };
         self.bytes_received += frame.len() as u64;
+        if matches!(p.state, PeerState::Slave) {
+            // Most of the traffic: read in place, its pixels never copied.
+            match protocol::decode_tile_result(frame, p.max_frame) {
+                Some(Ok(r)) => {
+                    self.heard_from_slave(now, peer);
+                    return self.on_result(now, peer, r);
+                }
+                Some(Err(e)) => return self.refuse(now, peer, format!("bad frame: {e}")),
+                None => {}
+            }
+        }
         match protocol::decode(frame, p.max_frame) {
             Ok(msg) => self.handle_message(now, peer, msg),
             Err(e) => self.refuse(now, peer, format!("bad frame: {e}")),
@@ -608,12 +629,9 @@ impl Cluster {
 
     /// A decoded message from `peer`.
     pub fn handle_message(&mut self, now: Duration, peer: PeerId, msg: Message) {
+        self.heard_from_slave(now, peer);
         let Some(p) = self.peers.get_mut(&peer) else { return };
         p.last_heard = now;
-        if matches!(p.state, PeerState::Slave) {
-            // Every message from a slave is a sign of life.
-            self.sched.handle_heartbeat(now, peer);
-        }
         match (&p.state, msg) {
             (PeerState::AwaitHello { nonce }, Message::Hello(hello)) => {
                 let nonce = *nonce;
@@ -641,7 +659,7 @@ impl Cluster {
                 self.push_status(now);
                 self.drain(now);
             }
-            (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r),
+            (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r.borrowed()),
             (PeerState::Slave, Message::NeedScene { hash }) => self.send_scene(now, peer, hash),
             (PeerState::Slave, Message::SceneFailed { hash, reason }) => {
                 self.on_scene_failed(now, peer, hash, reason)
@@ -957,7 +975,16 @@ impl Cluster {
         }
     }
 
-    fn on_result(&mut self, now: Duration, id: PeerId, r: TileResult) {
+    /// Any message is a sign of life; a slave's tells the scheduler too.
+    fn heard_from_slave(&mut self, now: Duration, peer: PeerId) {
+        let Some(p) = self.peers.get_mut(&peer) else { return };
+        p.last_heard = now;
+        if matches!(p.state, PeerState::Slave) {
+            self.sched.handle_heartbeat(now, peer);
+        }
+    }
+
+    fn on_result(&mut self, now: Duration, id: PeerId, r: TileResultRef<'_>) {
         tracing::trace!(slave = id, frame = r.frame, tile = r.id, "tile result");
         let rect = match self.sched.check_result(id, r.frame, r.id) {
             ResultCheck::Held { tile } => tile,
@@ -973,9 +1000,10 @@ impl Cluster {
             let got = r.tile;
             return self.refuse(now, id, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
         }
-        // Untrusted: decoded (size checked before allocating) before it
-        // counts, even when it is forwarded still encoded.
-        if let Err(e) = codec::decode_into(r.codec, r.tile.w, r.tile.h, &r.pixels, &mut self.scratch) {
+        // Untrusted: checked (raw by its length, the others decoded, size
+        // checked before allocating) before it counts, even when it is
+        // forwarded still encoded.
+        if let Err(e) = codec::check(r.codec, r.tile.w, r.tile.h, r.pixels, &mut self.scratch) {
             return self.refuse(now, id, format!("tile {}: {e}", r.id));
         }
         self.sched.record_render_time(r.frame, r.id, r.render_micros);
@@ -988,7 +1016,7 @@ impl Cluster {
 
     /// A result for a tile `id` was never handed: refused and counted; past
     /// the budget, the slave goes.
-    fn on_foreign(&mut self, now: Duration, id: PeerId, r: &TileResult) {
+    fn on_foreign(&mut self, now: Duration, id: PeerId, r: &TileResultRef<'_>) {
         self.status.foreign_results += 1;
         let Some(p) = self.peers.get_mut(&id) else { return };
         p.foreign += 1;
@@ -999,19 +1027,24 @@ impl Cluster {
         }
     }
 
-    /// Sends an accepted tile to the viewer of its frame, in a codec it decodes.
-    fn forward(&mut self, slave: PeerId, r: TileResult, tile: isin_tracer::Tile) {
+    /// Sends an accepted tile to the viewer of its frame, in a codec it
+    /// decodes (the slave's, else raw: the pixels `on_result` decoded into
+    /// the scratch buffer), written straight into its outgoing frame.
+    fn forward(&mut self, slave: PeerId, r: TileResultRef<'_>, tile: isin_tracer::Tile) {
         let Some(spec) = self.frames.get(&r.frame) else { return };
         let Some(viewer) = self.peers.get(&spec.viewer) else { return };
-        let slave_name = self.peers.get(&slave).map(|p| p.name.clone()).unwrap_or_default();
+        let slave_name = self.peers.get(&slave).map_or("", |p| p.name.as_str());
         let (codec, pixels) = if viewer.decodes.contains(&r.codec) || r.codec == Codec::Raw {
             (r.codec, r.pixels)
         } else {
-            (Codec::Raw, ByteBuf::from(self.scratch.clone()))
+            (Codec::Raw, &self.scratch[..])
         };
-        let message =
-            Message::FrameTile(FrameTile { request: spec.request, slave, slave_name, tile, codec, pixels });
-        self.out.push_back(Transmit::Send { peer: spec.viewer, message, class: Class::Tile });
+        match protocol::encode_frame_tile(spec.request, slave, slave_name, tile, codec, pixels) {
+            Ok(frame) => {
+                self.out.push_back(Transmit::SendFrame { peer: spec.viewer, frame, class: Class::Tile })
+            }
+            Err(e) => tracing::error!("cannot encode a FrameTile: {e}"),
+        }
     }
 
     /// A viewer's frame request: supersedes the open frames, or with `queue`

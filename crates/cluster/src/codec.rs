@@ -169,8 +169,7 @@ pub fn decode(codec: Codec, w: u32, h: u32, data: &[u8]) -> Result<Vec<u8>, Code
 /// reused, so a caller that only validates tiles — the master — allocates
 /// nothing per tile). On error `out` holds no meaningful pixels.
 pub fn decode_into(codec: Codec, w: u32, h: u32, data: &[u8], out: &mut Vec<u8>) -> Result<(), CodecError> {
-    let len = (w as usize).checked_mul(h as usize).and_then(|n| n.checked_mul(3));
-    let len = len.filter(|&n| n <= MAX_TILE_BYTES).ok_or(CodecError::TooLarge { w, h })?;
+    let len = tile_bytes(w, h)?;
     let corrupt = |reason: String| CodecError::Corrupt { codec, reason };
     out.clear();
     if len == 0 {
@@ -202,9 +201,53 @@ pub fn decode_into(codec: Codec, w: u32, h: u32, data: &[u8], out: &mut Vec<u8>)
     Ok(())
 }
 
+/// Checks that `data` is a valid `w × h` tile in `codec` the way the
+/// master must before counting it: raw tiles by their length alone (every
+/// byte string of the right length is an image), the others by decoding
+/// into `scratch`, which then holds the pixels. Never panics.
+pub fn check(codec: Codec, w: u32, h: u32, data: &[u8], scratch: &mut Vec<u8>) -> Result<(), CodecError> {
+    match codec {
+        Codec::Raw => {
+            let len = tile_bytes(w, h)?;
+            if data.len() == len {
+                Ok(())
+            } else {
+                Err(CodecError::Corrupt { codec, reason: format!("{} bytes, {len} expected", data.len()) })
+            }
+        }
+        Codec::Lz4 | Codec::Qoi => decode_into(codec, w, h, data, scratch),
+    }
+}
+
+/// `w * h * 3`, if that is within [`MAX_TILE_BYTES`].
+fn tile_bytes(w: u32, h: u32) -> Result<usize, CodecError> {
+    let len = (w as usize).checked_mul(h as usize).and_then(|n| n.checked_mul(3));
+    len.filter(|&n| n <= MAX_TILE_BYTES).ok_or(CodecError::TooLarge { w, h })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn check_agrees_with_decode() {
+        let (w, h) = (5u32, 3u32);
+        let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 13 % 256) as u8).collect();
+        let mut scratch = Vec::new();
+        for codec in [Codec::Raw, Codec::Lz4, Codec::Qoi] {
+            let data = encode(codec, w, &rgb);
+            let mut bad = data.clone();
+            bad.pop();
+            for (bytes, tw, th) in [(&data, w, h), (&bad, w, h), (&data, w + 1, h), (&data, 1 << 20, 1 << 20)]
+            {
+                let checked = check(codec, tw, th, bytes, &mut scratch);
+                assert_eq!(checked.is_ok(), decode(codec, tw, th, bytes).is_ok(), "{codec:?} {tw}x{th}");
+                if checked.is_ok() && codec != Codec::Raw {
+                    assert_eq!(scratch, rgb);
+                }
+            }
+        }
+    }
 
     #[test]
     fn decode_into_reuses_its_buffer_and_matches_decode() {

@@ -16,6 +16,10 @@ use serde_bytes::ByteBuf;
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 
+mod in_place;
+
+pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
+
 /// Version of the protocol spoken by this build; peers must match exactly.
 /// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may
 /// queue frames behind the open one, [`Message::QueueFrame`]. 4: the master
@@ -610,7 +614,13 @@ pub enum ProtocolError {
 
 /// Encodes a message as one wire frame (version prefix + MessagePack).
 pub fn encode(msg: &Message) -> Result<Vec<u8>, ProtocolError> {
-    let mut buf = Vec::with_capacity(64);
+    // Room for the pixels at once: a tile's buffer is not grown by doubling.
+    let pixels = match msg {
+        Message::TileResult(r) => r.pixels.len(),
+        Message::FrameTile(t) => t.pixels.len() + t.slave_name.len(),
+        _ => 0,
+    };
+    let mut buf = Vec::with_capacity(64 + pixels);
     buf.extend_from_slice(&PROTOCOL_VERSION.to_be_bytes());
     rmp_serde::encode::write(&mut buf, msg).map_err(|e| ProtocolError::Encode(e.to_string()))?;
     Ok(buf)

@@ -142,6 +142,7 @@ impl Wire {
                 deliver(&protocol::encode(&message).expect("the core's messages encode"))
             }
             Transmit::SendEncoded { frame, .. } => deliver(&frame),
+            Transmit::SendFrame { frame, .. } => deliver(&frame),
             Transmit::Limit { max_frame, .. } => {
                 assert!(conn.closed.is_none() && !conn.gone, "limit set on closed peer {peer}");
                 conn.limit = max_frame;

@@ -9,8 +9,9 @@
 
 use super::super::*;
 use super::MS;
-use crate::protocol::{JobSpec, SceneHash, Status, TileId, TileJob};
+use crate::protocol::{JobSpec, SceneHash, Status, TileId, TileJob, TileResult};
 use isin_tracer::Tile;
+use serde_bytes::ByteBuf;
 
 /// The token honest peers know.
 pub const TOKEN: &str = "secret";
@@ -490,6 +491,10 @@ impl Net {
                 }
                 Transmit::SendEncoded { peer, frame } => {
                     let decoded = protocol::decode(&frame, usize::MAX).expect("pre-encoded frames decode");
+                    self.deliver(peer, decoded);
+                }
+                Transmit::SendFrame { peer, frame, .. } => {
+                    let decoded = protocol::decode(&frame, usize::MAX).expect("frames the core wrote decode");
                     self.deliver(peer, decoded);
                 }
                 Transmit::Limit { peer, max_frame } => {
