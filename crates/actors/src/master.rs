@@ -207,9 +207,7 @@ impl Master {
             }
         }
     }
-}
 
-impl Master {
     /// Runs the core's timeouts at its next deadline ([`Cluster::poll_timeout`]),
     /// or after one tick if that comes first, then arms itself again.
     ///

@@ -554,7 +554,7 @@ impl Cluster {
             // Most of the traffic: read in place, its pixels never copied.
             match protocol::decode_tile_result(frame, p.max_frame) {
                 Some(Ok(r)) => {
-                    self.heard_from_slave(now, peer);
+                    self.heard_from(now, peer);
                     return self.on_result(now, peer, r);
                 }
                 Some(Err(e)) => return self.refuse(now, peer, format!("bad frame: {e}")),
@@ -629,9 +629,8 @@ impl Cluster {
 
     /// A decoded message from `peer`.
     pub fn handle_message(&mut self, now: Duration, peer: PeerId, msg: Message) {
-        self.heard_from_slave(now, peer);
+        self.heard_from(now, peer);
         let Some(p) = self.peers.get_mut(&peer) else { return };
-        p.last_heard = now;
         match (&p.state, msg) {
             (PeerState::AwaitHello { nonce }, Message::Hello(hello)) => {
                 let nonce = *nonce;
@@ -976,7 +975,7 @@ impl Cluster {
     }
 
     /// Any message is a sign of life; a slave's tells the scheduler too.
-    fn heard_from_slave(&mut self, now: Duration, peer: PeerId) {
+    fn heard_from(&mut self, now: Duration, peer: PeerId) {
         let Some(p) = self.peers.get_mut(&peer) else { return };
         p.last_heard = now;
         if matches!(p.state, PeerState::Slave) {
