@@ -357,10 +357,22 @@ struct FrameState {
     turnaround_sum: Duration,
     turnaround_n: u32,
     stats: FrameStats,
-    /// Tiles as they were handed out (with the time), oldest first: the
-    /// straggler to copy is near the front. Entries of tiles since
-    /// delivered, or handed out again, are skipped as they are met.
-    handed_order: VecDeque<(Duration, TileId)>,
+    /// The tiles out with one holder only, by when they were handed out
+    /// (`TileRec::assigned_at`): the candidates a straggler copy is taken
+    /// from, oldest first. Kept exact as tiles are handed out, copied,
+    /// moved, delivered and requeued, so finding a straggler costs a few
+    /// steps however many tiles are out.
+    sole_held: BTreeSet<(Duration, TileId)>,
+}
+
+impl FrameState {
+    /// Records that `tile` is no longer out with one holder: call before its
+    /// `assigned_at` changes.
+    fn unmark_sole(&mut self, tile: TileId) {
+        if let Some(rec) = self.tiles.get(tile as usize) {
+            self.sole_held.remove(&(rec.assigned_at, tile));
+        }
+    }
 }
 
 /// The scheduling state machine. See the [module docs](self).
@@ -705,6 +717,7 @@ impl Scheduler {
             f.turnaround_sum += now.saturating_sub(rec.assigned_at);
             f.turnaround_n += 1;
         }
+        f.sole_held.remove(&(rec.assigned_at, tile));
         for other in std::mem::take(&mut rec.holders) {
             if other == slave {
                 continue;
@@ -757,6 +770,22 @@ impl Scheduler {
         self.outputs.pop_front()
     }
 
+    /// Checks the straggler index of every open frame against the tiles it
+    /// indexes: exactly the tiles out with one holder, at their hand-out time.
+    #[cfg(test)]
+    pub(crate) fn assert_sole_held_exact(&self) {
+        for f in self.frames.iter().filter(|f| !f.done) {
+            let want: BTreeSet<(Duration, TileId)> = f
+                .tiles
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| r.state == TileState::InFlight && r.holders.len() == 1)
+                .map(|(t, r)| (r.assigned_at, t as TileId))
+                .collect();
+            assert_eq!(f.sole_held, want, "frame {}: straggler index", f.id);
+        }
+    }
+
     // ---- internals ------------------------------------------------------
 
     fn check_new(&self, frame: FrameId, width: u32, height: u32) -> Result<(), SchedulerError> {
@@ -801,7 +830,7 @@ impl Scheduler {
             turnaround_sum: Duration::ZERO,
             turnaround_n: 0,
             stats: FrameStats::default(),
-            handed_order: VecDeque::new(),
+            sole_held: BTreeSet::new(),
         });
         self.last_frame = Some(frame);
         self.all_dirty = true;
@@ -823,11 +852,22 @@ impl Scheduler {
             for &(_, tile) in s.in_flight.range((f.id, 0)..=(f.id, TileId::MAX)).rev() {
                 let Some(rec) = f.tiles.get_mut(tile as usize) else { continue };
                 rec.holders.retain(|&h| h != slave);
-                if rec.state == TileState::InFlight && rec.holders.is_empty() {
-                    rec.state = TileState::Queued;
-                    rec.requeued = true;
-                    f.queue.push_front(tile);
-                    n += 1;
+                if rec.state != TileState::InFlight {
+                    continue;
+                }
+                match rec.holders.len() {
+                    0 => {
+                        rec.state = TileState::Queued;
+                        rec.requeued = true;
+                        f.sole_held.remove(&(rec.assigned_at, tile));
+                        f.queue.push_front(tile);
+                        n += 1;
+                    }
+                    // A copy's other holder is left: it may be copied again.
+                    1 => {
+                        f.sole_held.insert((rec.assigned_at, tile));
+                    }
+                    _ => {}
                 }
             }
             f.stats.requeued += n;
@@ -901,7 +941,7 @@ impl Scheduler {
                 rec.state = TileState::InFlight;
                 rec.hand_to(*id);
                 rec.assigned_at = now;
-                f.handed_order.push_back((now, tile));
+                f.sole_held.insert((now, tile));
                 if std::mem::take(&mut rec.requeued) {
                     *reassigned.entry((*id, f.id)).or_default() += 1;
                 }
@@ -931,13 +971,14 @@ impl Scheduler {
                     // The oldest tile out longer than its frame's mean turnaround.
                     let straggler = self
                         .frames
-                        .iter_mut()
+                        .iter()
                         .enumerate()
                         .filter(|(_, f)| !f.done && f.turnaround_n > 0)
                         .filter_map(|(fi, f)| oldest_straggler(f, *id, now).map(|(at, t)| (at, fi, t)))
                         .min();
                     let Some((_, fi, tile)) = straggler else { break };
                     let f = &mut self.frames[fi];
+                    f.unmark_sole(tile);
                     let rec = &mut f.tiles[tile as usize];
                     rec.hand_to(*id);
                     s.in_flight.insert((f.id, tile));
@@ -975,31 +1016,16 @@ fn frame_tile_size(cfg: &SchedulerConfig, width: u32, height: u32, threads: u32)
 }
 
 /// The oldest tile of `f` out longer than the frame's mean turnaround and
-/// held by one slave only, not `slave` (with when it was handed out). Entries
-/// of tiles no longer out are dropped from the front as they are met.
-fn oldest_straggler(f: &mut FrameState, slave: SlaveId, now: Duration) -> Option<(Duration, TileId)> {
+/// held by one slave only, not `slave` (with when it was handed out). Only
+/// `slave`'s own tiles are stepped over, so the cost is bounded by what one
+/// slave holds, not by the tiles out.
+fn oldest_straggler(f: &FrameState, slave: SlaveId, now: Duration) -> Option<(Duration, TileId)> {
     let mean = f.turnaround_sum / f.turnaround_n.max(1);
-    let out = |f: &FrameState, (at, t): (Duration, TileId)| {
-        let r = &f.tiles[t as usize];
-        r.state == TileState::InFlight && r.assigned_at == at
-    };
-    while let Some(&front) = f.handed_order.front() {
-        if out(f, front) {
-            break;
-        }
-        f.handed_order.pop_front();
-    }
-    // The oldest first: the first late one not the slave's own is it.
-    for &(at, t) in &f.handed_order {
-        if now.saturating_sub(at) <= mean {
-            return None;
-        }
-        let r = &f.tiles[t as usize];
-        if out(f, (at, t)) && r.holders.len() == 1 && !r.holders.contains(&slave) {
-            return Some((at, t));
-        }
-    }
-    None
+    f.sole_held
+        .iter()
+        .take_while(|&&(at, _)| now.saturating_sub(at) > mean)
+        .find(|&&(_, t)| f.tiles.get(t as usize).is_some_and(|r| !r.holders.contains(&slave)))
+        .copied()
 }
 
 /// Gives each slave with an idle thread the newest tile waiting behind busy
@@ -1047,15 +1073,17 @@ fn move_waiting_tiles(
             }
             outputs.push_back(Output::Cancel { slave: victim, frame, tiles: vec![tile] });
             let f = &mut frames[fi];
+            f.unmark_sole(tile);
             let rec = &mut f.tiles[tile as usize];
             rec.holders.clear();
             rec.hand_to(*id);
             rec.assigned_at = now;
-            f.handed_order.push_back((now, tile));
+            let job = TileJob { id: tile, tile: rec.tile };
+            f.sole_held.insert((now, tile));
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
             s.in_flight.insert((frame, tile));
-            batches.entry((*id, frame)).or_default().push(TileJob { id: tile, tile: rec.tile });
+            batches.entry((*id, frame)).or_default().push(job);
         }
     }
 }

@@ -174,6 +174,9 @@ impl Sim {
         }
         self.sched.handle_timeout(now);
         self.drain();
+        if now.as_millis() % 16 == 0 {
+            self.sched.assert_sole_held_exact();
+        }
     }
 
     fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Sim) -> bool) {
@@ -446,6 +449,42 @@ fn idle_slave_duplicates_the_straggler_and_first_result_wins() {
     assert!(sim.now < Duration::from_millis(150), "took {:?}", sim.now);
     assert!(!stats.per_slave.contains_key(&format!("sim{slow}")));
     let _ = fast;
+}
+
+#[test]
+fn a_copy_whose_other_holder_dies_can_be_copied_again() {
+    let config = SchedulerConfig {
+        tile_size: 8,
+        min_tile_size: 8,
+        queue_depth: 0,
+        duplicate_stragglers: true,
+        ..cfg()
+    };
+    let mut s = Scheduler::new(config);
+    let assigned = |s: &mut Scheduler, now: Duration| -> Vec<(SlaveId, TileId)> {
+        let mut got = Vec::new();
+        while let Some(out) = s.poll_output(now) {
+            if let Output::Assign { slave, tiles, .. } = out {
+                got.extend(tiles.iter().map(|t| (slave, t.id)));
+            }
+        }
+        got
+    };
+    // Two tiles: `a` takes one, `b` the other and answers it at once.
+    s.handle_join(Duration::ZERO, 1, "a", 1);
+    s.submit_frame(Duration::ZERO, 1, 16, 8).unwrap();
+    assert_eq!(assigned(&mut s, Duration::ZERO), [(1, 0)]);
+    s.handle_join(Duration::ZERO, 2, "b", 1);
+    assert_eq!(assigned(&mut s, Duration::ZERO), [(2, 1)]);
+    assert!(matches!(s.handle_result(MS, 2, 1, 1), ResultOutcome::Accepted { .. }));
+    // `a`'s tile is late: idle `b` copies it; a third slave finds nothing to copy.
+    assert_eq!(assigned(&mut s, 3 * MS), [(2, 0)]);
+    s.handle_join(4 * MS, 3, "c", 1);
+    assert_eq!(assigned(&mut s, 4 * MS), []);
+    // The copy's holder dies: `a` holds the tile alone again, and `c` copies it.
+    s.handle_disconnect(5 * MS, 2);
+    assert_eq!(assigned(&mut s, 5 * MS), [(3, 0)]);
+    s.assert_sole_held_exact();
 }
 
 #[test]
