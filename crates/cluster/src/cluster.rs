@@ -92,10 +92,12 @@ mod roster;
 mod scenes;
 #[cfg(test)]
 mod tests;
+mod transfers;
 
 pub use jobs::JobRecord;
 pub use roster::DEAD_SLAVES_LISTED;
 pub use scenes::StoreError;
+pub use transfers::AckError;
 
 use crate::auth::{self, Nonces};
 use crate::codec::{self, Codec, Compression};
@@ -105,6 +107,7 @@ use crate::protocol::{
     ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status, TileAssignment, TileResultRef, Welcome,
     WireBundle,
 };
+use crate::scene_stream::Packed;
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
 };
@@ -112,6 +115,7 @@ use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use jobs::Jobs;
 use roster::Roster;
 use scenes::Scenes;
+use transfers::Transfers;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use std::time::Duration;
@@ -153,8 +157,8 @@ pub enum Transmit {
         /// How it travels.
         class: Class,
     },
-    /// Send an already encoded frame (the scene, encoded once for every
-    /// slave), in order.
+    /// Send an already encoded frame (a scene's `SceneBegin` or one of its
+    /// chunks, encoded once for every slave), in order.
     SendEncoded {
         /// The connection.
         peer: PeerId,
@@ -186,12 +190,12 @@ pub enum Transmit {
 /// with [`Cluster::restore_scene`] and [`Cluster::restore_job`].
 #[derive(Clone, Debug, PartialEq)]
 pub enum Stored {
-    /// A scene a client uploaded, as its encoded `SceneSync`.
+    /// A scene a client uploaded, packed ([`Packed::to_stored`]).
     Scene {
         /// Its hash (a file name for it).
         hash: SceneHash,
-        /// The encoded `SceneSync`.
-        sync: Arc<Vec<u8>>,
+        /// The stored form.
+        bytes: Arc<Vec<u8>>,
     },
     /// A scene no longer held.
     ForgetScene {
@@ -249,6 +253,10 @@ pub struct ClusterConfig {
     pub budgets: Budgets,
     /// Seed of the challenge nonces (32 random bytes; see [`Nonces`]).
     pub seed: [u8; 32],
+    /// Chunks of a scene in flight to one slave beyond those it has
+    /// acknowledged (at least 1): four 256 KiB chunks keep a 1 Gbit/s link
+    /// with a few milliseconds of round trip busy.
+    pub scene_window: u32,
 }
 
 impl ClusterConfig {
@@ -264,6 +272,7 @@ impl ClusterConfig {
             compression: Compression::Auto,
             budgets: Budgets::default(),
             seed,
+            scene_window: 4,
         }
     }
 }
@@ -289,6 +298,8 @@ pub struct ClusterStatus {
     pub last_frame: Option<FrameStats>,
     /// Scenes sent to slaves (at join or when they asked).
     pub scene_sends: u64,
+    /// Bytes of the scene frames sent to slaves (`SceneBegin` and chunks).
+    pub scene_bytes_sent: u64,
 }
 
 #[derive(Debug)]
@@ -361,6 +372,7 @@ pub struct Cluster {
     token: String,
     scene: Option<SceneInfo>,
     scenes: Scenes,
+    transfers: Transfers,
     jobs: Jobs,
     heartbeat_interval: Duration,
     handshake_timeout: Duration,
@@ -405,7 +417,6 @@ impl Cluster {
                 bundle.name = protocol::served_name(&bundle.name).to_string();
                 let hash = match scenes.insert(&bundle, true) {
                     Ok((hash, _)) => hash,
-                    Err(StoreError::Encode(e)) => return Err(e),
                     Err(e) => return Err(ProtocolError::Encode(e.to_string())),
                 };
                 Some(SceneInfo { name: bundle.name, hash, camera, settings })
@@ -418,6 +429,7 @@ impl Cluster {
             token: cfg.token,
             scene,
             scenes,
+            transfers: Transfers::new(cfg.scene_window),
             jobs,
             heartbeat_interval: cfg.heartbeat_interval,
             handshake_timeout: cfg.handshake_timeout,
@@ -443,10 +455,10 @@ impl Cluster {
         })
     }
 
-    /// Holds a scene read back from a state directory (an encoded
-    /// `SceneSync`, as [`Stored::Scene`] gave it); its hash is checked.
-    pub fn restore_scene(&mut self, sync: Vec<u8>) -> Result<SceneHash, String> {
-        self.scenes.insert_sync(sync)
+    /// Holds a scene read back from a state directory (as
+    /// [`Stored::Scene`] gave it); its hash is checked.
+    pub fn restore_scene(&mut self, stored: &[u8]) -> Result<SceneHash, String> {
+        self.scenes.insert_stored(stored)
     }
 
     /// Knows a job read back from a state directory: its client resumes it
@@ -660,6 +672,9 @@ impl Cluster {
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r.borrowed()),
             (PeerState::Slave, Message::NeedScene { hash }) => self.send_scene(now, peer, hash),
+            (PeerState::Slave | PeerState::Syncing { .. }, Message::SceneAck { hash, chunks_received }) => {
+                self.on_scene_ack(now, peer, hash, chunks_received)
+            }
             (PeerState::Slave, Message::SceneFailed { hash, reason }) => {
                 self.on_scene_failed(now, peer, hash, reason)
             }
@@ -753,7 +768,13 @@ impl Cluster {
             })
             .collect();
         let jobs = self.jobs.by_key.values().map(|j| j.status()).collect();
-        Status { slaves, clients, jobs, scenes: self.scenes.len() as u32 }
+        Status {
+            slaves,
+            clients,
+            jobs,
+            scenes: self.scenes.len() as u32,
+            scene_bytes_sent: self.status.scene_bytes_sent,
+        }
     }
 
     /// Pushes the status to every interactive viewer.
@@ -773,7 +794,7 @@ impl Cluster {
 
     /// A slave asked for a scene: sent if held, within its budget of sends.
     fn send_scene(&mut self, now: Duration, slave: PeerId, hash: SceneHash) {
-        let Some(sync) = self.scenes.sync(&hash) else {
+        let Some(packed) = self.scenes.packed(&hash) else {
             // Its frames are gone (a held scene is never evicted while used).
             return tracing::debug!(slave, "a slave asked for a scene no longer held");
         };
@@ -784,8 +805,44 @@ impl Cluster {
             return self.refuse(now, slave, format!("asked for scenes {n} times"));
         }
         tracing::info!(slave = %p.name, "sending scene {} to {}", self.scenes.name(&hash).unwrap_or("?"), p.name);
+        self.start_transfer(now, slave, packed);
+    }
+
+    /// Starts (or queues) sending `packed` to `slave`.
+    fn start_transfer(&mut self, now: Duration, slave: PeerId, packed: Arc<Packed>) {
         self.status.scene_sends += 1;
-        self.out.push_back(Transmit::SendEncoded { peer: slave, frame: sync });
+        let h = &packed.header;
+        tracing::debug!(
+            slave,
+            "scene {}: {} bytes, {} compressed, in {} chunks",
+            h.name,
+            h.raw_bytes,
+            h.compressed_bytes,
+            h.chunks
+        );
+        let frames = self.transfers.start(now, slave, packed);
+        self.send_scene_frames(slave, frames);
+    }
+
+    fn send_scene_frames(&mut self, peer: PeerId, frames: Vec<Arc<Vec<u8>>>) {
+        for frame in frames {
+            self.status.scene_bytes_sent += frame.len() as u64;
+            self.out.push_back(Transmit::SendEncoded { peer, frame });
+        }
+    }
+
+    /// A slave has this many chunks of a scene: more go out.
+    fn on_scene_ack(&mut self, now: Duration, slave: PeerId, hash: SceneHash, chunks: u32) {
+        match self.transfers.ack(now, slave, hash, chunks) {
+            Ok(acked) => {
+                if let Some(h) = acked.finished {
+                    let name = self.peers.get(&slave).map_or("?", |p| p.name.as_str());
+                    tracing::debug!(slave = %name, "scene {} sent to {name}", protocol::short_hash(&h));
+                }
+                self.send_scene_frames(slave, acked.frames);
+            }
+            Err(e) => self.refuse(now, slave, e.to_string()),
+        }
     }
 
     /// A slave could not load a scene: every open frame of it fails, and
@@ -858,8 +915,12 @@ impl Cluster {
                 for h in evicted {
                     self.out.push_back(Transmit::Store(Stored::ForgetScene { hash: h }));
                 }
-                if let Some(sync) = self.scenes.sync(&hash) {
-                    self.out.push_back(Transmit::Store(Stored::Scene { hash, sync }));
+                match self.scenes.packed(&hash).map(|p| p.to_stored()) {
+                    Some(Ok(bytes)) => {
+                        self.out.push_back(Transmit::Store(Stored::Scene { hash, bytes: Arc::new(bytes) }))
+                    }
+                    Some(Err(e)) => tracing::error!("cannot store scene {}: {e}", bundle.name),
+                    None => {}
                 }
                 tracing::info!(
                     "holding scene {} for {}",
@@ -963,12 +1024,11 @@ impl Cluster {
                 );
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
-                if let Some(frame) = default.filter(|_| !cached).and_then(|h| self.scenes.sync(&h)) {
+                if let Some(packed) = default.filter(|_| !cached).and_then(|h| self.scenes.packed(&h)) {
                     if let Some(p) = self.peers.get_mut(&id) {
                         p.scene_sends += 1;
                     }
-                    self.status.scene_sends += 1;
-                    self.out.push_back(Transmit::SendEncoded { peer: id, frame });
+                    self.start_transfer(now, id, packed);
                 }
             }
         }
@@ -1159,6 +1219,7 @@ impl Cluster {
             tracing::info!(viewer = %p.name, "viewer {} left ({reason})", p.name);
         }
         self.out.push_back(Transmit::Close { peer: id, reason });
+        self.transfers.remove(id);
         match p.state {
             PeerState::AwaitHello { .. } => self.handshaking -= 1,
             PeerState::Syncing { .. } => {}
@@ -1208,6 +1269,7 @@ impl Cluster {
                     self.tell_if_waiting();
                     tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
                     if cause == DeathCause::Timeout && self.peers.remove(&slave).is_some() {
+                        self.transfers.remove(slave);
                         let reason = format!("silent for {:?}", self.sched.config().heartbeat_timeout);
                         self.out.push_back(Transmit::Close { peer: slave, reason });
                     }

@@ -24,6 +24,21 @@ pub const TILE_MESSAGE_OVERHEAD: usize = 4 << 10;
 /// as large as [`Budgets::scene_upload_bytes`].
 pub const VIEWER_MAX_FRAME: usize = 16 << 10;
 
+/// Bytes of the compressed scene stream per [`crate::protocol::Message::SceneChunk`]:
+/// large enough that a chunk's message overhead is noise, small enough that a
+/// window of them in flight is a few megabytes per slave.
+pub const SCENE_CHUNK_BYTES: usize = 256 << 10;
+
+/// Largest scene bundle, encoded and decompressed, that a slave (or the
+/// master, reading its state directory) accepts: a receiver refuses a
+/// [`crate::protocol::SceneHeader`] declaring more before it holds a byte.
+/// Four times the largest frame of protocol 6's one-message scenes.
+pub const MAX_SCENE_RAW_BYTES: u64 = 2 << 30;
+
+/// Largest compressed scene stream accepted (zstd never expands a stream by
+/// more than a little; this leaves room for incompressible assets).
+pub const MAX_SCENE_COMPRESSED_BYTES: u64 = MAX_SCENE_RAW_BYTES + (MAX_SCENE_RAW_BYTES >> 7) + (1 << 20);
+
 /// How much each peer, and all peers together, may make the master hold.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Budgets {

@@ -28,8 +28,11 @@ pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
 /// supersede only its own frames. 6: scenes per client: clients upload
 /// theirs ([`Message::SceneUpload`]), frames name their scene, slaves fetch a
 /// scene they lack ([`Message::NeedScene`]); batch jobs ([`Message::SubmitJob`])
-/// and the master's status ([`Message::Status`]).)
-pub const PROTOCOL_VERSION: u16 = 6;
+/// and the master's status ([`Message::Status`]). 7: scenes travel to slaves
+/// compressed and in chunks under flow control ([`Message::SceneBegin`],
+/// [`Message::SceneChunk`], [`Message::SceneAck`]), no longer as one
+/// `SceneSync`.)
+pub const PROTOCOL_VERSION: u16 = 7;
 
 /// Most scene hashes a slave may list as cached in its [`Hello`].
 pub const MAX_CACHED_SCENES: usize = 64;
@@ -156,6 +159,25 @@ impl From<WireBundle> for SceneBundle {
         }
     }
 }
+
+/// What a [`Message::SceneBegin`] announces: a scene as zstd-compressed
+/// MessagePack of its [`WireBundle`], in chunks.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SceneHeader {
+    /// Content hash of the bundle ([`scene_hash`]), checked once it is in.
+    pub hash: SceneHash,
+    /// The scene's file name (for logs; at most [`MAX_SCENE_NAME`] bytes).
+    pub name: String,
+    /// Bytes of the encoded bundle, decompressed.
+    pub raw_bytes: u64,
+    /// Bytes of the compressed stream, all chunks together.
+    pub compressed_bytes: u64,
+    /// Chunks that carry it.
+    pub chunks: u32,
+}
+
+/// Longest scene name in a [`SceneHeader`].
+pub const MAX_SCENE_NAME: usize = 255;
 
 /// One tile of an assignment.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -318,13 +340,28 @@ pub enum Message {
         /// Human-readable reason.
         reason: String,
     },
-    /// Master → slave: the scene, sent once per slave and only if the slave
-    /// does not already hold a scene with this hash.
-    SceneSync {
-        /// Content hash of the bundle.
+    /// Master → slave: a scene follows in [`SceneHeader::chunks`]
+    /// [`Message::SceneChunk`]s (sent once per slave, and only if the slave
+    /// does not already hold a scene with this hash; see
+    /// [`crate::scene_stream`]).
+    SceneBegin(SceneHeader),
+    /// Master → slave: the next piece of the compressed scene announced by
+    /// [`Message::SceneBegin`], in order.
+    SceneChunk {
+        /// The scene's hash.
         hash: SceneHash,
-        /// The scene.
-        bundle: WireBundle,
+        /// The chunk's index, from 0.
+        index: u32,
+        /// At most [`crate::limits::SCENE_CHUNK_BYTES`] of the compressed stream.
+        bytes: ByteBuf,
+    },
+    /// Slave → master: chunks of a scene received so far (the master keeps
+    /// at most its window of chunks beyond this in flight).
+    SceneAck {
+        /// The scene's hash.
+        hash: SceneHash,
+        /// Chunks received and decoded, in all.
+        chunks_received: u32,
     },
     /// Slave → master: the master's default scene is loaded (or there is
     /// none), ready for tiles.
@@ -435,7 +472,7 @@ pub enum Message {
         hash: SceneHash,
     },
     /// Slave → master: an assignment named a scene this slave does not hold;
-    /// the master answers with its [`Message::SceneSync`].
+    /// the master answers with its [`Message::SceneBegin`] and chunks.
     NeedScene {
         /// The scene.
         hash: SceneHash,
@@ -500,6 +537,10 @@ pub struct Status {
     pub jobs: Vec<JobStatus>,
     /// Scenes the master holds.
     pub scenes: u32,
+    /// Bytes of scenes the master has sent to slaves (their
+    /// [`Message::SceneBegin`] and [`Message::SceneChunk`] frames).
+    #[serde(default)]
+    pub scene_bytes_sent: u64,
 }
 
 /// One slave in a [`Status`].
@@ -555,7 +596,9 @@ impl Message {
             Message::Hello(_) => "Hello",
             Message::Welcome(_) => "Welcome",
             Message::Reject { .. } => "Reject",
-            Message::SceneSync { .. } => "SceneSync",
+            Message::SceneBegin(_) => "SceneBegin",
+            Message::SceneChunk { .. } => "SceneChunk",
+            Message::SceneAck { .. } => "SceneAck",
             Message::Ready { .. } => "Ready",
             Message::FrameRequest { .. } => "FrameRequest",
             Message::TileAssignment(_) => "TileAssignment",
@@ -655,6 +698,16 @@ pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
                 || s.jobs.iter().any(|x| long(&x.name))
         }
         Message::SubmitJob(j) => long(&j.name),
+        Message::SceneBegin(h) if h.name.len() > MAX_SCENE_NAME => {
+            return Err(ProtocolError::Decode(format!("a scene name longer than {MAX_SCENE_NAME} bytes")));
+        }
+        Message::SceneChunk { bytes, .. } if bytes.len() > crate::limits::SCENE_CHUNK_BYTES => {
+            return Err(ProtocolError::Decode(format!(
+                "a scene chunk of {} bytes, more than {}",
+                bytes.len(),
+                crate::limits::SCENE_CHUNK_BYTES
+            )));
+        }
         _ => false,
     };
     if too_long {
@@ -738,7 +791,15 @@ mod tests {
                 codec: Codec::Qoi,
             }),
             Message::Reject { reason: "no".into() },
-            Message::SceneSync { hash: scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
+            Message::SceneBegin(SceneHeader {
+                hash: scene_hash(&bundle),
+                name: "s.toml".into(),
+                raw_bytes: 300,
+                compressed_bytes: 120,
+                chunks: 1,
+            }),
+            Message::SceneChunk { hash: scene_hash(&bundle), index: 0, bytes: ByteBuf::from(vec![7u8; 120]) },
+            Message::SceneAck { hash: scene_hash(&bundle), chunks_received: 1 },
             Message::Ready { hash: Some([6; 32]) },
             Message::Ready { hash: None },
             Message::FrameRequest {
@@ -792,6 +853,7 @@ mod tests {
                     eta_seconds: Some(12.0),
                 }],
                 scenes: 2,
+                scene_bytes_sent: 1 << 20,
             }),
             Message::TileAssignment(TileAssignment {
                 frame: 2,
