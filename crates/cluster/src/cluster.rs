@@ -115,10 +115,10 @@ use isin_tracer::{Camera, RenderSettings, SceneBundle};
 use jobs::Jobs;
 use roster::Roster;
 use scenes::Scenes;
-use transfers::Transfers;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use std::time::Duration;
+use transfers::Transfers;
 
 /// A connection, numbered by the driver (never reused).
 pub type PeerId = u64;

@@ -1068,6 +1068,28 @@ mod tests {
     }
 
     #[test]
+    fn scene_chunks_and_names_beyond_their_bounds_are_refused_while_decoding() {
+        let max = crate::limits::SCENE_CHUNK_BYTES;
+        let chunk =
+            |n: usize| Message::SceneChunk { hash: [1; 32], index: 0, bytes: ByteBuf::from(vec![0; n]) };
+        assert!(decode(&encode(&chunk(max)).unwrap(), DEFAULT_MAX_FRAME).is_ok());
+        let err = decode(&encode(&chunk(max + 1)).unwrap(), DEFAULT_MAX_FRAME).unwrap_err();
+        assert!(matches!(&err, ProtocolError::Decode(m) if m.contains("scene chunk")), "{err:?}");
+        let header = |name: String| {
+            Message::SceneBegin(SceneHeader {
+                hash: [1; 32],
+                name,
+                raw_bytes: 1,
+                compressed_bytes: 1,
+                chunks: 1,
+            })
+        };
+        assert!(decode(&encode(&header("a".repeat(MAX_SCENE_NAME))).unwrap(), DEFAULT_MAX_FRAME).is_ok());
+        let long = encode(&header("a".repeat(MAX_SCENE_NAME + 1))).unwrap();
+        assert!(matches!(decode(&long, DEFAULT_MAX_FRAME), Err(ProtocolError::Decode(_))));
+    }
+
+    #[test]
     fn random_bytes_never_panic() {
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
         let mut next = || {

@@ -131,14 +131,21 @@ impl Transfers {
         Self::ack_active(q, now, peer, chunks, window)
     }
 
-    fn ack_active(q: &mut Queue, now: Duration, peer: PeerId, chunks: u32, window: u32) -> Result<Acked, AckError> {
+    fn ack_active(
+        q: &mut Queue,
+        now: Duration,
+        peer: PeerId,
+        chunks: u32,
+        window: u32,
+    ) -> Result<Acked, AckError> {
         let Some(t) = q.active.as_mut() else { return Ok(Acked::default()) };
         if chunks < t.acked || chunks > t.sent {
             return Err(AckError::Count { got: chunks, acked: t.acked, sent: t.sent });
         }
         t.acked = chunks;
         let h = &t.packed.header;
-        let done_bytes = (u64::from(chunks) * crate::limits::SCENE_CHUNK_BYTES as u64).min(h.compressed_bytes);
+        let done_bytes =
+            (u64::from(chunks) * crate::limits::SCENE_CHUNK_BYTES as u64).min(h.compressed_bytes);
         t.log.update(now, done_bytes);
         let mut out = Acked { frames: Self::fill(t, window), finished: None };
         if t.acked == t.packed.header.chunks {

@@ -22,7 +22,8 @@ const HEARTBEAT: Duration = Duration::from_millis(500);
 /// A small fake scene of `bytes` asset bytes (noise: it packs to about as
 /// many).
 pub fn fake_scene(name: &str, bytes: usize) -> SceneBundle {
-    let mut rng = Rng(name.bytes().fold(0x51_7cc1_b727_220a, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)));
+    let mut rng =
+        Rng(name.bytes().fold(0x51_7cc1_b727_220a, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)));
     let noise = (0..bytes).map(|_| rng.next() as u8).collect();
     let mut assets = BTreeMap::new();
     assets.insert("mesh.bin".to_string(), noise);
