@@ -126,6 +126,7 @@ fn messages() -> Vec<Message> {
     let tile = Tile { x: 0, y: 0, w: 4, h: 2 };
     let rgb: Vec<u8> = (0..24).collect();
     let bundle = SceneBundle { name: "s.toml".into(), source: "[camera]".into(), assets: fixtures().clone() };
+    let packed = isin_cluster::scene_stream::pack(&bundle).expect("packs");
     vec![
         Message::Challenge { nonce: [7; 32] },
         Message::Hello(Hello {
@@ -145,7 +146,9 @@ fn messages() -> Vec<Message> {
             scene: Some(SceneInfo { name: "s".into(), hash: [5; 32], camera: Camera::default(), settings }),
             codec: Codec::Qoi,
         }),
-        Message::SceneSync { hash: protocol::scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
+        Message::SceneBegin(packed.header.clone()),
+        protocol::decode(&packed.chunk_frame(0).expect("one chunk"), usize::MAX).expect("decodes"),
+        Message::SceneAck { hash: packed.header.hash, chunks_received: 1 },
         Message::Ready { hash: Some([6; 32]) },
         Message::FrameRequest { request: 3, scene: None, camera: Camera::default(), settings },
         Message::QueueFrame {
@@ -259,8 +262,7 @@ fn jpeg() -> Vec<u8> {
 
 fn bundles() -> Vec<Vec<u8>> {
     let sync = |bundle: SceneBundle| {
-        let msg =
-            Message::SceneSync { hash: protocol::scene_hash(&bundle), bundle: WireBundle::from(&bundle) };
+        let msg = Message::Scene { bundle: WireBundle::from(&bundle) };
         protocol::encode(&msg).expect("encodes")
     };
     let cornell = include_str!("../../../scenes/cornell.toml");

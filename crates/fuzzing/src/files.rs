@@ -194,14 +194,14 @@ fn load_image(kind: u8, bytes: &[u8]) -> Result<(), SceneError> {
     }
 }
 
-/// The scene as a slave receives it: a protocol frame (at most
-/// [`DEFAULT_MAX_FRAME`], the slave's limit for it) that must hold a
-/// `SceneSync`, whose bundle is loaded, built, its shadow cells filled and a
-/// few pixels rendered. The slave's check of the bundle against its hash is
+/// A scene bundle as it travels: a protocol frame (at most
+/// [`DEFAULT_MAX_FRAME`]) that must hold a `Scene` (the bundle a client
+/// uploads; a slave unpacks the same bundle from its chunks), whose bundle is
+/// loaded, built, its shadow cells filled and a few pixels rendered. The slave's check of the bundle against its hash is
 /// left out (a master with the token can send any bundle with its right
 /// hash), so that mutated bundles reach the loader.
 pub fn scene_bundle(data: &[u8]) {
-    let Ok(Message::SceneSync { bundle, .. }) = protocol::decode(data, DEFAULT_MAX_FRAME) else { return };
+    let Ok(Message::Scene { bundle }) = protocol::decode(data, DEFAULT_MAX_FRAME) else { return };
     let bundle = SceneBundle::from(bundle);
     let mut assets = bundle.clone();
     let Ok(parts) = parse_scene(&bundle.name, &bundle.source, &mut assets) else { return };
