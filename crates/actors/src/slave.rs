@@ -303,12 +303,8 @@ fn load_in_background<R: Renderer>(
     let (tx, rx) = oneshot::channel();
     std::thread::spawn(move || {
         let bytes = bundle.source.len() + bundle.assets.values().map(Vec::len).sum::<usize>();
-        let (name, t0) = (bundle.name.clone(), Instant::now());
         let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| renderer.load(bundle)));
         let out = out.unwrap_or_else(|_| Err("scene loader panicked".into()));
-        if out.is_ok() {
-            tracing::info!("scene {name} loaded (parsed, BVH built) in {:.3} s", t0.elapsed().as_secs_f64());
-        }
         let _ = tx.send(out.map(|scene| {
             let footprint = renderer.footprint(&scene, bytes);
             (scene, footprint)

@@ -19,8 +19,14 @@
 //!
 //! - **Who gets in.** A new connection is challenged with a fresh nonce; a
 //!   peer proves the token by HMAC ([`crate::auth`]) and gets a proof back.
-//!   Slaves then receive the scene (unless they hold one with its hash) and
-//!   say `Ready`; only then do they join the scheduler and the roster.
+//!   Slaves then receive the scene (unless they hold one with its hash:
+//!   then nothing) and say `Ready`; only then do they join the scheduler and
+//!   the roster. A scene travels packed once ([`crate::scene_stream`]:
+//!   compressed, in chunks whose frames every slave shares), with at most
+//!   [`ClusterConfig::scene_window`] chunks in flight per slave beyond those
+//!   it acknowledged ([`Message::SceneAck`]), so a stalled slave holds up
+//!   only its own transfer; an acknowledgement of chunks never sent drops
+//!   the slave.
 //! - **Which tiles go where, who is dead**: the [`Scheduler`].
 //! - **Which frames are open.** Every viewer is a client with its own stream
 //!   of frames: its `FrameRequest` supersedes its own open frames and no one
