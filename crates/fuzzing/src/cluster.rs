@@ -241,7 +241,7 @@ struct SlaveSim {
     ready: bool,
     syncs: u32,
     /// The scene coming in.
-    incoming: Option<isin_cluster::scene_stream::Receiver>,
+    incoming: Option<Box<isin_cluster::scene_stream::Receiver>>,
     queue: VecDeque<Job>,
     cancelled: Vec<Job>,
     last_result: Option<Vec<u8>>,
@@ -540,7 +540,7 @@ impl Net {
                 assert!(s.incoming.is_none(), "a second scene began before the first ended");
                 let rx =
                     isin_cluster::scene_stream::Receiver::new(header).expect("the master's header is sound");
-                s.incoming = Some(rx);
+                s.incoming = Some(Box::new(rx));
             }
             Message::SceneChunk { hash, index, bytes } => {
                 let Kind::Slave(s) = &mut p.kind else { unreachable!("checked above") };

@@ -129,7 +129,7 @@ struct SlaveSim {
     lanes: Vec<Option<(Job, Duration)>>,
     syncs: u32,
     /// The scene coming in.
-    incoming: Option<crate::scene_stream::Receiver>,
+    incoming: Option<Box<crate::scene_stream::Receiver>>,
     /// Scene chunks received.
     chunks: u32,
     assignments: u32,
@@ -578,7 +578,8 @@ impl Net {
             (Kind::Viewer(_), Message::Welcome(_)) => p.logged_in = true,
             (Kind::Slave(s), Message::SceneBegin(header)) => {
                 assert!(s.incoming.is_none(), "one scene at a time");
-                s.incoming = Some(crate::scene_stream::Receiver::new(header).expect("sound header"));
+                s.incoming =
+                    Some(Box::new(crate::scene_stream::Receiver::new(header).expect("sound header")));
             }
             (Kind::Slave(s), Message::SceneChunk { hash, index, bytes }) => {
                 let rx = s.incoming.as_mut().expect("a chunk after its SceneBegin");

@@ -77,7 +77,8 @@ fn a_stalled_slave_holds_up_no_other() {
 
 #[test]
 fn acknowledgements_of_chunks_never_sent_or_of_another_scene_drop_the_slave() {
-    let cases: [(&str, fn(SceneHash) -> Message); 3] = [
+    type Lie = fn(SceneHash) -> Message;
+    let cases: [(&str, Lie); 3] = [
         ("beyond", |hash| Message::SceneAck { hash, chunks_received: 3 }),
         ("another", |_| Message::SceneAck { hash: [9; 32], chunks_received: 1 }),
         ("backwards", |hash| Message::SceneAck { hash, chunks_received: 0 }),
