@@ -57,8 +57,8 @@ pub struct Budgets {
     /// disconnected (an honest slave sends none; a few could only come from a
     /// bug, not a race).
     pub foreign_results: u32,
-    /// Bytes of scenes the master holds (encoded bundles: its default scene
-    /// and those clients uploaded). Idle scenes are evicted to make room;
+    /// Bytes of scenes the master holds (packed as slaves receive them,
+    /// compressed: its default scene and those clients uploaded). Idle scenes are evicted to make room;
     /// scenes of open frames never are.
     pub scene_bytes: usize,
     /// Largest scene one client may upload: within [`Budgets::buffered_bytes`]
