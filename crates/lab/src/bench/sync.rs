@@ -176,7 +176,9 @@ fn run_once(lab: &Lab, args: &SyncArgs, scene: &str, rate: u32, threads: usize) 
         .map(|s| s.to_string())
         .collect();
     let (master, ticket) = start_master(Some(&master_ns), None, scene, &listen, &token, &extra)?;
-    let (ask_tx, ask_rx) = mpsc::channel::<Ask>();
+    // The viewer's runtime must never block (its actor heartbeats): it
+    // awaits its orders on a tokio channel.
+    let (ask_tx, mut ask_rx) = tokio::sync::mpsc::unbounded_channel::<Ask>();
     let (asked_tx, asked_rx) = mpsc::channel::<()>();
     let (done_tx, done_rx) = mpsc::channel::<Answer>();
     let (w, h) = (args.width, args.height);
@@ -184,7 +186,7 @@ fn run_once(lab: &Lab, args: &SyncArgs, scene: &str, rate: u32, threads: usize) 
         let viewer_ticket = ticket.clone();
         let ns = master_ns.clone();
         scope.spawn(move || {
-            let run = || -> anyhow::Result<()> {
+            let mut run = || -> anyhow::Result<()> {
                 netlab::netns::enter(&ns)?;
                 actix::System::new().block_on(async {
                     let transport = cluster::client_transport(&viewer_ticket)?;
@@ -192,7 +194,7 @@ fn run_once(lab: &Lab, args: &SyncArgs, scene: &str, rate: u32, threads: usize) 
                         viewer::connect(transport.as_ref(), &viewer_ticket, "bench").await?;
                     let info = info.context("the master serves no scene")?;
                     let settings = RenderSettings { width: w, height: h, ..info.settings };
-                    while let Ok(Ask::Frame(nudge)) = ask_rx.recv() {
+                    while let Some(Ask::Frame(nudge)) = ask_rx.recv().await {
                         let mut camera = info.camera;
                         camera.eye.x += nudge;
                         let request = v.send(viewer::RequestFrame { camera, settings }).await?;
@@ -238,12 +240,13 @@ fn run_once(lab: &Lab, args: &SyncArgs, scene: &str, rate: u32, threads: usize) 
         let first_tile_s = first.duration_since(t0).as_secs_f64();
         let (_, received) = slave.wait_for("received: ", Duration::from_secs(5))?;
         let (_, loaded) = slave.wait_for("loaded scene", Duration::from_secs(5))?;
+        let loaded = &loaded[loaded.find("loaded scene").unwrap_or(0)..];
         let raw_bytes = number_after(&received, "compressed, ")?;
         let compressed_bytes = number_after(&received, "received: ")?;
         let received_s = number_after_f(&received, "unpacked, in ")?;
         let decoded_s = number_after_f(&received, "checked in ")?;
-        let triangles = number_after(&loaded, "(")?;
-        let load_s = number_after_f(&loaded, "triangles) in ")? / 1e3;
+        let triangles = number_after(loaded, "(")?;
+        let load_s = number_after_f(loaded, "triangles) in ")? / 1e3;
         let shadow_cells_s =
             number_after_f(&loaded[loaded.find("shadow cells").unwrap_or(0)..], ") in ")? / 1e3;
         // The rejoin.
