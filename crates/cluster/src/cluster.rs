@@ -35,8 +35,9 @@
 //!   people flying through the scene each keep half the cluster. A viewer
 //!   that leaves takes its frames.
 //! - **Which scene a frame is of.** The master may serve a default scene;
-//!   a client may upload its own ([`Message::SceneUpload`], then
-//!   [`Message::Scene`]), and every frame names its scene. Scenes are held by
+//!   a client may upload its own ([`Message::SceneUpload`], then its
+//!   chunks, within [`Budgets::uploading_bytes`] for all uploads at once),
+//!   and every frame names its scene. Scenes are held by
 //!   content hash within [`Budgets::scene_bytes`] (least recently used idle
 //!   scenes evicted first; none of an open frame). A slave receives the
 //!   default scene at join and any other the first time it is handed a tile
@@ -110,10 +111,10 @@ use crate::codec::{self, Codec, Compression};
 use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
     self, ClientStatus, FrameId, FrameStats, HANDSHAKE_MAX_FRAME, Hello, JobSpec, MAX_JOB_FRAMES, Message,
-    ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status, TileAssignment, TileResultRef, Welcome,
-    WireBundle,
+    ProtocolError, Role, SceneHash, SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment,
+    TileResultRef, Welcome,
 };
-use crate::scene_stream::Packed;
+use crate::scene_stream::{Packed, Receiver};
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
 };
@@ -329,8 +330,8 @@ struct Client {
     frames: BTreeSet<FrameId>,
     /// Whether it was told that its frames wait for slaves.
     told_waiting: bool,
-    /// A scene it announced and may now send, with its announced size.
-    upload: Option<(SceneHash, usize)>,
+    /// The scene it is uploading.
+    upload: Option<Box<Receiver>>,
     /// The job its frames belong to.
     job: Option<SceneHash>,
     /// Frames completed for it.
@@ -396,6 +397,8 @@ pub struct Cluster {
     roster: Roster,
     out: VecDeque<Transmit>,
     last_heartbeat: Duration,
+    /// Bytes of the uploads in progress, as their headers declare them.
+    uploading: u64,
     /// Message bytes received from every peer so far.
     bytes_received: u64,
     /// Bytes received when the last frame completed: a pipelined frame counts
@@ -452,6 +455,7 @@ impl Cluster {
             roster: Roster::default(),
             out: VecDeque::new(),
             last_heartbeat: Duration::ZERO,
+            uploading: 0,
             bytes_received: 0,
             bytes_at_last_done: 0,
             status: ClusterStatus::default(),
@@ -693,10 +697,10 @@ impl Cluster {
                 let order = Request { request, scene, camera, settings, queue: true, job_frame };
                 self.request_frame(now, peer, order);
             }
-            (PeerState::Viewer(_), Message::SceneUpload { hash, bytes }) => {
-                self.on_scene_upload(peer, hash, bytes)
+            (PeerState::Viewer(_), Message::SceneUpload(header)) => self.on_scene_upload(peer, header),
+            (PeerState::Viewer(_), Message::SceneChunk { hash, index, bytes }) => {
+                self.on_scene_chunk(now, peer, hash, index, &bytes)
             }
-            (PeerState::Viewer(_), Message::Scene { bundle }) => self.on_scene(now, peer, bundle),
             (PeerState::Viewer(_), Message::SubmitJob(spec)) => self.on_submit_job(now, peer, spec),
             (PeerState::Viewer(_), Message::StatusRequest) => {
                 let status = self.report(now);
@@ -879,41 +883,69 @@ impl Cluster {
         self.drain(now);
     }
 
-    /// A client announced a scene: stored already, or it may send it now.
-    fn on_scene_upload(&mut self, peer: PeerId, hash: SceneHash, bytes: u64) {
-        let max = self.budgets.scene_upload_bytes;
+    /// A client announced a scene: stored already, or it may send it now
+    /// (within the budgets: checked before anything is held).
+    fn on_scene_upload(&mut self, peer: PeerId, header: SceneHeader) {
+        let hash = header.hash;
         if self.scenes.contains(&hash) {
             return self.send(peer, Message::SceneStored { hash });
         }
-        if bytes > max as u64 {
-            let message =
-                format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes");
+        let (max, bytes) = (self.budgets.scene_upload_bytes, header.raw_bytes);
+        let busy = self.uploading;
+        let refused = if bytes > max as u64 {
+            Some(format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes"))
+        } else if busy + bytes > self.budgets.uploading_bytes as u64 {
+            Some(format!("the master is receiving {busy} bytes of scenes already; try again later"))
+        } else {
+            None
+        };
+        if let Some(message) = refused {
             return self.send(peer, Message::Error { message });
         }
+        let rx = match Receiver::new(header) {
+            Ok(rx) => rx,
+            Err(e) => return self.send(peer, Message::Error { message: e.to_string() }),
+        };
         let Some(p) = self.peers.get_mut(&peer) else { return };
         let PeerState::Viewer(c) = &mut p.state else { return };
-        c.upload = Some((hash, bytes as usize));
-        p.max_frame = (bytes as usize).max(VIEWER_MAX_FRAME);
-        // Only the announced frame may be this large: the limit drops back
-        // once it is in.
-        self.out.push_back(Transmit::Limit { peer, max_frame: bytes.max(VIEWER_MAX_FRAME as u64) as usize });
+        if c.upload.is_some() {
+            let message = "one scene at a time: the last one is not in yet".to_string();
+            return self.send(peer, Message::Error { message });
+        }
+        c.upload = Some(Box::new(rx));
+        self.uploading += bytes;
+        // Chunks may come now; the limit drops back once the last is in.
+        p.max_frame = limits::SCENE_CHUNK_FRAME;
+        self.out.push_back(Transmit::Limit { peer, max_frame: limits::SCENE_CHUNK_FRAME });
         self.send(peer, Message::SceneWanted { hash });
     }
 
-    /// A client's scene arrived: checked against what it announced, held.
-    fn on_scene(&mut self, now: Duration, peer: PeerId, bundle: WireBundle) {
+    /// A chunk of a client's scene: unpacked; a bad one (or one never
+    /// announced) drops the client. With the last, the scene is checked
+    /// against its hash and held.
+    fn on_scene_chunk(&mut self, now: Duration, peer: PeerId, hash: SceneHash, index: u32, bytes: &[u8]) {
         let Some(p) = self.peers.get_mut(&peer) else { return };
         let PeerState::Viewer(c) = &mut p.state else { return };
-        let Some((announced, _)) = c.upload.take() else {
+        let Some(rx) = c.upload.as_mut() else {
             return self.refuse(now, peer, "sent a scene it had not announced".into());
         };
+        let progress = match rx.push(&hash, index, bytes) {
+            Ok(progress) => progress,
+            Err(e) => return self.refuse(now, peer, format!("bad scene upload: {e}")),
+        };
+        if !progress.complete {
+            return;
+        }
+        let Some(rx) = c.upload.take() else { return };
+        self.uploading -= rx.header().raw_bytes;
         p.max_frame = VIEWER_MAX_FRAME;
         self.out.push_back(Transmit::Limit { peer, max_frame: VIEWER_MAX_FRAME });
-        let mut bundle = SceneBundle::from(bundle);
-        bundle.name = protocol::served_name(&bundle.name).to_string();
-        let hash = protocol::scene_hash(&bundle);
-        if hash != announced {
-            let message = "the scene sent does not match the hash announced".to_string();
+        let bundle = match rx.finish() {
+            Ok(bundle) => bundle,
+            Err(e) => return self.refuse(now, peer, format!("bad scene upload: {e}")),
+        };
+        if bundle.name != protocol::served_name(&bundle.name) {
+            let message = "a scene must be named by its file name alone, not a path".to_string();
             return self.send(peer, Message::Error { message });
         }
         match self.scenes.insert(&bundle, false) {
@@ -1231,6 +1263,9 @@ impl Cluster {
             PeerState::Syncing { .. } => {}
             PeerState::Slave => self.sched.handle_disconnect(now, id),
             PeerState::Viewer(c) => {
+                if let Some(rx) = c.upload {
+                    self.uploading -= rx.header().raw_bytes;
+                }
                 for f in c.frames {
                     self.sched.abandon(f);
                     self.close_frame(f);

@@ -31,7 +31,8 @@ pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
 /// and the master's status ([`Message::Status`]). 7: scenes travel to slaves
 /// compressed and in chunks under flow control ([`Message::SceneBegin`],
 /// [`Message::SceneChunk`], [`Message::SceneAck`]), no longer as one
-/// `SceneSync`.)
+/// `SceneSync`; clients upload theirs the same way: [`Message::SceneUpload`]
+/// with the header, then the chunks.)
 pub const PROTOCOL_VERSION: u16 = 7;
 
 /// Most scene hashes a slave may list as cached in its [`Hello`].
@@ -346,7 +347,9 @@ pub enum Message {
     /// [`crate::scene_stream`]).
     SceneBegin(SceneHeader),
     /// Master → slave: the next piece of the compressed scene announced by
-    /// [`Message::SceneBegin`], in order.
+    /// [`Message::SceneBegin`], in order; client → master likewise, for the
+    /// scene it announced with [`Message::SceneUpload`] once the master
+    /// answered [`Message::SceneWanted`].
     SceneChunk {
         /// The scene's hash.
         hash: SceneHash,
@@ -446,25 +449,17 @@ pub enum Message {
         /// Human-readable text.
         message: String,
     },
-    /// Client → master: it wants to render with the scene of this hash, of
-    /// `bytes` encoded bytes. The master answers [`Message::SceneStored`] if
-    /// it holds the scene already, else [`Message::SceneWanted`] once it
-    /// accepts a frame of that size from the client, or an error.
-    SceneUpload {
-        /// Content hash of the bundle ([`scene_hash`]).
-        hash: SceneHash,
-        /// Length of the [`Message::Scene`] frame that will carry it.
-        bytes: u64,
-    },
-    /// Master → client: send the scene announced with [`Message::SceneUpload`].
+    /// Client → master: it wants to render with the scene this header
+    /// announces (packed as a slave receives it, [`crate::scene_stream`]).
+    /// The master answers [`Message::SceneStored`] if it holds the scene
+    /// already, else [`Message::SceneWanted`] once it accepts an upload of
+    /// that size from the client, or an error.
+    SceneUpload(SceneHeader),
+    /// Master → client: send the chunks ([`Message::SceneChunk`]) of the
+    /// scene announced with [`Message::SceneUpload`].
     SceneWanted {
         /// The hash announced.
         hash: SceneHash,
-    },
-    /// Client → master: the scene itself, after [`Message::SceneWanted`].
-    Scene {
-        /// The scene.
-        bundle: WireBundle,
     },
     /// Master → client: the scene is held; frames may name it.
     SceneStored {
@@ -613,7 +608,6 @@ impl Message {
             Message::Notice { .. } => "Notice",
             Message::SceneUpload { .. } => "SceneUpload",
             Message::SceneWanted { .. } => "SceneWanted",
-            Message::Scene { .. } => "Scene",
             Message::SceneStored { .. } => "SceneStored",
             Message::NeedScene { .. } => "NeedScene",
             Message::SceneFailed { .. } => "SceneFailed",
@@ -815,9 +809,14 @@ mod tests {
                 settings: RenderSettings::default(),
                 job_frame: Some(17),
             },
-            Message::SceneUpload { hash: [1; 32], bytes: 1234 },
+            Message::SceneUpload(SceneHeader {
+                hash: [1; 32],
+                name: "u.toml".into(),
+                raw_bytes: 1234,
+                compressed_bytes: 600,
+                chunks: 1,
+            }),
             Message::SceneWanted { hash: [1; 32] },
-            Message::Scene { bundle: WireBundle::from(&bundle) },
             Message::SceneStored { hash: [1; 32] },
             Message::NeedScene { hash: [2; 32] },
             Message::SceneFailed { hash: [2; 32], reason: "bad mesh".into() },

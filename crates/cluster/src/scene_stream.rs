@@ -140,12 +140,7 @@ fn header_name(name: &str) -> String {
 /// Packs `bundle` (named as it is served): encoded, compressed at [`LEVEL`],
 /// cut into chunks. Its hash is [`protocol::scene_hash`] of it.
 pub fn pack(bundle: &SceneBundle) -> Result<Packed, StreamError> {
-    let view = WireBundleRef {
-        name: &bundle.name,
-        source: &bundle.source,
-        assets: bundle.assets.iter().map(|(k, v)| (k.as_str(), Bytes::new(v))).collect(),
-    };
-    let raw = rmp_serde::to_vec(&view).map_err(|e| StreamError::Encode(e.to_string()))?;
+    let raw = encode_bundle(bundle)?;
     let compressed =
         zstd::bulk::compress(&raw, LEVEL).map_err(|e| StreamError::Encode(format!("zstd: {e}")))?;
     let hash = protocol::scene_hash(bundle);
@@ -230,6 +225,29 @@ impl Packed {
         let packed = Self::from_compressed(header.hash, &header.name, header.raw_bytes, &stored.compressed)?;
         Ok((packed, bundle))
     }
+}
+
+/// The bundle as a scene stream holds it before compression: its
+/// [`WireBundle`] in MessagePack.
+pub fn encode_bundle(bundle: &SceneBundle) -> Result<Vec<u8>, StreamError> {
+    let view = WireBundleRef {
+        name: &bundle.name,
+        source: &bundle.source,
+        assets: bundle.assets.iter().map(|(k, v)| (k.as_str(), Bytes::new(v))).collect(),
+    };
+    rmp_serde::to_vec(&view).map_err(|e| StreamError::Encode(e.to_string()))
+}
+
+/// Decodes what [`encode_bundle`] wrote (untrusted bytes: declared lengths
+/// are checked against the bytes present before anything is allocated;
+/// trailing bytes are refused).
+pub fn decode_bundle(raw: &[u8]) -> Result<SceneBundle, StreamError> {
+    let mut de = rmp_serde::Deserializer::new(std::io::Cursor::new(raw));
+    let wire = WireBundle::deserialize(&mut de).map_err(|e| StreamError::Decode(e.to_string()))?;
+    if de.position() != raw.len() as u64 {
+        return Err(StreamError::Decode("trailing bytes after the bundle".into()));
+    }
+    Ok(SceneBundle::from(wire))
 }
 
 /// Checks a header's sizes and chunk count (see the [module docs](self)).
@@ -374,12 +392,7 @@ impl Receiver {
                 self.header.raw_bytes
             )));
         }
-        let mut de = rmp_serde::Deserializer::new(std::io::Cursor::new(&self.raw[..]));
-        let wire = WireBundle::deserialize(&mut de).map_err(|e| StreamError::Decode(e.to_string()))?;
-        if de.position() != self.raw.len() as u64 {
-            return Err(StreamError::Decode("trailing bytes after the bundle".into()));
-        }
-        let bundle = SceneBundle::from(wire);
+        let bundle = decode_bundle(&self.raw)?;
         if protocol::scene_hash(&bundle) != self.header.hash {
             return Err(StreamError::HashMismatch);
         }

@@ -4,7 +4,7 @@
 //! what adds coverage.
 
 use isin_cluster::codec::{self, Codec};
-use isin_cluster::protocol::{self, Hello, Message, Role, SceneInfo, TileResult, Welcome, WireBundle};
+use isin_cluster::protocol::{self, Hello, Message, Role, SceneInfo, TileResult, Welcome};
 use isin_cluster::scheduler::Work;
 use isin_fuzzing::files::{MTL, fixtures, quad_obj, triangle_buffer, triangle_gltf};
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
@@ -158,8 +158,7 @@ fn messages() -> Vec<Message> {
             settings,
             job_frame: Some(2),
         },
-        Message::SceneUpload { hash: [1; 32], bytes: 4096 },
-        Message::Scene { bundle: WireBundle::from(&bundle) },
+        Message::SceneUpload(packed.header.clone()),
         Message::NeedScene { hash: [2; 32] },
         Message::SceneFailed { hash: [2; 32], reason: "no memory".into() },
         Message::StatusRequest,
@@ -261,10 +260,7 @@ fn jpeg() -> Vec<u8> {
 }
 
 fn bundles() -> Vec<Vec<u8>> {
-    let sync = |bundle: SceneBundle| {
-        let msg = Message::Scene { bundle: WireBundle::from(&bundle) };
-        protocol::encode(&msg).expect("encodes")
-    };
+    let sync = |bundle: SceneBundle| isin_cluster::scene_stream::encode_bundle(&bundle).expect("encodes");
     let cornell = include_str!("../../../scenes/cornell.toml");
     vec![
         sync(SceneBundle { name: "fuzz.toml".into(), source: SCENE.into(), assets: fixtures().clone() }),

@@ -213,7 +213,7 @@ struct ViewerSim {
     errors: Vec<String>,
     notices: Vec<String>,
     /// A scene announced, to send when the master wants it.
-    upload: Option<SceneBundle>,
+    upload: Option<Arc<crate::scene_stream::Packed>>,
     stored: BTreeSet<SceneHash>,
     statuses: Vec<Status>,
     accepted: Option<Vec<u32>>,
@@ -387,14 +387,12 @@ impl Net {
     /// Has viewer `v` announce `bundle` (sent when the master wants it);
     /// returns its hash.
     pub fn upload(&mut self, v: PeerId, bundle: SceneBundle) -> SceneHash {
-        let hash = protocol::scene_hash(&bundle);
-        let bytes =
-            protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) }).expect("encodes").len();
+        let packed = Arc::new(crate::scene_stream::pack(&bundle).expect("packs"));
+        let (hash, header) = (packed.header.hash, packed.header.clone());
         let p = self.peers.get_mut(&v).expect("known peer");
         let Kind::Viewer(sim) = &mut p.kind else { panic!("{v} is not a viewer") };
-        sim.upload = Some(bundle);
-        p.outbox
-            .push(protocol::encode(&Message::SceneUpload { hash, bytes: bytes as u64 }).expect("encodes"));
+        sim.upload = Some(packed);
+        p.outbox.push(protocol::encode(&Message::SceneUpload(header)).expect("encodes"));
         self.pump();
         hash
     }
@@ -652,9 +650,12 @@ impl Net {
             (Kind::Viewer(v), Message::Error { message }) => v.errors.push(message),
             (Kind::Viewer(v), Message::SceneWanted { hash }) => {
                 // (A test that announced a scene itself sends it itself.)
-                if let Some(bundle) = v.upload.take() {
-                    assert_eq!(protocol::scene_hash(&bundle), hash);
-                    out.push(Message::Scene { bundle: WireBundle::from(&bundle) });
+                if let Some(packed) = v.upload.take() {
+                    assert_eq!(packed.header.hash, hash);
+                    for i in 0..packed.header.chunks {
+                        let frame = packed.chunk_frame(i).expect("a chunk");
+                        out.push(protocol::decode(&frame, usize::MAX).expect("decodes"));
+                    }
                 }
             }
             (Kind::Viewer(v), Message::SceneStored { hash }) => {
