@@ -68,7 +68,8 @@
 //!   slave is disconnected. So no slave can overwrite another's pixels.
 //! - **Role-sized frames.** Until it has proved the token a peer may send
 //!   [`HANDSHAKE_MAX_FRAME`] bytes a frame; then a viewer
-//!   [`VIEWER_MAX_FRAME`], a slave one tile's worst-case encoding
+//!   [`VIEWER_MAX_FRAME`] (a scene chunk's, [`limits::SCENE_CHUNK_FRAME`],
+//!   while it uploads a scene it announced), a slave one tile's worst-case encoding
 //!   ([`limits::slave_max_frame`]). The limit goes to the transport
 //!   ([`Transmit::Limit`]), which refuses a longer announced frame before
 //!   allocating it, and is checked again here.
@@ -114,7 +115,7 @@ use crate::protocol::{
     ProtocolError, Role, SceneHash, SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment,
     TileResultRef, Welcome,
 };
-use crate::scene_stream::{Packed, Receiver};
+use crate::scene_stream::{Packed, ProgressLog, Receiver};
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
 };
@@ -330,8 +331,8 @@ struct Client {
     frames: BTreeSet<FrameId>,
     /// Whether it was told that its frames wait for slaves.
     told_waiting: bool,
-    /// The scene it is uploading.
-    upload: Option<Box<Receiver>>,
+    /// The scene it is uploading, and the log of its progress.
+    upload: Option<Box<(Receiver, ProgressLog)>>,
     /// The job its frames belong to.
     job: Option<SceneHash>,
     /// Frames completed for it.
@@ -697,7 +698,7 @@ impl Cluster {
                 let order = Request { request, scene, camera, settings, queue: true, job_frame };
                 self.request_frame(now, peer, order);
             }
-            (PeerState::Viewer(_), Message::SceneUpload(header)) => self.on_scene_upload(peer, header),
+            (PeerState::Viewer(_), Message::SceneUpload(header)) => self.on_scene_upload(now, peer, header),
             (PeerState::Viewer(_), Message::SceneChunk { hash, index, bytes }) => {
                 self.on_scene_chunk(now, peer, hash, index, &bytes)
             }
@@ -885,7 +886,7 @@ impl Cluster {
 
     /// A client announced a scene: stored already, or it may send it now
     /// (within the budgets: checked before anything is held).
-    fn on_scene_upload(&mut self, peer: PeerId, header: SceneHeader) {
+    fn on_scene_upload(&mut self, now: Duration, peer: PeerId, header: SceneHeader) {
         let hash = header.hash;
         if self.scenes.contains(&hash) {
             return self.send(peer, Message::SceneStored { hash });
@@ -912,7 +913,9 @@ impl Cluster {
             let message = "one scene at a time: the last one is not in yet".to_string();
             return self.send(peer, Message::Error { message });
         }
-        c.upload = Some(Box::new(rx));
+        let what = format!("receiving scene {} from {}", rx.header().name, p.name);
+        let log = ProgressLog::new(what, rx.header().compressed_bytes, now);
+        c.upload = Some(Box::new((rx, log)));
         self.uploading += bytes;
         // Chunks may come now; the limit drops back once the last is in.
         p.max_frame = limits::SCENE_CHUNK_FRAME;
@@ -926,17 +929,19 @@ impl Cluster {
     fn on_scene_chunk(&mut self, now: Duration, peer: PeerId, hash: SceneHash, index: u32, bytes: &[u8]) {
         let Some(p) = self.peers.get_mut(&peer) else { return };
         let PeerState::Viewer(c) = &mut p.state else { return };
-        let Some(rx) = c.upload.as_mut() else {
+        let Some(upload) = c.upload.as_mut() else {
             return self.refuse(now, peer, "sent a scene it had not announced".into());
         };
-        let progress = match rx.push(&hash, index, bytes) {
+        let progress = match upload.0.push(&hash, index, bytes) {
             Ok(progress) => progress,
             Err(e) => return self.refuse(now, peer, format!("bad scene upload: {e}")),
         };
+        upload.1.update(now, progress.bytes);
         if !progress.complete {
             return;
         }
-        let Some(rx) = c.upload.take() else { return };
+        let Some(upload) = c.upload.take() else { return };
+        let (rx, _) = *upload;
         self.uploading -= rx.header().raw_bytes;
         p.max_frame = VIEWER_MAX_FRAME;
         self.out.push_back(Transmit::Limit { peer, max_frame: VIEWER_MAX_FRAME });
@@ -1263,8 +1268,8 @@ impl Cluster {
             PeerState::Syncing { .. } => {}
             PeerState::Slave => self.sched.handle_disconnect(now, id),
             PeerState::Viewer(c) => {
-                if let Some(rx) = c.upload {
-                    self.uploading -= rx.header().raw_bytes;
+                if let Some(upload) = c.upload {
+                    self.uploading -= upload.0.header().raw_bytes;
                 }
                 for f in c.frames {
                     self.sched.abandon(f);
