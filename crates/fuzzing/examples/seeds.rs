@@ -25,6 +25,7 @@ fn main() {
     };
     write("ticket", tickets());
     write("message", messages().iter().map(|m| protocol::encode(m).expect("encodes")).collect());
+    write("scene_stream", scene_streams());
     write("tile_codec", tiles());
     write("framing", framing());
     write("handshake", handshake());
@@ -257,6 +258,32 @@ fn jpeg() -> Vec<u8> {
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Jpeg).expect("a JPEG encodes");
     out.into_inner()
+}
+
+/// Packed scenes as the `scene_stream` target takes them: hash, unpacked
+/// size, compressed stream.
+fn scene_streams() -> Vec<Vec<u8>> {
+    let cornell = include_str!("../../../scenes/cornell.toml");
+    [
+        SceneBundle { name: "fuzz.toml".into(), source: SCENE.into(), assets: fixtures().clone() },
+        SceneBundle { name: "cornell.toml".into(), source: cornell.into(), assets: Default::default() },
+    ]
+    .iter()
+    .map(|bundle| {
+        let packed = isin_cluster::scene_stream::pack(bundle).expect("packs");
+        let h = &packed.header;
+        let mut out = h.hash.to_vec();
+        out.extend_from_slice(&(h.raw_bytes as u32).to_le_bytes());
+        for i in 0..h.chunks {
+            let frame = packed.chunk_frame(i).expect("a chunk");
+            let Ok(Message::SceneChunk { bytes, .. }) = protocol::decode(&frame, usize::MAX) else {
+                panic!("a chunk decodes")
+            };
+            out.extend_from_slice(&bytes);
+        }
+        out
+    })
+    .collect()
 }
 
 fn bundles() -> Vec<Vec<u8>> {
