@@ -89,6 +89,7 @@ pub fn report(s: &Status) -> String {
         let _ = writeln!(out, "  {:<24} {}/{} frames, {state}{eta}", j.name, j.done, j.frames);
     }
     let _ = writeln!(out, "{}", plural(s.scenes as usize, "scene held", "scenes held"));
+    let _ = writeln!(out, "{} scene bytes sent to slaves", s.scene_bytes_sent);
     out
 }
 
@@ -122,12 +123,13 @@ mod tests {
                 eta_seconds: Some(46.0),
             }],
             scenes: 2,
+            scene_bytes_sent: 123_456,
         };
         let r = report(&s);
         assert!(r.starts_with("1 slave\n"), "{r}");
         assert!(r.contains("attic#3") && r.contains("8 threads") && r.contains("41.5 tiles/s"), "{r}");
         assert!(r.contains("fly#4") && r.contains("batch") && r.contains("1 frame open"), "{r}");
         assert!(r.contains("7/30 frames, running, ETA 46 s"), "{r}");
-        assert!(r.ends_with("2 scenes held\n"), "{r}");
+        assert!(r.ends_with("2 scenes held\n123456 scene bytes sent to slaves\n"), "{r}");
     }
 }

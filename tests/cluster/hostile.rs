@@ -35,13 +35,9 @@ async fn login_slave(c: &Cluster, name: &str) -> (Connection, protocol::Welcome)
     let t = client_transport(c);
     let (mut conn, welcome) =
         client::handshake(t.as_ref(), &ticket, client::Join::slave(name, 1, &[], &[])).await.expect("login");
-    loop {
-        match client::recv_message(&mut conn, DEFAULT_MAX_FRAME, TIMEOUT).await.expect("the scene") {
-            Message::SceneSync { .. } => return (conn, welcome),
-            Message::Heartbeat => {}
-            other => panic!("unexpected {}", other.kind()),
-        }
-    }
+    let hash = welcome.scene.as_ref().expect("a default scene").hash;
+    isin_actors::slave::receive_scene(&mut conn, hash).await.expect("the scene");
+    (conn, welcome)
 }
 
 /// The reason of the master's `Reject`, after which the connection ends.

@@ -21,6 +21,8 @@
 //! - `slave_waits_for_master`: a slave started before its master joins once it is up.
 //! - `silent_slave_times_out_and_rejoins_with_cached_scene`: SIGSTOP → declared dead by
 //!   timeout, frame still identical; SIGCONT → reconnects without being sent the scene again.
+//! - `a_rejoining_slave_is_sent_no_scene_bytes…`: `isin status` counts the compressed scene
+//!   once per new slave and nothing for a slave that rejoins holding it.
 //! - `every_codec_is_byte_identical`: `--compression raw|lz4|qoi` (and `auto`, in
 //!   `identical`) all deliver frames equal to `isin render`; slaves report the codec picked.
 //! - `wrong_fingerprint`: a slave whose ticket pins another certificate gives up at once with
@@ -255,6 +257,47 @@ cluster_test!(silent_slave_times_out_and_rejoins_with_cached_scene, |t: Transpor
     c.master.wait_for(Stream::Err, "(scene cached)");
     c.wait_joined(3);
     assert_eq!(c.slaves[0].matching(Stream::Err, |l| l.contains("loaded scene")).len(), 1);
+    c.render("after.png", SMALL);
+});
+
+/// What `isin status` says the master has sent of scenes, in bytes.
+fn scene_bytes_sent(c: &Cluster) -> u64 {
+    let mut p = Proc::spawn("status", &["status", &c.ticket], "warn");
+    assert!(p.wait_exit().success(), "{}", p.dump());
+    let line = p.wait_for(Stream::Out, "scene bytes sent");
+    line.split_whitespace().next().and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{line}"))
+}
+
+cluster_test!(a_rejoining_slave_is_sent_no_scene_bytes_and_a_new_one_the_compressed_scene, |t: Transport| {
+    let mut c = Cluster::start(t, 1, &["--heartbeat-timeout-ms", "1000"]);
+    // The first slave got the scene compressed: what it received is what
+    // the master counts (its frames: a few bytes of framing per chunk more).
+    let one = scene_bytes_sent(&c);
+    let line = c.slaves[0].wait_for(Stream::Err, "received: ");
+    let number = |after: &str| -> u64 {
+        let rest = &line[line.find(after).unwrap_or_else(|| panic!("{line}")) + after.len()..];
+        rest.split_whitespace().next().and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{line}"))
+    };
+    let compressed = number("received: ");
+    let raw = number("compressed, ");
+    assert!(compressed < raw, "{line}");
+    assert!(one >= compressed && one < compressed + 4096, "{one} bytes sent; {line}");
+    // A new slave gets it again.
+    c.add_slave("s1");
+    c.wait_joined(2);
+    assert_eq!(scene_bytes_sent(&c), 2 * one);
+    // The first, frozen until the master declares it dead and thawed, rejoins
+    // holding the scene: not a byte of it is sent.
+    let pid = c.slaves[0].pid() as libc::pid_t;
+    // SAFETY: signalling a child process this test started.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0);
+    c.master.wait_for(Stream::Err, "dead (Timeout)");
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGCONT) }, 0);
+    c.slaves[0].wait_for_n(Stream::Err, "joined master", 2);
+    c.wait_joined(3);
+    assert_eq!(scene_bytes_sent(&c), 2 * one);
+    assert_eq!(c.slaves[0].matching(Stream::Err, |l| l.contains("received: ")).len(), 1);
     c.render("after.png", SMALL);
 });
 

@@ -11,7 +11,8 @@ use isin_transport::{Connection, Ticket, Transport, TransportError};
 use std::time::Duration;
 
 /// How long one frame from the master may take to arrive once begun: a
-/// 512 MiB scene over 10 Mbit/s, with room to spare.
+/// frame of [`isin_cluster::protocol::DEFAULT_MAX_FRAME`] over 10 Mbit/s, with
+/// room to spare (scenes come in 256 KiB chunks, far below it).
 pub const SCENE_FRAME_TIMEOUT: Duration = Duration::from_secs(600);
 
 /// How long each handshake step may take.

@@ -109,7 +109,7 @@ impl Master {
             Some(root) => {
                 let (dir, loaded) = StateDir::open(root)?;
                 for (path, sync) in loaded.scenes {
-                    if let Err(e) = core.restore_scene(sync) {
+                    if let Err(e) = core.restore_scene(&sync) {
                         tracing::warn!("ignoring scene {}: {e}", path.display());
                     }
                 }

@@ -20,8 +20,11 @@
 //! pipeline frames, handing out the next frame's tiles while the older frame's
 //! are still queued here.
 
+mod incoming;
+
 use crate::client::{self, JoinError};
 use actix::prelude::*;
+use incoming::Incoming;
 use isin_cluster::codec::{self, Codec};
 use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId, TileResult};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
@@ -423,21 +426,8 @@ pub async fn join<R: Renderer>(
     let heartbeats = tokio::spawn(heartbeat_until_dropped(conn.sender.clone(), opts.heartbeat_interval));
     let _stop_heartbeats = AbortOnDrop(heartbeats);
     let default = welcome.scene.as_ref().map(|s| s.hash);
-    if let Some(want) = default.filter(|h| lock(cache).get(h).is_none()) {
-        let (hash, bundle) = loop {
-            match client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120))
-                .await?
-            {
-                Message::SceneSync { hash, bundle } => break (hash, bundle),
-                Message::Heartbeat => continue,
-                Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
-                other => return Err(JoinError::Unexpected(other.kind())),
-            }
-        };
-        let bundle: SceneBundle = bundle.into();
-        if hash != want || protocol::scene_hash(&bundle) != hash {
-            return Err(JoinError::Scene("scene bundle does not match its hash".into()));
-        }
+    if let Some(hash) = default.filter(|h| lock(cache).get(h).is_none()) {
+        let bundle = receive_scene(&mut conn, hash).await?;
         let (scene, bytes) = load_in_background(renderer.clone(), bundle)
             .await
             .map_err(|_| JoinError::Scene("scene loader vanished".into()))?
@@ -453,6 +443,38 @@ pub async fn join<R: Renderer>(
         welcome.codec
     );
     Ok(Session { conn, name: welcome.name, codec: welcome.codec })
+}
+
+/// Receives the scene `hash` on a connection that just logged in as a slave
+/// (heartbeats and all): its chunks are unpacked as they come and
+/// acknowledged (the master sends a window of them ahead), and the bundle is
+/// whole, its hash checked, with the last one.
+pub async fn receive_scene(
+    conn: &mut isin_transport::Connection,
+    hash: SceneHash,
+) -> Result<SceneBundle, JoinError> {
+    let bad = |e: isin_cluster::scene_stream::StreamError| JoinError::Scene(format!("bad scene: {e}"));
+    let mut incoming: Option<Incoming> = None;
+    loop {
+        match client::recv_message(conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(120)).await? {
+            Message::SceneBegin(header) if header.hash == hash && incoming.is_none() => {
+                incoming = Some(Incoming::begin(header).map_err(bad)?);
+            }
+            Message::SceneChunk { hash: of, index, bytes } => {
+                let Some(rx) = incoming.as_mut() else { return Err(JoinError::Unexpected("SceneChunk")) };
+                let p = rx.chunk(&of, index, &bytes).map_err(bad)?;
+                client::send_message(conn, &Message::SceneAck { hash: of, chunks_received: p.chunks })?;
+                if p.complete
+                    && let Some(rx) = incoming.take()
+                {
+                    return rx.finish().map_err(bad);
+                }
+            }
+            Message::Heartbeat => continue,
+            Message::Reject { reason } => return Err(JoinError::Rejected(reason)),
+            other => return Err(JoinError::Unexpected(other.kind())),
+        }
+    }
 }
 
 /// Sends a heartbeat every `interval` until the connection closes (or the
@@ -490,6 +512,7 @@ pub async fn serve<R: Renderer>(
     let actor = SlaveActor {
         sender,
         scenes,
+        incoming: None,
         parked: HashMap::new(),
         renderer,
         pool,
@@ -517,6 +540,8 @@ pub async fn serve<R: Renderer>(
 pub struct SlaveActor<R: Renderer> {
     sender: FrameSender,
     scenes: SharedScenes<R::Scene>,
+    /// A scene coming in (one at a time: the master queues the others).
+    incoming: Option<Incoming>,
     /// Assignments waiting for their scene (asked for once), by scene.
     parked: HashMap<SceneHash, Vec<TileAssignment>>,
     renderer: Arc<R>,
@@ -576,6 +601,31 @@ impl<R: Renderer> SlaveActor<R> {
             let result = rx.await.unwrap_or_else(|_| Err("scene loader vanished".into()));
             me.do_send(SceneLoaded { hash, result });
         });
+    }
+
+    /// A chunk of the scene coming in: acknowledged, and the scene loaded
+    /// once it is whole. A bad one ends the session (the master is lying or
+    /// broken).
+    fn scene_chunk(&mut self, hash: SceneHash, index: u32, bytes: &[u8], ctx: &mut Context<Self>) {
+        let Some(rx) = self.incoming.as_mut() else {
+            return self.finish("a scene chunk before its SceneBegin".into(), ctx);
+        };
+        let progress = match rx.chunk(&hash, index, bytes) {
+            Ok(p) => p,
+            Err(e) => return self.finish(format!("bad scene from the master: {e}"), ctx),
+        };
+        if let Ok(m) = protocol::encode(&Message::SceneAck { hash, chunks_received: progress.chunks }) {
+            let _ = self.sender.send(m);
+        }
+        if !progress.complete {
+            return;
+        }
+        let Some(rx) = self.incoming.take() else { return };
+        let hash = rx.hash();
+        match rx.finish() {
+            Ok(bundle) => self.scene_arrived(hash, bundle, ctx),
+            Err(e) => self.finish(format!("bad scene from the master: {e}"), ctx),
+        }
     }
 
     fn scene_failed(&mut self, hash: SceneHash, reason: String) {
@@ -742,7 +792,16 @@ impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
         };
         match msg {
             Ok(Message::TileAssignment(a)) => self.assign(a),
-            Ok(Message::SceneSync { hash, bundle }) => self.scene_arrived(hash, bundle.into(), ctx),
+            Ok(Message::SceneBegin(header)) => {
+                if self.incoming.is_some() {
+                    return self.finish("the master began a scene before the last one ended".into(), ctx);
+                }
+                match Incoming::begin(header) {
+                    Ok(rx) => self.incoming = Some(rx),
+                    Err(e) => self.finish(format!("bad scene from the master: {e}"), ctx),
+                }
+            }
+            Ok(Message::SceneChunk { hash, index, bytes }) => self.scene_chunk(hash, index, &bytes, ctx),
             Ok(Message::Cancel { frame, tiles }) => {
                 if let Ok(mut c) = self.cancelled.lock() {
                     c.extend(tiles.into_iter().map(|t| (frame, t)));

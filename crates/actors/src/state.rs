@@ -3,7 +3,8 @@
 //! ([`Stored`]), so that a master restarted after a crash — `kill -9`
 //! included — knows every job and which of its frames are done.
 //!
-//! Layout: `DIR/scenes/HASH.scene` (the encoded `SceneSync` a slave receives)
+//! Layout: `DIR/scenes/HASH.scene` (the scene packed as slaves receive it:
+//! header and compressed stream, `isin_cluster::scene_stream::Packed::to_stored`)
 //! and `DIR/jobs/KEY.job` (a [`JobRecord`] in MessagePack), `HASH` and `KEY`
 //! in hex. Every file is written whole to a temporary name, flushed to disk
 //! and renamed over the old one, so a crash leaves the old or the new
@@ -38,7 +39,7 @@ pub enum StateError {
 /// What a state directory held at start.
 #[derive(Debug, Default)]
 pub struct Loaded {
-    /// Encoded `SceneSync`s.
+    /// Stored scenes.
     pub scenes: Vec<(PathBuf, Vec<u8>)>,
     /// Jobs.
     pub jobs: Vec<JobRecord>,
@@ -104,7 +105,7 @@ impl StateDir {
     /// Keeps what the core asked kept; returns once it is on disk.
     pub fn store(&self, what: &Stored) -> Result<(), StateError> {
         match what {
-            Stored::Scene { hash, sync } => self.write(&self.scene_path(hash), sync),
+            Stored::Scene { hash, bytes } => self.write(&self.scene_path(hash), bytes),
             Stored::ForgetScene { hash } => {
                 let path = self.scene_path(hash);
                 match fs::remove_file(&path) {
@@ -165,8 +166,8 @@ mod tests {
             frames: 9,
             settings: RenderSettings::default(),
         };
-        dir.store(&Stored::Scene { hash: [2; 32], sync: Arc::new(vec![1, 2, 3]) }).unwrap();
-        dir.store(&Stored::Scene { hash: [3; 32], sync: Arc::new(vec![4]) }).unwrap();
+        dir.store(&Stored::Scene { hash: [2; 32], bytes: Arc::new(vec![1, 2, 3]) }).unwrap();
+        dir.store(&Stored::Scene { hash: [3; 32], bytes: Arc::new(vec![4]) }).unwrap();
         dir.store(&Stored::Job(JobRecord { spec: spec.clone(), done: vec![0] })).unwrap();
         dir.store(&Stored::Job(JobRecord { spec: spec.clone(), done: vec![0, 4] })).unwrap();
         dir.store(&Stored::ForgetScene { hash: [3; 32] }).unwrap();

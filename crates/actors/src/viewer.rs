@@ -4,9 +4,8 @@
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use isin_cluster::protocol::{
-    self, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, WireBundle,
-};
+use isin_cluster::protocol::{self, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status};
+use isin_cluster::scene_stream;
 use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, Frame, RenderSettings, SceneBundle, Tile};
 use isin_transport::{ConnStats, FrameSender, Ticket, Transport, TransportError};
@@ -374,17 +373,27 @@ pub async fn connect_with(
         Some(bundle) => {
             let mut bundle = bundle.clone();
             bundle.name = protocol::served_name(&bundle.name).to_string();
-            let hash = protocol::scene_hash(&bundle);
-            let frame = protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) })?;
-            client::send_message(&conn, &Message::SceneUpload { hash, bytes: frame.len() as u64 })?;
-            let mut frame = Some(frame);
+            // Packed as the master sends scenes to slaves: compressed, in chunks.
+            let packed = scene_stream::pack(&bundle).map_err(|e| JoinError::Scene(e.to_string()))?;
+            let hash = packed.header.hash;
+            client::send_message(&conn, &Message::SceneUpload(packed.header.clone()))?;
+            let mut packed = Some(packed);
             let sender = conn.sender.clone();
             answer(&mut conn, &mut slaves, |m| match m {
                 Message::SceneStored { hash: h } if h == hash => Some(Ok(())),
                 Message::SceneWanted { hash: h } if h == hash => {
-                    tracing::info!("sending scene {} to the master", bundle.name);
-                    let sent = frame.take().map(|f| sender.send(f));
-                    sent.and_then(|r| r.err()).map(|e| Err(e.into()))
+                    let p = packed.take()?;
+                    let h = &p.header;
+                    tracing::info!(
+                        "sending scene {} to the master: {} bytes, {} compressed",
+                        bundle.name,
+                        h.raw_bytes,
+                        h.compressed_bytes
+                    );
+                    let sent = (0..h.chunks)
+                        .filter_map(|i| p.chunk_frame(i))
+                        .try_for_each(|f| sender.send(f.to_vec()));
+                    sent.err().map(|e| Err(e.into()))
                 }
                 _ => None,
             })

@@ -121,13 +121,8 @@ async fn a_slave_sending_a_wrong_sized_tile_is_dropped_and_its_tiles_rendered_by
         client::handshake(&t, &ticket, client::Join::slave("liar", 1, &[], &[])).await.unwrap();
     assert_eq!(welcome.codec, Codec::Raw);
     let max = protocol::DEFAULT_MAX_FRAME;
-    loop {
-        match client::recv_message(&mut conn, max, Duration::from_secs(10)).await.unwrap() {
-            Message::SceneSync { .. } => break,
-            Message::Heartbeat => {}
-            other => panic!("unexpected {}", other.kind()),
-        }
-    }
+    let hash = welcome.scene.as_ref().map(|s| s.hash).expect("a default scene");
+    isin_actors::slave::receive_scene(&mut conn, hash).await.unwrap();
     client::send_message(&conn, &Message::Ready { hash: welcome.scene.map(|s| s.hash) }).unwrap();
     wait_slaves(&master, 1).await;
     let (v, _, mut events) = viewer::connect(&t, &ticket, "viewer").await.unwrap();

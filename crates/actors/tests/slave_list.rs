@@ -36,15 +36,10 @@ async fn fake_slave(
     name: &str,
     threads: u32,
 ) -> isin_transport::Connection {
-    let (mut conn, _) =
+    let (mut conn, welcome) =
         client::handshake(t, ticket, client::Join::slave(name, threads, &[], &[Codec::Raw])).await.unwrap();
-    let hash = loop {
-        match client::recv_message(&mut conn, 1 << 20, Duration::from_secs(10)).await.unwrap() {
-            Message::SceneSync { hash, .. } => break hash,
-            Message::Heartbeat => {}
-            other => panic!("unexpected {}", other.kind()),
-        }
-    };
+    let hash = welcome.scene.expect("a default scene").hash;
+    isin_actors::slave::receive_scene(&mut conn, hash).await.unwrap();
     client::send_message(&conn, &Message::Ready { hash: Some(hash) }).unwrap();
     conn
 }

@@ -19,8 +19,14 @@
 //!
 //! - **Who gets in.** A new connection is challenged with a fresh nonce; a
 //!   peer proves the token by HMAC ([`crate::auth`]) and gets a proof back.
-//!   Slaves then receive the scene (unless they hold one with its hash) and
-//!   say `Ready`; only then do they join the scheduler and the roster.
+//!   Slaves then receive the scene (unless they hold one with its hash:
+//!   then nothing) and say `Ready`; only then do they join the scheduler and
+//!   the roster. A scene travels packed once ([`crate::scene_stream`]:
+//!   compressed, in chunks whose frames every slave shares), with at most
+//!   [`ClusterConfig::scene_window`] chunks in flight per slave beyond those
+//!   it acknowledged ([`Message::SceneAck`]), so a stalled slave holds up
+//!   only its own transfer; an acknowledgement of chunks never sent drops
+//!   the slave.
 //! - **Which tiles go where, who is dead**: the [`Scheduler`].
 //! - **Which frames are open.** Every viewer is a client with its own stream
 //!   of frames: its `FrameRequest` supersedes its own open frames and no one
@@ -29,8 +35,9 @@
 //!   people flying through the scene each keep half the cluster. A viewer
 //!   that leaves takes its frames.
 //! - **Which scene a frame is of.** The master may serve a default scene;
-//!   a client may upload its own ([`Message::SceneUpload`], then
-//!   [`Message::Scene`]), and every frame names its scene. Scenes are held by
+//!   a client may upload its own ([`Message::SceneUpload`], then its
+//!   chunks, within [`Budgets::uploading_bytes`] for all uploads at once),
+//!   and every frame names its scene. Scenes are held by
 //!   content hash within [`Budgets::scene_bytes`] (least recently used idle
 //!   scenes evicted first; none of an open frame). A slave receives the
 //!   default scene at join and any other the first time it is handed a tile
@@ -61,7 +68,8 @@
 //!   slave is disconnected. So no slave can overwrite another's pixels.
 //! - **Role-sized frames.** Until it has proved the token a peer may send
 //!   [`HANDSHAKE_MAX_FRAME`] bytes a frame; then a viewer
-//!   [`VIEWER_MAX_FRAME`], a slave one tile's worst-case encoding
+//!   [`VIEWER_MAX_FRAME`] (a scene chunk's, [`limits::SCENE_CHUNK_FRAME`],
+//!   while it uploads a scene it announced), a slave one tile's worst-case encoding
 //!   ([`limits::slave_max_frame`]). The limit goes to the transport
 //!   ([`Transmit::Limit`]), which refuses a longer announced frame before
 //!   allocating it, and is checked again here.
@@ -92,19 +100,22 @@ mod roster;
 mod scenes;
 #[cfg(test)]
 mod tests;
+mod transfers;
 
 pub use jobs::JobRecord;
 pub use roster::DEAD_SLAVES_LISTED;
 pub use scenes::StoreError;
+pub use transfers::AckError;
 
 use crate::auth::{self, Nonces};
 use crate::codec::{self, Codec, Compression};
 use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
     self, ClientStatus, FrameId, FrameStats, HANDSHAKE_MAX_FRAME, Hello, JobSpec, MAX_JOB_FRAMES, Message,
-    ProtocolError, Role, SceneHash, SceneInfo, SlaveStatus, Status, TileAssignment, TileResultRef, Welcome,
-    WireBundle,
+    ProtocolError, Role, SceneHash, SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment,
+    TileResultRef, Welcome,
 };
+use crate::scene_stream::{Packed, ProgressLog, Receiver};
 use crate::scheduler::{
     DeathCause, FrameOrder, Output, ResultCheck, ResultOutcome, Scheduler, SchedulerConfig, SlaveInfo, Work,
 };
@@ -115,6 +126,7 @@ use scenes::Scenes;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use std::time::Duration;
+use transfers::Transfers;
 
 /// A connection, numbered by the driver (never reused).
 pub type PeerId = u64;
@@ -153,8 +165,8 @@ pub enum Transmit {
         /// How it travels.
         class: Class,
     },
-    /// Send an already encoded frame (the scene, encoded once for every
-    /// slave), in order.
+    /// Send an already encoded frame (a scene's `SceneBegin` or one of its
+    /// chunks, encoded once for every slave), in order.
     SendEncoded {
         /// The connection.
         peer: PeerId,
@@ -186,12 +198,12 @@ pub enum Transmit {
 /// with [`Cluster::restore_scene`] and [`Cluster::restore_job`].
 #[derive(Clone, Debug, PartialEq)]
 pub enum Stored {
-    /// A scene a client uploaded, as its encoded `SceneSync`.
+    /// A scene a client uploaded, packed ([`Packed::to_stored`]).
     Scene {
         /// Its hash (a file name for it).
         hash: SceneHash,
-        /// The encoded `SceneSync`.
-        sync: Arc<Vec<u8>>,
+        /// The stored form.
+        bytes: Arc<Vec<u8>>,
     },
     /// A scene no longer held.
     ForgetScene {
@@ -249,6 +261,10 @@ pub struct ClusterConfig {
     pub budgets: Budgets,
     /// Seed of the challenge nonces (32 random bytes; see [`Nonces`]).
     pub seed: [u8; 32],
+    /// Chunks of a scene in flight to one slave beyond those it has
+    /// acknowledged (at least 1): four 256 KiB chunks keep a 1 Gbit/s link
+    /// with a few milliseconds of round trip busy.
+    pub scene_window: u32,
 }
 
 impl ClusterConfig {
@@ -264,6 +280,7 @@ impl ClusterConfig {
             compression: Compression::Auto,
             budgets: Budgets::default(),
             seed,
+            scene_window: 4,
         }
     }
 }
@@ -289,6 +306,8 @@ pub struct ClusterStatus {
     pub last_frame: Option<FrameStats>,
     /// Scenes sent to slaves (at join or when they asked).
     pub scene_sends: u64,
+    /// Bytes of the scene frames sent to slaves (`SceneBegin` and chunks).
+    pub scene_bytes_sent: u64,
 }
 
 #[derive(Debug)]
@@ -312,8 +331,8 @@ struct Client {
     frames: BTreeSet<FrameId>,
     /// Whether it was told that its frames wait for slaves.
     told_waiting: bool,
-    /// A scene it announced and may now send, with its announced size.
-    upload: Option<(SceneHash, usize)>,
+    /// The scene it is uploading, and the log of its progress.
+    upload: Option<Box<(Receiver, ProgressLog)>>,
     /// The job its frames belong to.
     job: Option<SceneHash>,
     /// Frames completed for it.
@@ -361,6 +380,7 @@ pub struct Cluster {
     token: String,
     scene: Option<SceneInfo>,
     scenes: Scenes,
+    transfers: Transfers,
     jobs: Jobs,
     heartbeat_interval: Duration,
     handshake_timeout: Duration,
@@ -378,6 +398,8 @@ pub struct Cluster {
     roster: Roster,
     out: VecDeque<Transmit>,
     last_heartbeat: Duration,
+    /// Bytes of the uploads in progress, as their headers declare them.
+    uploading: u64,
     /// Message bytes received from every peer so far.
     bytes_received: u64,
     /// Bytes received when the last frame completed: a pipelined frame counts
@@ -405,7 +427,6 @@ impl Cluster {
                 bundle.name = protocol::served_name(&bundle.name).to_string();
                 let hash = match scenes.insert(&bundle, true) {
                     Ok((hash, _)) => hash,
-                    Err(StoreError::Encode(e)) => return Err(e),
                     Err(e) => return Err(ProtocolError::Encode(e.to_string())),
                 };
                 Some(SceneInfo { name: bundle.name, hash, camera, settings })
@@ -418,6 +439,7 @@ impl Cluster {
             token: cfg.token,
             scene,
             scenes,
+            transfers: Transfers::new(cfg.scene_window),
             jobs,
             heartbeat_interval: cfg.heartbeat_interval,
             handshake_timeout: cfg.handshake_timeout,
@@ -434,6 +456,7 @@ impl Cluster {
             roster: Roster::default(),
             out: VecDeque::new(),
             last_heartbeat: Duration::ZERO,
+            uploading: 0,
             bytes_received: 0,
             bytes_at_last_done: 0,
             status: ClusterStatus::default(),
@@ -443,10 +466,10 @@ impl Cluster {
         })
     }
 
-    /// Holds a scene read back from a state directory (an encoded
-    /// `SceneSync`, as [`Stored::Scene`] gave it); its hash is checked.
-    pub fn restore_scene(&mut self, sync: Vec<u8>) -> Result<SceneHash, String> {
-        self.scenes.insert_sync(sync)
+    /// Holds a scene read back from a state directory (as
+    /// [`Stored::Scene`] gave it); its hash is checked.
+    pub fn restore_scene(&mut self, stored: &[u8]) -> Result<SceneHash, String> {
+        self.scenes.insert_stored(stored)
     }
 
     /// Knows a job read back from a state directory: its client resumes it
@@ -660,6 +683,9 @@ impl Cluster {
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r.borrowed()),
             (PeerState::Slave, Message::NeedScene { hash }) => self.send_scene(now, peer, hash),
+            (PeerState::Slave | PeerState::Syncing { .. }, Message::SceneAck { hash, chunks_received }) => {
+                self.on_scene_ack(now, peer, hash, chunks_received)
+            }
             (PeerState::Slave, Message::SceneFailed { hash, reason }) => {
                 self.on_scene_failed(now, peer, hash, reason)
             }
@@ -672,10 +698,10 @@ impl Cluster {
                 let order = Request { request, scene, camera, settings, queue: true, job_frame };
                 self.request_frame(now, peer, order);
             }
-            (PeerState::Viewer(_), Message::SceneUpload { hash, bytes }) => {
-                self.on_scene_upload(peer, hash, bytes)
+            (PeerState::Viewer(_), Message::SceneUpload(header)) => self.on_scene_upload(now, peer, header),
+            (PeerState::Viewer(_), Message::SceneChunk { hash, index, bytes }) => {
+                self.on_scene_chunk(now, peer, hash, index, &bytes)
             }
-            (PeerState::Viewer(_), Message::Scene { bundle }) => self.on_scene(now, peer, bundle),
             (PeerState::Viewer(_), Message::SubmitJob(spec)) => self.on_submit_job(now, peer, spec),
             (PeerState::Viewer(_), Message::StatusRequest) => {
                 let status = self.report(now);
@@ -753,7 +779,13 @@ impl Cluster {
             })
             .collect();
         let jobs = self.jobs.by_key.values().map(|j| j.status()).collect();
-        Status { slaves, clients, jobs, scenes: self.scenes.len() as u32 }
+        Status {
+            slaves,
+            clients,
+            jobs,
+            scenes: self.scenes.len() as u32,
+            scene_bytes_sent: self.status.scene_bytes_sent,
+        }
     }
 
     /// Pushes the status to every interactive viewer.
@@ -773,7 +805,7 @@ impl Cluster {
 
     /// A slave asked for a scene: sent if held, within its budget of sends.
     fn send_scene(&mut self, now: Duration, slave: PeerId, hash: SceneHash) {
-        let Some(sync) = self.scenes.sync(&hash) else {
+        let Some(packed) = self.scenes.packed(&hash) else {
             // Its frames are gone (a held scene is never evicted while used).
             return tracing::debug!(slave, "a slave asked for a scene no longer held");
         };
@@ -784,8 +816,44 @@ impl Cluster {
             return self.refuse(now, slave, format!("asked for scenes {n} times"));
         }
         tracing::info!(slave = %p.name, "sending scene {} to {}", self.scenes.name(&hash).unwrap_or("?"), p.name);
+        self.start_transfer(now, slave, packed);
+    }
+
+    /// Starts (or queues) sending `packed` to `slave`.
+    fn start_transfer(&mut self, now: Duration, slave: PeerId, packed: Arc<Packed>) {
         self.status.scene_sends += 1;
-        self.out.push_back(Transmit::SendEncoded { peer: slave, frame: sync });
+        let h = &packed.header;
+        tracing::debug!(
+            slave,
+            "scene {}: {} bytes, {} compressed, in {} chunks",
+            h.name,
+            h.raw_bytes,
+            h.compressed_bytes,
+            h.chunks
+        );
+        let frames = self.transfers.start(now, slave, packed);
+        self.send_scene_frames(slave, frames);
+    }
+
+    fn send_scene_frames(&mut self, peer: PeerId, frames: Vec<Arc<Vec<u8>>>) {
+        for frame in frames {
+            self.status.scene_bytes_sent += frame.len() as u64;
+            self.out.push_back(Transmit::SendEncoded { peer, frame });
+        }
+    }
+
+    /// A slave has this many chunks of a scene: more go out.
+    fn on_scene_ack(&mut self, now: Duration, slave: PeerId, hash: SceneHash, chunks: u32) {
+        match self.transfers.ack(now, slave, hash, chunks) {
+            Ok(acked) => {
+                if let Some(h) = acked.finished {
+                    let name = self.peers.get(&slave).map_or("?", |p| p.name.as_str());
+                    tracing::debug!(slave = %name, "scene {} sent to {name}", protocol::short_hash(&h));
+                }
+                self.send_scene_frames(slave, acked.frames);
+            }
+            Err(e) => self.refuse(now, slave, e.to_string()),
+        }
     }
 
     /// A slave could not load a scene: every open frame of it fails, and
@@ -816,41 +884,73 @@ impl Cluster {
         self.drain(now);
     }
 
-    /// A client announced a scene: stored already, or it may send it now.
-    fn on_scene_upload(&mut self, peer: PeerId, hash: SceneHash, bytes: u64) {
-        let max = self.budgets.scene_upload_bytes;
+    /// A client announced a scene: stored already, or it may send it now
+    /// (within the budgets: checked before anything is held).
+    fn on_scene_upload(&mut self, now: Duration, peer: PeerId, header: SceneHeader) {
+        let hash = header.hash;
         if self.scenes.contains(&hash) {
             return self.send(peer, Message::SceneStored { hash });
         }
-        if bytes > max as u64 {
-            let message =
-                format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes");
+        let (max, bytes) = (self.budgets.scene_upload_bytes, header.raw_bytes);
+        let busy = self.uploading;
+        let refused = if bytes > max as u64 {
+            Some(format!("the scene is {bytes} bytes; the master takes scenes of at most {max} bytes"))
+        } else if busy + bytes > self.budgets.uploading_bytes as u64 {
+            Some(format!("the master is receiving {busy} bytes of scenes already; try again later"))
+        } else {
+            None
+        };
+        if let Some(message) = refused {
             return self.send(peer, Message::Error { message });
         }
+        let rx = match Receiver::new(header) {
+            Ok(rx) => rx,
+            Err(e) => return self.send(peer, Message::Error { message: e.to_string() }),
+        };
         let Some(p) = self.peers.get_mut(&peer) else { return };
         let PeerState::Viewer(c) = &mut p.state else { return };
-        c.upload = Some((hash, bytes as usize));
-        p.max_frame = (bytes as usize).max(VIEWER_MAX_FRAME);
-        // Only the announced frame may be this large: the limit drops back
-        // once it is in.
-        self.out.push_back(Transmit::Limit { peer, max_frame: bytes.max(VIEWER_MAX_FRAME as u64) as usize });
+        if c.upload.is_some() {
+            let message = "one scene at a time: the last one is not in yet".to_string();
+            return self.send(peer, Message::Error { message });
+        }
+        let what = format!("receiving scene {} from {}", rx.header().name, p.name);
+        let log = ProgressLog::new(what, rx.header().compressed_bytes, now);
+        c.upload = Some(Box::new((rx, log)));
+        self.uploading += bytes;
+        // Chunks may come now; the limit drops back once the last is in.
+        p.max_frame = limits::SCENE_CHUNK_FRAME;
+        self.out.push_back(Transmit::Limit { peer, max_frame: limits::SCENE_CHUNK_FRAME });
         self.send(peer, Message::SceneWanted { hash });
     }
 
-    /// A client's scene arrived: checked against what it announced, held.
-    fn on_scene(&mut self, now: Duration, peer: PeerId, bundle: WireBundle) {
+    /// A chunk of a client's scene: unpacked; a bad one (or one never
+    /// announced) drops the client. With the last, the scene is checked
+    /// against its hash and held.
+    fn on_scene_chunk(&mut self, now: Duration, peer: PeerId, hash: SceneHash, index: u32, bytes: &[u8]) {
         let Some(p) = self.peers.get_mut(&peer) else { return };
         let PeerState::Viewer(c) = &mut p.state else { return };
-        let Some((announced, _)) = c.upload.take() else {
+        let Some(upload) = c.upload.as_mut() else {
             return self.refuse(now, peer, "sent a scene it had not announced".into());
         };
+        let progress = match upload.0.push(&hash, index, bytes) {
+            Ok(progress) => progress,
+            Err(e) => return self.refuse(now, peer, format!("bad scene upload: {e}")),
+        };
+        upload.1.update(now, progress.bytes);
+        if !progress.complete {
+            return;
+        }
+        let Some(upload) = c.upload.take() else { return };
+        let (rx, _) = *upload;
+        self.uploading -= rx.header().raw_bytes;
         p.max_frame = VIEWER_MAX_FRAME;
         self.out.push_back(Transmit::Limit { peer, max_frame: VIEWER_MAX_FRAME });
-        let mut bundle = SceneBundle::from(bundle);
-        bundle.name = protocol::served_name(&bundle.name).to_string();
-        let hash = protocol::scene_hash(&bundle);
-        if hash != announced {
-            let message = "the scene sent does not match the hash announced".to_string();
+        let bundle = match rx.finish() {
+            Ok(bundle) => bundle,
+            Err(e) => return self.refuse(now, peer, format!("bad scene upload: {e}")),
+        };
+        if bundle.name != protocol::served_name(&bundle.name) {
+            let message = "a scene must be named by its file name alone, not a path".to_string();
             return self.send(peer, Message::Error { message });
         }
         match self.scenes.insert(&bundle, false) {
@@ -858,8 +958,12 @@ impl Cluster {
                 for h in evicted {
                     self.out.push_back(Transmit::Store(Stored::ForgetScene { hash: h }));
                 }
-                if let Some(sync) = self.scenes.sync(&hash) {
-                    self.out.push_back(Transmit::Store(Stored::Scene { hash, sync }));
+                match self.scenes.packed(&hash).map(|p| p.to_stored()) {
+                    Some(Ok(bytes)) => {
+                        self.out.push_back(Transmit::Store(Stored::Scene { hash, bytes: Arc::new(bytes) }))
+                    }
+                    Some(Err(e)) => tracing::error!("cannot store scene {}: {e}", bundle.name),
+                    None => {}
                 }
                 tracing::info!(
                     "holding scene {} for {}",
@@ -963,12 +1067,11 @@ impl Cluster {
                 );
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
-                if let Some(frame) = default.filter(|_| !cached).and_then(|h| self.scenes.sync(&h)) {
+                if let Some(packed) = default.filter(|_| !cached).and_then(|h| self.scenes.packed(&h)) {
                     if let Some(p) = self.peers.get_mut(&id) {
                         p.scene_sends += 1;
                     }
-                    self.status.scene_sends += 1;
-                    self.out.push_back(Transmit::SendEncoded { peer: id, frame });
+                    self.start_transfer(now, id, packed);
                 }
             }
         }
@@ -1159,11 +1262,15 @@ impl Cluster {
             tracing::info!(viewer = %p.name, "viewer {} left ({reason})", p.name);
         }
         self.out.push_back(Transmit::Close { peer: id, reason });
+        self.transfers.remove(id);
         match p.state {
             PeerState::AwaitHello { .. } => self.handshaking -= 1,
             PeerState::Syncing { .. } => {}
             PeerState::Slave => self.sched.handle_disconnect(now, id),
             PeerState::Viewer(c) => {
+                if let Some(upload) = c.upload {
+                    self.uploading -= upload.0.header().raw_bytes;
+                }
                 for f in c.frames {
                     self.sched.abandon(f);
                     self.close_frame(f);
@@ -1208,6 +1315,7 @@ impl Cluster {
                     self.tell_if_waiting();
                     tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
                     if cause == DeathCause::Timeout && self.peers.remove(&slave).is_some() {
+                        self.transfers.remove(slave);
                         let reason = format!("silent for {:?}", self.sched.config().heartbeat_timeout);
                         self.out.push_back(Transmit::Close { peer: slave, reason });
                     }

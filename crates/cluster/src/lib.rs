@@ -17,11 +17,14 @@
 //!   roster — as one state machine around the scheduler; its docs say what it
 //!   decides, what it trusts and what each budget is.
 //! - [`limits`]: the bounds of a frame request and the budgets of peers.
+//! - [`scene_stream`]: scenes packed (zstd, chunks) for slaves and unpacked
+//!   as their chunks arrive, every size checked first.
 pub mod auth;
 pub mod cluster;
 pub mod codec;
 pub mod limits;
 pub mod protocol;
+pub mod scene_stream;
 pub mod scheduler;
 #[cfg(test)]
 mod testing;

@@ -20,9 +20,27 @@ pub const TILE_MESSAGE_OVERHEAD: usize = 4 << 10;
 
 /// Largest frame a logged-in viewer may send: its messages are frame requests
 /// (a camera and settings, ~200 bytes), job descriptions and heartbeats. A
-/// scene it uploads is the exception: announced first, that one frame may be
-/// as large as [`Budgets::scene_upload_bytes`].
+/// scene it uploads is the exception: announced first, its chunks come in
+/// frames of up to [`SCENE_CHUNK_FRAME`].
 pub const VIEWER_MAX_FRAME: usize = 16 << 10;
+
+/// Largest frame of a scene chunk: [`SCENE_CHUNK_BYTES`] and its message.
+pub const SCENE_CHUNK_FRAME: usize = SCENE_CHUNK_BYTES + TILE_MESSAGE_OVERHEAD;
+
+/// Bytes of the compressed scene stream per [`crate::protocol::Message::SceneChunk`]:
+/// large enough that a chunk's message overhead is noise, small enough that a
+/// window of them in flight is a few megabytes per slave.
+pub const SCENE_CHUNK_BYTES: usize = 256 << 10;
+
+/// Largest scene bundle, encoded and decompressed, that a slave (or the
+/// master, reading its state directory) accepts: a receiver refuses a
+/// [`crate::protocol::SceneHeader`] declaring more before it holds a byte.
+/// Four times the largest frame of protocol 6's one-message scenes.
+pub const MAX_SCENE_RAW_BYTES: u64 = 2 << 30;
+
+/// Largest compressed scene stream accepted (zstd never expands a stream by
+/// more than a little; this leaves room for incompressible assets).
+pub const MAX_SCENE_COMPRESSED_BYTES: u64 = MAX_SCENE_RAW_BYTES + (MAX_SCENE_RAW_BYTES >> 7) + (1 << 20);
 
 /// How much each peer, and all peers together, may make the master hold.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -42,13 +60,16 @@ pub struct Budgets {
     /// disconnected (an honest slave sends none; a few could only come from a
     /// bug, not a race).
     pub foreign_results: u32,
-    /// Bytes of scenes the master holds (encoded bundles: its default scene
-    /// and those clients uploaded). Idle scenes are evicted to make room;
+    /// Bytes of scenes the master holds (packed as slaves receive them,
+    /// compressed: its default scene and those clients uploaded). Idle scenes are evicted to make room;
     /// scenes of open frames never are.
     pub scene_bytes: usize,
-    /// Largest scene one client may upload: within [`Budgets::buffered_bytes`]
-    /// (it is one frame being read), so other peers keep room.
+    /// Largest scene one client may upload (its bundle's bytes, unpacked).
     pub scene_upload_bytes: usize,
+    /// Bytes of scenes all clients together may be uploading at once (as
+    /// their headers declare them, unpacked): what partial uploads may make
+    /// the master hold. An upload beyond it is refused until others finish.
+    pub uploading_bytes: usize,
     /// Scenes sent to one slave connection: one per scene it is handed tiles
     /// of, again only if it evicted one. Far above what an honest slave asks.
     pub scene_sends: u32,
@@ -66,6 +87,7 @@ impl Default for Budgets {
             foreign_results: 8,
             scene_bytes: 2 << 30,
             scene_upload_bytes: 192 << 20,
+            uploading_bytes: 512 << 20,
             scene_sends: 256,
             max_jobs: 256,
         }

@@ -28,8 +28,12 @@ pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
 /// supersede only its own frames. 6: scenes per client: clients upload
 /// theirs ([`Message::SceneUpload`]), frames name their scene, slaves fetch a
 /// scene they lack ([`Message::NeedScene`]); batch jobs ([`Message::SubmitJob`])
-/// and the master's status ([`Message::Status`]).)
-pub const PROTOCOL_VERSION: u16 = 6;
+/// and the master's status ([`Message::Status`]). 7: scenes travel to slaves
+/// compressed and in chunks under flow control ([`Message::SceneBegin`],
+/// [`Message::SceneChunk`], [`Message::SceneAck`]), no longer as one
+/// `SceneSync`; clients upload theirs the same way: [`Message::SceneUpload`]
+/// with the header, then the chunks.)
+pub const PROTOCOL_VERSION: u16 = 7;
 
 /// Most scene hashes a slave may list as cached in its [`Hello`].
 pub const MAX_CACHED_SCENES: usize = 64;
@@ -156,6 +160,25 @@ impl From<WireBundle> for SceneBundle {
         }
     }
 }
+
+/// What a [`Message::SceneBegin`] announces: a scene as zstd-compressed
+/// MessagePack of its [`WireBundle`], in chunks.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SceneHeader {
+    /// Content hash of the bundle ([`scene_hash`]), checked once it is in.
+    pub hash: SceneHash,
+    /// The scene's file name (for logs; at most [`MAX_SCENE_NAME`] bytes).
+    pub name: String,
+    /// Bytes of the encoded bundle, decompressed.
+    pub raw_bytes: u64,
+    /// Bytes of the compressed stream, all chunks together.
+    pub compressed_bytes: u64,
+    /// Chunks that carry it.
+    pub chunks: u32,
+}
+
+/// Longest scene name in a [`SceneHeader`].
+pub const MAX_SCENE_NAME: usize = 255;
 
 /// One tile of an assignment.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -318,13 +341,30 @@ pub enum Message {
         /// Human-readable reason.
         reason: String,
     },
-    /// Master → slave: the scene, sent once per slave and only if the slave
-    /// does not already hold a scene with this hash.
-    SceneSync {
-        /// Content hash of the bundle.
+    /// Master → slave: a scene follows in [`SceneHeader::chunks`]
+    /// [`Message::SceneChunk`]s (sent once per slave, and only if the slave
+    /// does not already hold a scene with this hash; see
+    /// [`crate::scene_stream`]).
+    SceneBegin(SceneHeader),
+    /// Master → slave: the next piece of the compressed scene announced by
+    /// [`Message::SceneBegin`], in order; client → master likewise, for the
+    /// scene it announced with [`Message::SceneUpload`] once the master
+    /// answered [`Message::SceneWanted`].
+    SceneChunk {
+        /// The scene's hash.
         hash: SceneHash,
-        /// The scene.
-        bundle: WireBundle,
+        /// The chunk's index, from 0.
+        index: u32,
+        /// At most [`crate::limits::SCENE_CHUNK_BYTES`] of the compressed stream.
+        bytes: ByteBuf,
+    },
+    /// Slave → master: chunks of a scene received so far (the master keeps
+    /// at most its window of chunks beyond this in flight).
+    SceneAck {
+        /// The scene's hash.
+        hash: SceneHash,
+        /// Chunks received and decoded, in all.
+        chunks_received: u32,
     },
     /// Slave → master: the master's default scene is loaded (or there is
     /// none), ready for tiles.
@@ -409,25 +449,17 @@ pub enum Message {
         /// Human-readable text.
         message: String,
     },
-    /// Client → master: it wants to render with the scene of this hash, of
-    /// `bytes` encoded bytes. The master answers [`Message::SceneStored`] if
-    /// it holds the scene already, else [`Message::SceneWanted`] once it
-    /// accepts a frame of that size from the client, or an error.
-    SceneUpload {
-        /// Content hash of the bundle ([`scene_hash`]).
-        hash: SceneHash,
-        /// Length of the [`Message::Scene`] frame that will carry it.
-        bytes: u64,
-    },
-    /// Master → client: send the scene announced with [`Message::SceneUpload`].
+    /// Client → master: it wants to render with the scene this header
+    /// announces (packed as a slave receives it, [`crate::scene_stream`]).
+    /// The master answers [`Message::SceneStored`] if it holds the scene
+    /// already, else [`Message::SceneWanted`] once it accepts an upload of
+    /// that size from the client, or an error.
+    SceneUpload(SceneHeader),
+    /// Master → client: send the chunks ([`Message::SceneChunk`]) of the
+    /// scene announced with [`Message::SceneUpload`].
     SceneWanted {
         /// The hash announced.
         hash: SceneHash,
-    },
-    /// Client → master: the scene itself, after [`Message::SceneWanted`].
-    Scene {
-        /// The scene.
-        bundle: WireBundle,
     },
     /// Master → client: the scene is held; frames may name it.
     SceneStored {
@@ -435,7 +467,7 @@ pub enum Message {
         hash: SceneHash,
     },
     /// Slave → master: an assignment named a scene this slave does not hold;
-    /// the master answers with its [`Message::SceneSync`].
+    /// the master answers with its [`Message::SceneBegin`] and chunks.
     NeedScene {
         /// The scene.
         hash: SceneHash,
@@ -500,6 +532,10 @@ pub struct Status {
     pub jobs: Vec<JobStatus>,
     /// Scenes the master holds.
     pub scenes: u32,
+    /// Bytes of scenes the master has sent to slaves (their
+    /// [`Message::SceneBegin`] and [`Message::SceneChunk`] frames).
+    #[serde(default)]
+    pub scene_bytes_sent: u64,
 }
 
 /// One slave in a [`Status`].
@@ -555,7 +591,9 @@ impl Message {
             Message::Hello(_) => "Hello",
             Message::Welcome(_) => "Welcome",
             Message::Reject { .. } => "Reject",
-            Message::SceneSync { .. } => "SceneSync",
+            Message::SceneBegin(_) => "SceneBegin",
+            Message::SceneChunk { .. } => "SceneChunk",
+            Message::SceneAck { .. } => "SceneAck",
             Message::Ready { .. } => "Ready",
             Message::FrameRequest { .. } => "FrameRequest",
             Message::TileAssignment(_) => "TileAssignment",
@@ -570,7 +608,6 @@ impl Message {
             Message::Notice { .. } => "Notice",
             Message::SceneUpload { .. } => "SceneUpload",
             Message::SceneWanted { .. } => "SceneWanted",
-            Message::Scene { .. } => "Scene",
             Message::SceneStored { .. } => "SceneStored",
             Message::NeedScene { .. } => "NeedScene",
             Message::SceneFailed { .. } => "SceneFailed",
@@ -655,6 +692,16 @@ pub fn decode(frame: &[u8], max: usize) -> Result<Message, ProtocolError> {
                 || s.jobs.iter().any(|x| long(&x.name))
         }
         Message::SubmitJob(j) => long(&j.name),
+        Message::SceneBegin(h) if h.name.len() > MAX_SCENE_NAME => {
+            return Err(ProtocolError::Decode(format!("a scene name longer than {MAX_SCENE_NAME} bytes")));
+        }
+        Message::SceneChunk { bytes, .. } if bytes.len() > crate::limits::SCENE_CHUNK_BYTES => {
+            return Err(ProtocolError::Decode(format!(
+                "a scene chunk of {} bytes, more than {}",
+                bytes.len(),
+                crate::limits::SCENE_CHUNK_BYTES
+            )));
+        }
         _ => false,
     };
     if too_long {
@@ -738,7 +785,15 @@ mod tests {
                 codec: Codec::Qoi,
             }),
             Message::Reject { reason: "no".into() },
-            Message::SceneSync { hash: scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
+            Message::SceneBegin(SceneHeader {
+                hash: scene_hash(&bundle),
+                name: "s.toml".into(),
+                raw_bytes: 300,
+                compressed_bytes: 120,
+                chunks: 1,
+            }),
+            Message::SceneChunk { hash: scene_hash(&bundle), index: 0, bytes: ByteBuf::from(vec![7u8; 120]) },
+            Message::SceneAck { hash: scene_hash(&bundle), chunks_received: 1 },
             Message::Ready { hash: Some([6; 32]) },
             Message::Ready { hash: None },
             Message::FrameRequest {
@@ -754,9 +809,14 @@ mod tests {
                 settings: RenderSettings::default(),
                 job_frame: Some(17),
             },
-            Message::SceneUpload { hash: [1; 32], bytes: 1234 },
+            Message::SceneUpload(SceneHeader {
+                hash: [1; 32],
+                name: "u.toml".into(),
+                raw_bytes: 1234,
+                compressed_bytes: 600,
+                chunks: 1,
+            }),
             Message::SceneWanted { hash: [1; 32] },
-            Message::Scene { bundle: WireBundle::from(&bundle) },
             Message::SceneStored { hash: [1; 32] },
             Message::NeedScene { hash: [2; 32] },
             Message::SceneFailed { hash: [2; 32], reason: "bad mesh".into() },
@@ -792,6 +852,7 @@ mod tests {
                     eta_seconds: Some(12.0),
                 }],
                 scenes: 2,
+                scene_bytes_sent: 1 << 20,
             }),
             Message::TileAssignment(TileAssignment {
                 frame: 2,
@@ -1003,6 +1064,28 @@ mod tests {
         let long =
             Message::Slaves { slaves: vec![SlaveEntry { addr: "x".repeat(MAX_SLAVE_TEXT + 1), ..entry(1) }] };
         assert!(matches!(decode(&encode(&long).unwrap(), DEFAULT_MAX_FRAME), Err(ProtocolError::Decode(_))));
+    }
+
+    #[test]
+    fn scene_chunks_and_names_beyond_their_bounds_are_refused_while_decoding() {
+        let max = crate::limits::SCENE_CHUNK_BYTES;
+        let chunk =
+            |n: usize| Message::SceneChunk { hash: [1; 32], index: 0, bytes: ByteBuf::from(vec![0; n]) };
+        assert!(decode(&encode(&chunk(max)).unwrap(), DEFAULT_MAX_FRAME).is_ok());
+        let err = decode(&encode(&chunk(max + 1)).unwrap(), DEFAULT_MAX_FRAME).unwrap_err();
+        assert!(matches!(&err, ProtocolError::Decode(m) if m.contains("scene chunk")), "{err:?}");
+        let header = |name: String| {
+            Message::SceneBegin(SceneHeader {
+                hash: [1; 32],
+                name,
+                raw_bytes: 1,
+                compressed_bytes: 1,
+                chunks: 1,
+            })
+        };
+        assert!(decode(&encode(&header("a".repeat(MAX_SCENE_NAME))).unwrap(), DEFAULT_MAX_FRAME).is_ok());
+        let long = encode(&header("a".repeat(MAX_SCENE_NAME + 1))).unwrap();
+        assert!(matches!(decode(&long, DEFAULT_MAX_FRAME), Err(ProtocolError::Decode(_))));
     }
 
     #[test]

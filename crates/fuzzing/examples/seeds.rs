@@ -4,7 +4,7 @@
 //! what adds coverage.
 
 use isin_cluster::codec::{self, Codec};
-use isin_cluster::protocol::{self, Hello, Message, Role, SceneInfo, TileResult, Welcome, WireBundle};
+use isin_cluster::protocol::{self, Hello, Message, Role, SceneInfo, TileResult, Welcome};
 use isin_cluster::scheduler::Work;
 use isin_fuzzing::files::{MTL, fixtures, quad_obj, triangle_buffer, triangle_gltf};
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
@@ -25,6 +25,7 @@ fn main() {
     };
     write("ticket", tickets());
     write("message", messages().iter().map(|m| protocol::encode(m).expect("encodes")).collect());
+    write("scene_stream", scene_streams());
     write("tile_codec", tiles());
     write("framing", framing());
     write("handshake", handshake());
@@ -126,6 +127,7 @@ fn messages() -> Vec<Message> {
     let tile = Tile { x: 0, y: 0, w: 4, h: 2 };
     let rgb: Vec<u8> = (0..24).collect();
     let bundle = SceneBundle { name: "s.toml".into(), source: "[camera]".into(), assets: fixtures().clone() };
+    let packed = isin_cluster::scene_stream::pack(&bundle).expect("packs");
     vec![
         Message::Challenge { nonce: [7; 32] },
         Message::Hello(Hello {
@@ -145,7 +147,9 @@ fn messages() -> Vec<Message> {
             scene: Some(SceneInfo { name: "s".into(), hash: [5; 32], camera: Camera::default(), settings }),
             codec: Codec::Qoi,
         }),
-        Message::SceneSync { hash: protocol::scene_hash(&bundle), bundle: WireBundle::from(&bundle) },
+        Message::SceneBegin(packed.header.clone()),
+        protocol::decode(&packed.chunk_frame(0).expect("one chunk"), usize::MAX).expect("decodes"),
+        Message::SceneAck { hash: packed.header.hash, chunks_received: 1 },
         Message::Ready { hash: Some([6; 32]) },
         Message::FrameRequest { request: 3, scene: None, camera: Camera::default(), settings },
         Message::QueueFrame {
@@ -155,8 +159,7 @@ fn messages() -> Vec<Message> {
             settings,
             job_frame: Some(2),
         },
-        Message::SceneUpload { hash: [1; 32], bytes: 4096 },
-        Message::Scene { bundle: WireBundle::from(&bundle) },
+        Message::SceneUpload(packed.header.clone()),
         Message::NeedScene { hash: [2; 32] },
         Message::SceneFailed { hash: [2; 32], reason: "no memory".into() },
         Message::StatusRequest,
@@ -257,12 +260,34 @@ fn jpeg() -> Vec<u8> {
     out.into_inner()
 }
 
+/// Packed scenes as the `scene_stream` target takes them: hash, unpacked
+/// size, compressed stream.
+fn scene_streams() -> Vec<Vec<u8>> {
+    let cornell = include_str!("../../../scenes/cornell.toml");
+    [
+        SceneBundle { name: "fuzz.toml".into(), source: SCENE.into(), assets: fixtures().clone() },
+        SceneBundle { name: "cornell.toml".into(), source: cornell.into(), assets: Default::default() },
+    ]
+    .iter()
+    .map(|bundle| {
+        let packed = isin_cluster::scene_stream::pack(bundle).expect("packs");
+        let h = &packed.header;
+        let mut out = h.hash.to_vec();
+        out.extend_from_slice(&(h.raw_bytes as u32).to_le_bytes());
+        for i in 0..h.chunks {
+            let frame = packed.chunk_frame(i).expect("a chunk");
+            let Ok(Message::SceneChunk { bytes, .. }) = protocol::decode(&frame, usize::MAX) else {
+                panic!("a chunk decodes")
+            };
+            out.extend_from_slice(&bytes);
+        }
+        out
+    })
+    .collect()
+}
+
 fn bundles() -> Vec<Vec<u8>> {
-    let sync = |bundle: SceneBundle| {
-        let msg =
-            Message::SceneSync { hash: protocol::scene_hash(&bundle), bundle: WireBundle::from(&bundle) };
-        protocol::encode(&msg).expect("encodes")
-    };
+    let sync = |bundle: SceneBundle| isin_cluster::scene_stream::encode_bundle(&bundle).expect("encodes");
     let cornell = include_str!("../../../scenes/cornell.toml");
     vec![
         sync(SceneBundle { name: "fuzz.toml".into(), source: SCENE.into(), assets: fixtures().clone() }),

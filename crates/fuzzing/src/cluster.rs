@@ -240,6 +240,8 @@ struct SlaveSim {
     codec: Option<Codec>,
     ready: bool,
     syncs: u32,
+    /// The scene coming in.
+    incoming: Option<Box<isin_cluster::scene_stream::Receiver>>,
     queue: VecDeque<Job>,
     cancelled: Vec<Job>,
     last_result: Option<Vec<u8>>,
@@ -480,7 +482,9 @@ impl Net {
         let allowed: &[&str] = match (&p.kind, p.welcomed) {
             (_, false) => &["Challenge", "Welcome", "Reject"],
             (Kind::Mute, true) => &[],
-            (Kind::Slave(_), true) => &["SceneSync", "TileAssignment", "Cancel", "Heartbeat", "Reject"],
+            (Kind::Slave(_), true) => {
+                &["SceneBegin", "SceneChunk", "TileAssignment", "Cancel", "Heartbeat", "Reject"]
+            }
             (Kind::Viewer(_), true) => {
                 &["Slaves", "Status", "FrameTile", "FrameDone", "Error", "Notice", "Heartbeat", "Reject"]
             }
@@ -530,13 +534,27 @@ impl Net {
                     }
                 }
             }
-            Message::SceneSync { hash, bundle } => {
+            Message::SceneBegin(header) => {
                 let Kind::Slave(s) = &mut p.kind else { unreachable!("checked above") };
                 assert!(!s.cached && s.syncs == 0, "the scene was sent to a slave holding it");
-                assert_eq!(protocol::scene_hash(&SceneBundle::from(bundle)), hash, "the scene is its hash's");
-                s.syncs += 1;
-                s.ready = true;
-                reply.push(Message::Ready { hash: Some(hash) });
+                assert!(s.incoming.is_none(), "a second scene began before the first ended");
+                let rx =
+                    isin_cluster::scene_stream::Receiver::new(header).expect("the master's header is sound");
+                s.incoming = Some(Box::new(rx));
+            }
+            Message::SceneChunk { hash, index, bytes } => {
+                let Kind::Slave(s) = &mut p.kind else { unreachable!("checked above") };
+                let rx = s.incoming.as_mut().expect("a chunk after its SceneBegin");
+                let progress = rx.push(&hash, index, &bytes).expect("the master's chunks are sound");
+                reply.push(Message::SceneAck { hash, chunks_received: progress.chunks });
+                if progress.complete {
+                    let bundle = s.incoming.take().map(|rx| rx.finish());
+                    let bundle = bundle.expect("receiving").expect("the scene unpacks and is its hash's");
+                    assert_eq!(protocol::scene_hash(&bundle), hash, "the scene is its hash's");
+                    s.syncs += 1;
+                    s.ready = true;
+                    reply.push(Message::Ready { hash: Some(hash) });
+                }
             }
             Message::TileAssignment(a) => {
                 let Kind::Slave(s) = &mut p.kind else { unreachable!("checked above") };

@@ -8,7 +8,7 @@
 //! loads is built (its BVH) and rendered for a few pixels, so what the loader
 //! lets through is used, not only parsed.
 
-use isin_cluster::protocol::{self, DEFAULT_MAX_FRAME, Message};
+use isin_cluster::protocol::DEFAULT_MAX_FRAME;
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, SceneError, Tile, parse_scene};
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
@@ -194,15 +194,17 @@ fn load_image(kind: u8, bytes: &[u8]) -> Result<(), SceneError> {
     }
 }
 
-/// The scene as a slave receives it: a protocol frame (at most
-/// [`DEFAULT_MAX_FRAME`], the slave's limit for it) that must hold a
-/// `SceneSync`, whose bundle is loaded, built, its shadow cells filled and a
-/// few pixels rendered. The slave's check of the bundle against its hash is
+/// A scene bundle as a slave (or the master, from a client) unpacks it: the
+/// decompressed bytes of a scene stream, at most [`DEFAULT_MAX_FRAME`]
+/// (`isin_cluster::scene_stream::decode_bundle`), whose bundle is loaded,
+/// built, its shadow cells filled and a few pixels rendered. The slave's check of the bundle against its hash is
 /// left out (a master with the token can send any bundle with its right
 /// hash), so that mutated bundles reach the loader.
 pub fn scene_bundle(data: &[u8]) {
-    let Ok(Message::SceneSync { bundle, .. }) = protocol::decode(data, DEFAULT_MAX_FRAME) else { return };
-    let bundle = SceneBundle::from(bundle);
+    if data.len() > DEFAULT_MAX_FRAME {
+        return;
+    }
+    let Ok(bundle) = isin_cluster::scene_stream::decode_bundle(data) else { return };
     let mut assets = bundle.clone();
     let Ok(parts) = parse_scene(&bundle.name, &bundle.source, &mut assets) else { return };
     if parts.triangles.len() <= BUILD_TRIANGLES {

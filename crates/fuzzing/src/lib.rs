@@ -38,6 +38,7 @@ pub struct Target {
 pub const TARGETS: &[Target] = &[
     Target { name: "ticket", run: wire::ticket },
     Target { name: "message", run: wire::message },
+    Target { name: "scene_stream", run: wire::scene_stream },
     Target { name: "tile_codec", run: wire::tile_codec },
     Target { name: "framing", run: wire::framing },
     Target { name: "handshake", run: wire::handshake },

@@ -114,6 +114,49 @@ pub fn framing(data: &[u8]) {
     }
 }
 
+/// Largest unpacked size the [`scene_stream`] target lets a header declare:
+/// far below the real limit, so that a stream that unpacks to all of it
+/// stays within the fuzzer's memory.
+pub const SCENE_STREAM_MAX_RAW: u32 = 16 << 20;
+
+/// A scene as a slave (or the master, from a client) receives it: a header
+/// and its chunks into a [`Receiver`](isin_cluster::scene_stream::Receiver).
+/// The input is the scene's hash (32 bytes), its declared unpacked size
+/// (4 bytes, little-endian, at most [`SCENE_STREAM_MAX_RAW`]) and the
+/// compressed stream, cut into chunks as a master cuts it. The receiver
+/// refuses or unpacks without panicking, and a scene it unpacks is the one
+/// its hash names.
+pub fn scene_stream(data: &[u8]) {
+    use isin_cluster::limits::SCENE_CHUNK_BYTES;
+    use isin_cluster::protocol::SceneHeader;
+    use isin_cluster::scene_stream::Receiver;
+    let (Some(hash), Some(raw), Some(stream)) = (data.get(..32), data.get(32..36), data.get(36..)) else {
+        return;
+    };
+    let (Ok(hash), Ok(raw)) = (<[u8; 32]>::try_from(hash), <[u8; 4]>::try_from(raw)) else { return };
+    let raw = u32::from_le_bytes(raw);
+    if raw > SCENE_STREAM_MAX_RAW {
+        return;
+    }
+    let chunks = stream.len().div_ceil(SCENE_CHUNK_BYTES) as u32;
+    let header = SceneHeader {
+        hash,
+        name: "fuzz.toml".into(),
+        raw_bytes: u64::from(raw),
+        compressed_bytes: stream.len() as u64,
+        chunks,
+    };
+    let Ok(mut rx) = Receiver::new(header) else { return };
+    for (i, chunk) in stream.chunks(SCENE_CHUNK_BYTES).enumerate() {
+        if rx.push(&hash, i as u32, chunk).is_err() {
+            return;
+        }
+    }
+    if let Ok(bundle) = rx.finish() {
+        assert_eq!(protocol::scene_hash(&bundle), hash, "an unpacked scene is its hash's");
+    }
+}
+
 /// One protocol frame (`protocol::decode`, what every peer runs on every
 /// frame it receives): a message decoded re-encodes to a frame that decodes
 /// to the same message, the length limit is applied before anything else, and

@@ -9,7 +9,7 @@
 //! retransmission timeout is 200 ms). QUIC streams are delivered independently,
 //! so each tile travels on its own unidirectional stream and a loss delays only
 //! the tile it hit. Not every message may be reordered, though: the handshake
-//! (`Challenge`, `Hello`, `Welcome`, `SceneSync`, `Ready`), `Cancel` after
+//! (`Challenge`, `Hello`, `Welcome`, `SceneBegin` and its chunks, `Ready`), `Cancel` after
 //! `TileAssignment`, or `FrameDone` after the last `FrameTile` rely on order.
 //! So a connection also has one long-lived control stream for *ordered*
 //! frames, and each frame records how many frames of the other kind preceded

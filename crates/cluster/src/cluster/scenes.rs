@@ -1,13 +1,14 @@
 //! The scenes a master holds: its default one and those clients uploaded,
-//! each kept encoded as the [`Message::SceneSync`] a slave receives, by
-//! content hash, within a byte budget.
+//! each kept packed as slaves receive it ([`Packed`]: compressed, its
+//! chunks' frames encoded once), by content hash, within a byte budget.
 //!
 //! A scene is in use while frames of it are open; those are never evicted,
 //! nor is the default scene. When a new scene would overflow the budget the
 //! least recently used idle scenes go first; if that is not enough the new
 //! one is refused.
 
-use crate::protocol::{self, Message, ProtocolError, SceneHash, WireBundle};
+use crate::protocol::{self, SceneHash};
+use crate::scene_stream::{self, Packed, StreamError};
 use isin_tracer::SceneBundle;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -17,8 +18,8 @@ use std::sync::Arc;
 struct Held {
     /// Its file name, for messages.
     name: String,
-    /// The encoded `SceneSync`, shared by every send.
-    sync: Arc<Vec<u8>>,
+    /// The packed scene, shared by every transfer.
+    packed: Arc<Packed>,
     /// Open frames that use it.
     uses: u32,
     /// A counter value of its last use (larger is more recent).
@@ -40,9 +41,9 @@ pub enum StoreError {
         /// Bytes of scenes in use.
         busy: usize,
     },
-    /// It could not be encoded.
+    /// It could not be packed.
     #[error(transparent)]
-    Encode(#[from] ProtocolError),
+    Encode(#[from] StreamError),
 }
 
 /// The master's scenes (see the [module docs](self)).
@@ -76,38 +77,31 @@ impl Scenes {
             }
             return Ok((hash, Vec::new()));
         }
-        let sync = protocol::encode(&Message::SceneSync { hash, bundle: WireBundle::from(bundle) })?;
-        let evicted = if default { Vec::new() } else { self.make_room(sync.len())? };
-        self.insert_encoded(hash, bundle.name.clone(), Arc::new(sync));
+        let packed = scene_stream::pack(bundle)?;
+        let evicted = if default { Vec::new() } else { self.make_room(packed.wire_bytes() as usize)? };
+        self.insert_packed(hash, bundle.name.clone(), Arc::new(packed));
         if default {
             self.default = Some(hash);
         }
         Ok((hash, evicted))
     }
 
-    /// Takes an already encoded `SceneSync` (as stored on disk): decoded
+    /// Takes a scene as stored on disk ([`Packed::to_stored`]): unpacked
     /// and its hash checked. Returns the hash.
-    pub(super) fn insert_sync(&mut self, sync: Vec<u8>) -> Result<SceneHash, String> {
-        let Message::SceneSync { hash, bundle } =
-            protocol::decode(&sync, protocol::DEFAULT_MAX_FRAME).map_err(|e| e.to_string())?
-        else {
-            return Err("not a scene".into());
-        };
-        let bundle = SceneBundle::from(bundle);
-        if protocol::scene_hash(&bundle) != hash {
-            return Err("scene does not match its hash".into());
-        }
+    pub(super) fn insert_stored(&mut self, stored: &[u8]) -> Result<SceneHash, String> {
+        let (packed, bundle) = Packed::from_stored(stored).map_err(|e| e.to_string())?;
+        let hash = packed.header.hash;
         if !self.held.contains_key(&hash) {
-            self.make_room(sync.len()).map_err(|e| e.to_string())?;
-            self.insert_encoded(hash, bundle.name, Arc::new(sync));
+            self.make_room(packed.wire_bytes() as usize).map_err(|e| e.to_string())?;
+            self.insert_packed(hash, bundle.name, Arc::new(packed));
         }
         Ok(hash)
     }
 
-    fn insert_encoded(&mut self, hash: SceneHash, name: String, sync: Arc<Vec<u8>>) {
+    fn insert_packed(&mut self, hash: SceneHash, name: String, packed: Arc<Packed>) {
         self.clock += 1;
-        self.bytes += sync.len();
-        self.held.insert(hash, Held { name, sync, uses: 0, used: self.clock });
+        self.bytes += packed.wire_bytes() as usize;
+        self.held.insert(hash, Held { name, packed, uses: 0, used: self.clock });
     }
 
     /// Evicts idle scenes, least recently used first, until `bytes` more fit.
@@ -116,7 +110,7 @@ impl Scenes {
             .held
             .iter()
             .filter(|(h, s)| s.uses > 0 || Some(**h) == self.default)
-            .map(|(_, s)| s.sync.len())
+            .map(|(_, s)| s.packed.wire_bytes() as usize)
             .sum();
         if busy + bytes > self.budget {
             return Err(StoreError::Full { bytes, budget: self.budget, busy });
@@ -147,7 +141,7 @@ impl Scenes {
         }
         match self.held.remove(hash) {
             Some(s) => {
-                self.bytes -= s.sync.len();
+                self.bytes -= s.packed.wire_bytes() as usize;
                 true
             }
             None => false,
@@ -171,9 +165,9 @@ impl Scenes {
         self.default
     }
 
-    /// The scene's encoded `SceneSync`.
-    pub(super) fn sync(&self, hash: &SceneHash) -> Option<Arc<Vec<u8>>> {
-        self.held.get(hash).map(|s| s.sync.clone())
+    /// The packed scene.
+    pub(super) fn packed(&self, hash: &SceneHash) -> Option<Arc<Packed>> {
+        self.held.get(hash).map(|s| s.packed.clone())
     }
 
     /// The scene's file name.
@@ -206,15 +200,25 @@ impl Scenes {
 mod tests {
     use super::*;
 
+    /// A bundle of about `bytes` bytes packed (noise: zstd cannot shrink it).
     fn bundle(name: &str, bytes: usize) -> SceneBundle {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ name.len() as u64;
+        let noise = (0..bytes)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state as u8
+            })
+            .collect();
         let mut assets = BTreeMap::new();
-        assets.insert("mesh.obj".to_string(), vec![7u8; bytes]);
+        assets.insert("mesh.obj".to_string(), noise);
         SceneBundle { name: name.into(), source: format!("# {name}"), assets }
     }
 
     #[test]
     fn idle_scenes_are_evicted_least_recently_used_first_and_busy_ones_never() {
-        let mut s = Scenes::new(3500);
+        let mut s = Scenes::new(3700);
         let (d, _) = s.insert(&bundle("default", 1000), true).unwrap();
         let (a, _) = s.insert(&bundle("a", 1000), false).unwrap();
         let (b, _) = s.insert(&bundle("b", 1000), false).unwrap();
@@ -234,19 +238,19 @@ mod tests {
     }
 
     #[test]
-    fn the_same_scene_twice_is_held_once_and_a_stored_sync_reloads() {
+    fn the_same_scene_twice_is_held_once_and_a_stored_one_reloads() {
         let mut s = Scenes::new(1 << 20);
         let (h1, _) = s.insert(&bundle("a", 100), false).unwrap();
         let (h2, _) = s.insert(&bundle("a", 100), false).unwrap();
         assert_eq!((h1, s.len()), (h2, 1));
-        let sync = s.sync(&h1).unwrap().as_ref().clone();
+        let stored = s.packed(&h1).unwrap().to_stored().unwrap();
         let mut t = Scenes::new(1 << 20);
-        assert_eq!(t.insert_sync(sync.clone()).unwrap(), h1);
+        assert_eq!(t.insert_stored(&stored).unwrap(), h1);
         assert_eq!(t.name(&h1), Some("a"));
         // A corrupted copy is refused.
-        let mut bad = sync;
+        let mut bad = stored;
         let n = bad.len();
         bad[n - 1] ^= 1;
-        assert!(t.insert_sync(bad).is_err());
+        assert!(t.insert_stored(&bad).is_err());
     }
 }

@@ -6,6 +6,7 @@
 mod jobs;
 mod scenes;
 mod sim;
+mod sync;
 
 use super::*;
 use sim::{Behaviour, Net, SlaveSpec};

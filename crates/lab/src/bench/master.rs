@@ -174,14 +174,8 @@ async fn sim_slave(
 ) -> anyhow::Result<()> {
     let (mut conn, welcome) =
         client::handshake(&t, &ticket, Join::slave(&name, threads, &[], &[Codec::Raw])).await?;
-    if welcome.scene.is_some() {
-        loop {
-            if let Message::SceneSync { .. } =
-                client::recv_message(&mut conn, protocol::DEFAULT_MAX_FRAME, Duration::from_secs(60)).await?
-            {
-                break;
-            }
-        }
+    if let Some(scene) = &welcome.scene {
+        isin_actors::slave::receive_scene(&mut conn, scene.hash).await?;
     }
     client::send_message(&conn, &Message::Ready { hash: welcome.scene.map(|s| s.hash) })?;
     let heartbeat = protocol::encode(&Message::Heartbeat)?;

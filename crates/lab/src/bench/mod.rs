@@ -10,6 +10,8 @@
 //!   simulated slaves;
 //! - [`shared`]: `isin bench shared`, two viewers and a batch job on one
 //!   emulated cluster at once;
+//! - [`sync`]: `isin bench sync`, a slave joining over a shaped link: scene
+//!   bytes, transfer, build and first tile, then its rejoin;
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
 //!   and reading their CPU time; [`modes`]: the transport and compression
 //!   modes the benches run; [`report`]: statistics, tables and plots;
@@ -23,6 +25,7 @@ pub mod replay;
 pub mod report;
 mod scaling;
 mod shared;
+mod sync;
 mod transports;
 
 use clap::{Args, Subcommand};
@@ -46,6 +49,8 @@ enum BenchCommand {
     Shared(shared::SharedArgs),
     /// The master alone at a thousand simulated slaves: scheduler and routing cost, failure detection.
     Master(master::MasterBenchArgs),
+    /// A slave joining over a shaped link: scene bytes, transfer, build, first tile; then its rejoin.
+    Sync(sync::SyncArgs),
 }
 
 /// Runs `isin bench`.
@@ -56,6 +61,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Transports(a) => transports::run(a),
         BenchCommand::Shared(a) => shared::run(a),
         BenchCommand::Master(a) => master::run(a),
+        BenchCommand::Sync(a) => sync::run(a),
     }
 }
 

@@ -68,7 +68,9 @@ fn a_scene_the_master_holds_is_not_uploaded_again() {
     );
     // The default scene is held too.
     let default = net.core.scene().unwrap().hash;
-    net.say(flyer, &Message::SceneUpload { hash: default, bytes: 1 << 40 });
+    let header =
+        SceneHeader { hash: default, name: "x".into(), raw_bytes: 1 << 40, compressed_bytes: 1, chunks: 1 };
+    net.say(flyer, &Message::SceneUpload(header));
     net.run_until(|n| n.stored(flyer, default));
 }
 
@@ -78,27 +80,65 @@ fn uploads_are_bounded_checked_and_announced() {
     let (_, flyer, batch) = two_slaves_a_flyer_and_a_batch_client(&mut net);
     // Too large: refused before a byte of it is read.
     let max = net.core.budgets().scene_upload_bytes as u64;
-    net.say(batch, &Message::SceneUpload { hash: [9; 32], bytes: max + 1 });
+    let packed = crate::scene_stream::pack(&fake_scene("a.toml", 100)).unwrap();
+    let huge = SceneHeader { hash: [9; 32], raw_bytes: max + 1, ..packed.header.clone() };
+    net.say(batch, &Message::SceneUpload(huge));
     net.run_until(|n| !n.errors(batch).is_empty());
     assert!(net.errors(batch)[0].contains("at most"), "{:?}", net.errors(batch));
     assert_eq!(net.limit(batch), Some(VIEWER_MAX_FRAME));
-    // Announced as one scene, sent as another: not held.
-    let bundle = fake_scene("a.toml", 100);
-    let bytes = protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) }).unwrap().len() as u64;
-    net.say(batch, &Message::SceneUpload { hash: [1; 32], bytes });
-    net.run_until(|n| n.limit(batch) == Some((bytes as usize).max(VIEWER_MAX_FRAME)));
-    net.say(batch, &Message::Scene { bundle: WireBundle::from(&bundle) });
-    net.run_until(|n| n.errors(batch).len() == 2);
-    assert!(net.errors(batch)[1].contains("does not match"), "{:?}", net.errors(batch));
-    assert_eq!(net.limit(batch), Some(VIEWER_MAX_FRAME), "the limit drops back once the frame is in");
     // A frame of a scene nobody uploaded.
     net.request_of(batch, settings(8, 8, 1), false, Some([1; 32]), None);
-    net.run_until(|n| n.errors(batch).len() == 3);
-    assert!(net.errors(batch)[2].contains("unknown scene"), "{:?}", net.errors(batch));
-    // A scene never announced: the client is refused.
-    net.say(flyer, &Message::Scene { bundle: WireBundle::from(&bundle) });
+    net.run_until(|n| n.errors(batch).len() == 2);
+    assert!(net.errors(batch)[1].contains("unknown scene"), "{:?}", net.errors(batch));
+    // A chunk of a scene never announced: the client is refused.
+    let chunk = packed.chunk_frame(0).unwrap();
+    net.send_raw(flyer, chunk.as_ref().clone());
     net.run_until(|n| n.is_closed(flyer));
     assert!(net.rejection(flyer).unwrap().contains("not announced"));
+    // Announced as one scene, sent as another: refused, the client dropped.
+    let lying = SceneHeader { hash: [1; 32], ..packed.header.clone() };
+    net.say(batch, &Message::SceneUpload(lying));
+    net.run_until(|n| n.limit(batch) == Some(limits::SCENE_CHUNK_FRAME));
+    let Message::SceneChunk { index, bytes, .. } = protocol::decode(&chunk, usize::MAX).unwrap() else {
+        panic!("a chunk")
+    };
+    net.say(batch, &Message::SceneChunk { hash: [1; 32], index, bytes });
+    net.run_until(|n| n.is_closed(batch));
+    assert!(net.rejection(batch).unwrap().contains("does not match its hash"), "{:?}", net.rejection(batch));
+    assert!(!net.stored(batch, [1; 32]) && !net.core.scenes.contains(&[1; 32]));
+    assert_eq!(net.core.uploading, 0, "nothing is held for it");
+}
+
+#[test]
+fn uploads_in_progress_are_held_within_their_budget() {
+    let mut cfg = sim::config();
+    cfg.budgets.uploading_bytes = 30_000;
+    let mut net = Net::new(cfg);
+    let (_, flyer, batch) = two_slaves_a_flyer_and_a_batch_client(&mut net);
+    // Two uploads of 20 kB announced at once: the second waits for room.
+    let a = crate::scene_stream::pack(&fake_scene("a.toml", 20_000)).unwrap();
+    let b = crate::scene_stream::pack(&fake_scene("b.toml", 20_000)).unwrap();
+    net.say(batch, &Message::SceneUpload(a.header.clone()));
+    net.say(flyer, &Message::SceneUpload(b.header.clone()));
+    net.run_until(|n| !n.errors(flyer).is_empty());
+    assert!(net.errors(flyer)[0].contains("receiving"), "{:?}", net.errors(flyer));
+    assert_eq!(net.core.uploading, a.header.raw_bytes);
+    // A's chunks in: held, and room again.
+    for i in 0..a.header.chunks {
+        net.send_raw(batch, a.chunk_frame(i).unwrap().as_ref().clone());
+    }
+    net.run_until(|n| n.stored(batch, a.header.hash));
+    assert_eq!(net.core.uploading, 0);
+    assert_eq!(net.limit(batch), Some(VIEWER_MAX_FRAME), "the limit drops back once the scene is in");
+    let h = net.upload(flyer, fake_scene("b.toml", 20_000));
+    net.run_until(|n| n.stored(flyer, h));
+    // A client that leaves mid-upload takes its share with it.
+    let c = crate::scene_stream::pack(&fake_scene("c.toml", 20_000)).unwrap();
+    net.say(batch, &Message::SceneUpload(c.header.clone()));
+    net.run_until(|n| n.limit(batch) == Some(limits::SCENE_CHUNK_FRAME));
+    assert_eq!(net.core.uploading, c.header.raw_bytes);
+    net.disconnect(batch);
+    assert_eq!(net.core.uploading, 0);
 }
 
 #[test]

@@ -19,10 +19,14 @@ pub const TOKEN: &str = "secret";
 /// Heartbeat period of simulated peers.
 const HEARTBEAT: Duration = Duration::from_millis(500);
 
-/// A small fake scene of `bytes` asset bytes.
+/// A small fake scene of `bytes` asset bytes (noise: it packs to about as
+/// many).
 pub fn fake_scene(name: &str, bytes: usize) -> SceneBundle {
+    let mut rng =
+        Rng(name.bytes().fold(0x51_7cc1_b727_220a, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)));
+    let noise = (0..bytes).map(|_| rng.next() as u8).collect();
     let mut assets = BTreeMap::new();
-    assets.insert("mesh.bin".to_string(), vec![42u8; bytes]);
+    assets.insert("mesh.bin".to_string(), noise);
     SceneBundle { name: name.into(), source: format!("fake scene {name}"), assets }
 }
 
@@ -82,6 +86,8 @@ pub enum Behaviour {
     WrongRect,
     /// Loads the default scene, but fails every other one.
     FailsScenes,
+    /// Takes a scene's chunks but never acknowledges them (heartbeats on).
+    NeverAcks,
 }
 
 /// A simulated slave.
@@ -122,6 +128,10 @@ struct SlaveSim {
     queue: VecDeque<Job>,
     lanes: Vec<Option<(Job, Duration)>>,
     syncs: u32,
+    /// The scene coming in.
+    incoming: Option<Box<crate::scene_stream::Receiver>>,
+    /// Scene chunks received.
+    chunks: u32,
     assignments: u32,
     cancels: u32,
     forged: BTreeSet<FrameId>,
@@ -203,7 +213,7 @@ struct ViewerSim {
     errors: Vec<String>,
     notices: Vec<String>,
     /// A scene announced, to send when the master wants it.
-    upload: Option<SceneBundle>,
+    upload: Option<Arc<crate::scene_stream::Packed>>,
     stored: BTreeSet<SceneHash>,
     statuses: Vec<Status>,
     accepted: Option<Vec<u32>>,
@@ -254,7 +264,7 @@ pub struct Net {
 /// The master's state directory, as the core filled it.
 #[derive(Debug, Default)]
 pub struct Disk {
-    /// Encoded `SceneSync`s by hash.
+    /// Stored scenes by hash.
     pub scenes: BTreeMap<SceneHash, Vec<u8>>,
     /// Jobs by key.
     pub jobs: BTreeMap<SceneHash, JobRecord>,
@@ -377,14 +387,12 @@ impl Net {
     /// Has viewer `v` announce `bundle` (sent when the master wants it);
     /// returns its hash.
     pub fn upload(&mut self, v: PeerId, bundle: SceneBundle) -> SceneHash {
-        let hash = protocol::scene_hash(&bundle);
-        let bytes =
-            protocol::encode(&Message::Scene { bundle: WireBundle::from(&bundle) }).expect("encodes").len();
+        let packed = Arc::new(crate::scene_stream::pack(&bundle).expect("packs"));
+        let (hash, header) = (packed.header.hash, packed.header.clone());
         let p = self.peers.get_mut(&v).expect("known peer");
         let Kind::Viewer(sim) = &mut p.kind else { panic!("{v} is not a viewer") };
-        sim.upload = Some(bundle);
-        p.outbox
-            .push(protocol::encode(&Message::SceneUpload { hash, bytes: bytes as u64 }).expect("encodes"));
+        sim.upload = Some(packed);
+        p.outbox.push(protocol::encode(&Message::SceneUpload(header)).expect("encodes"));
         self.pump();
         hash
     }
@@ -424,7 +432,7 @@ impl Net {
         }
         self.core = Cluster::new(self.config.clone()).expect("scene encodes");
         for sync in self.disk.scenes.values() {
-            self.core.restore_scene(sync.clone()).expect("stored scenes reload");
+            self.core.restore_scene(sync).expect("stored scenes reload");
         }
         for record in self.disk.jobs.values() {
             self.core.restore_job(self.now, record.clone());
@@ -508,8 +516,8 @@ impl Net {
                         p.closed = Some(reason);
                     }
                 }
-                Transmit::Store(Stored::Scene { hash, sync }) => {
-                    self.disk.scenes.insert(hash, sync.as_ref().clone());
+                Transmit::Store(Stored::Scene { hash, bytes }) => {
+                    self.disk.scenes.insert(hash, bytes.as_ref().clone());
                 }
                 Transmit::Store(Stored::ForgetScene { hash }) => {
                     self.disk.scenes.remove(&hash);
@@ -566,21 +574,33 @@ impl Net {
                 }
             }
             (Kind::Viewer(_), Message::Welcome(_)) => p.logged_in = true,
-            (Kind::Slave(s), Message::SceneSync { hash, bundle }) => {
-                s.syncs += 1;
-                assert_eq!(
-                    protocol::scene_hash(&SceneBundle::from(bundle)),
-                    hash,
-                    "the scene matches its hash"
-                );
-                if !s.ready {
+            (Kind::Slave(s), Message::SceneBegin(header)) => {
+                assert!(s.incoming.is_none(), "one scene at a time");
+                s.incoming =
+                    Some(Box::new(crate::scene_stream::Receiver::new(header).expect("sound header")));
+            }
+            (Kind::Slave(s), Message::SceneChunk { hash, index, bytes }) => {
+                let rx = s.incoming.as_mut().expect("a chunk after its SceneBegin");
+                let progress = rx.push(&hash, index, &bytes).expect("the master's chunks are sound");
+                s.chunks += 1;
+                if behaviour != Behaviour::NeverAcks {
+                    out.push(Message::SceneAck { hash, chunks_received: progress.chunks });
+                }
+                if !progress.complete {
+                    // More to come.
+                } else if let Err(e) = s.incoming.take().map(|rx| rx.finish()).expect("receiving") {
+                    panic!("the scene does not unpack: {e}");
+                } else if !s.ready {
+                    s.syncs += 1;
                     s.ready = true;
                     s.held.insert(hash);
                     out.extend(ready(behaviour, Some(hash)));
                 } else if behaviour == Behaviour::FailsScenes {
+                    s.syncs += 1;
                     out.push(Message::SceneFailed { hash, reason: "no memory".into() });
                     s.parked.retain(|a| a.scene != hash);
                 } else {
+                    s.syncs += 1;
                     s.held.insert(hash);
                     let (now, rest): (Vec<_>, Vec<_>) =
                         std::mem::take(&mut s.parked).into_iter().partition(|a| a.scene == hash);
@@ -630,9 +650,12 @@ impl Net {
             (Kind::Viewer(v), Message::Error { message }) => v.errors.push(message),
             (Kind::Viewer(v), Message::SceneWanted { hash }) => {
                 // (A test that announced a scene itself sends it itself.)
-                if let Some(bundle) = v.upload.take() {
-                    assert_eq!(protocol::scene_hash(&bundle), hash);
-                    out.push(Message::Scene { bundle: WireBundle::from(&bundle) });
+                if let Some(packed) = v.upload.take() {
+                    assert_eq!(packed.header.hash, hash);
+                    for i in 0..packed.header.chunks {
+                        let frame = packed.chunk_frame(i).expect("a chunk");
+                        out.push(protocol::decode(&frame, usize::MAX).expect("decodes"));
+                    }
                 }
             }
             (Kind::Viewer(v), Message::SceneStored { hash }) => {
@@ -802,7 +825,12 @@ impl Net {
         self.viewer_sim(v).notices.clone()
     }
 
-    /// How many times slave `s` was sent the scene.
+    /// Scene chunks slave `s` received.
+    pub fn scene_chunks(&self, s: PeerId) -> u32 {
+        self.slave_sim(s).chunks
+    }
+
+    /// How many times slave `s` received a scene whole.
     pub fn scene_syncs(&self, s: PeerId) -> u32 {
         self.slave_sim(s).syncs
     }
