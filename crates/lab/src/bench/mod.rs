@@ -10,11 +10,14 @@
 //!   simulated slaves;
 //! - [`shared`]: `isin bench shared`, two viewers and a batch job on one
 //!   emulated cluster at once;
+//! - [`chaos`]: `isin bench chaos`, a soak of a master, slaves, a viewer and
+//!   a batch job under injected faults (kills, stops, link faults);
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
 //!   and reading their CPU time; [`modes`]: the transport and compression
 //!   modes the benches run; [`report`]: statistics, tables and plots;
 //!   [`replay`]: replaying a camera path, one frame at a time or pipelined.
 
+mod chaos;
 mod cluster;
 mod master;
 pub mod modes;
@@ -46,6 +49,8 @@ enum BenchCommand {
     Shared(shared::SharedArgs),
     /// The master alone at a thousand simulated slaves: scheduler and routing cost, failure detection.
     Master(master::MasterBenchArgs),
+    /// A soak under injected faults: frames lost, byte-identical, recovery after master restarts, memory.
+    Chaos(chaos::ChaosArgs),
 }
 
 /// Runs `isin bench`.
@@ -56,6 +61,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Transports(a) => transports::run(a),
         BenchCommand::Shared(a) => shared::run(a),
         BenchCommand::Master(a) => master::run(a),
+        BenchCommand::Chaos(a) => chaos::run(a),
     }
 }
 
