@@ -243,7 +243,8 @@ impl Soak<'_> {
 
     fn start_master(&self) -> anyhow::Result<ChildGuard> {
         let ns = self.lab.master().ns.clone();
-        let (m, ticket) = start_master(Some(&ns), None, &self.scene, &self.listen(), &self.token, &self.master_extra)?;
+        let (m, ticket) =
+            start_master(Some(&ns), None, &self.scene, &self.listen(), &self.token, &self.master_extra)?;
         anyhow::ensure!(
             ticket.to_string() == self.ticket.to_string(),
             "the restarted master printed another ticket: {ticket} (was {})",
@@ -300,10 +301,18 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
     let token = auth::generate_token()?;
     let loadavg_before = loadavg();
     let listen = format!("{}:7878", lab.master().addr);
-    let (master, ticket) = start_master(Some(&lab.master().ns), None, &scene, &listen, &token, &master_extra)?;
+    let (master, ticket) =
+        start_master(Some(&lab.master().ns), None, &scene, &listen, &token, &master_extra)?;
     let mut slaves = Vec::new();
     for i in 0..args.slaves {
-        slaves.push(start_slave(Some(&lab.slave(i).context("no slave")?.ns), None, &ticket, 1, &format!("pc{}", i + 1), &[])?);
+        slaves.push(start_slave(
+            Some(&lab.slave(i).context("no slave")?.ns),
+            None,
+            &ticket,
+            1,
+            &format!("pc{}", i + 1),
+            &[],
+        )?);
     }
     wait_joined(&master, &mut slaves, Duration::from_secs(60))?;
     println!(
@@ -342,7 +351,8 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
     let wall = soak.now();
     drop(soak.procs.into_inner().unwrap_or_else(|e| e.into_inner()));
     drop(lab);
-    let report = make_report(&args, (w, h), seconds, wall, injected, viewer_frames, rounds, series, loadavg_before);
+    let report =
+        make_report(&args, (w, h), seconds, wall, injected, viewer_frames, rounds, series, loadavg_before);
     let md = markdown(&report);
     report::write_outputs(&args.out, "chaos", &report, true, &md, |p| plot(p, &report))?;
     Ok(())
@@ -382,12 +392,18 @@ fn inject(soak: &Soak, plan: &[Fault]) -> Vec<Injected> {
         let mut master_started = None;
         let result = apply(soak, f, &mut master_started);
         // One line, for the log and the report's table.
-        let error = result.err().map(|e| format!("{e:#}").split_whitespace().collect::<Vec<_>>().join(" ").replace('|', "/"));
+        let error = result
+            .err()
+            .map(|e| format!("{e:#}").split_whitespace().collect::<Vec<_>>().join(" ").replace('|', "/"));
         println!(
             "{began:7.1} s  {}{}{} for {:.2} s{}",
             f.kind.describe(),
             f.slave.map(|i| format!(" pc{}", i + 1)).unwrap_or_default(),
-            if f.loss_per_mille > 0 { format!(" ({:.1} %)", f.loss_per_mille as f64 / 10.0) } else { String::new() },
+            if f.loss_per_mille > 0 {
+                format!(" ({:.1} %)", f.loss_per_mille as f64 / 10.0)
+            } else {
+                String::new()
+            },
             f.secs,
             error.as_ref().map(|e| format!(" — failed: {e}")).unwrap_or_default()
         );
@@ -515,7 +531,12 @@ fn viewer_loop(soak: &Soak) -> anyhow::Result<Vec<ViewerFrame>> {
                     Some(c) => c,
                     None => match tokio::time::timeout(
                         left,
-                        viewer::connect_as(transport.as_ref(), &soak.ticket, "chaos viewer", Work::Interactive),
+                        viewer::connect_as(
+                            transport.as_ref(),
+                            &soak.ticket,
+                            "chaos viewer",
+                            Work::Interactive,
+                        ),
                     )
                     .await
                     {
@@ -594,7 +615,8 @@ fn batch_loop(soak: &Soak, frames_dir: &Path) -> anyhow::Result<Vec<BatchRound>>
         let (tx, done) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
             for line in stdout.lines().map_while(Result::ok) {
-                if line.starts_with("frame ") && line.contains("done at") && tx.send(Instant::now()).is_err() {
+                if line.starts_with("frame ") && line.contains("done at") && tx.send(Instant::now()).is_err()
+                {
                     break;
                 }
             }
@@ -618,7 +640,16 @@ fn batch_loop(soak: &Soak, frames_dir: &Path) -> anyhow::Result<Vec<BatchRound>>
                 identical += usize::from(bytes == soak.reference_png[i]);
             }
         }
-        rounds.push(BatchRound { first, frames, started, ended: soak.now(), done_at, written, identical, status });
+        rounds.push(BatchRound {
+            first,
+            frames,
+            started,
+            ended: soak.now(),
+            done_at,
+            written,
+            identical,
+            status,
+        });
     }
     Ok(rounds)
 }
@@ -644,7 +675,10 @@ fn make_report(
         completed: viewer_frames.iter().filter(|f| f.done.is_some()).count(),
         identical: viewer_frames.iter().filter(|f| f.identical == Some(true)).count(),
         lost: viewer_frames.iter().filter(|f| f.done.is_none()).count(),
-        longest_frame: viewer_frames.iter().filter_map(|f| f.done.map(|d| d - f.requested)).fold(0.0, f64::max),
+        longest_frame: viewer_frames
+            .iter()
+            .filter_map(|f| f.done.map(|d| d - f.requested))
+            .fold(0.0, f64::max),
     };
     let batch = Tally {
         requested: rounds.iter().map(|r| r.frames).sum(),
@@ -724,7 +758,9 @@ fn make_report(
         notes,
         loadavg_before,
         loadavg_after: loadavg(),
-        unix_time: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
+        unix_time: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
     }
 }
 
@@ -804,7 +840,11 @@ fn markdown(r: &ChaosReport) -> String {
                 f.fault.kind.describe().to_string(),
                 f.fault.slave.map(|i| format!("pc{}", i + 1)).unwrap_or_else(|| "master".into()),
                 format!("{:.2}", f.fault.secs),
-                if f.fault.loss_per_mille > 0 { format!("{:.1} %", f.fault.loss_per_mille as f64 / 10.0) } else { String::new() },
+                if f.fault.loss_per_mille > 0 {
+                    format!("{:.1} %", f.fault.loss_per_mille as f64 / 10.0)
+                } else {
+                    String::new()
+                },
                 r.recoveries
                     .iter()
                     .find(|x| Some(x.master_started) == f.master_started)
@@ -815,7 +855,10 @@ fn markdown(r: &ChaosReport) -> String {
             ]
         })
         .collect();
-    out.push_str(&report::table(&["at s", "fault", "target", "span s", "loss", "recovery s", "error"], &rows));
+    out.push_str(&report::table(
+        &["at s", "fault", "target", "span s", "loss", "recovery s", "error"],
+        &rows,
+    ));
     for n in &r.notes {
         out.push_str(&format!("\nNote: {n}.\n"));
     }
@@ -846,4 +889,93 @@ fn plot(path: &Path, r: &ChaosReport) -> anyhow::Result<()> {
             series: &series,
         },
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: ChaosArgs,
+    }
+
+    fn viewer_frame(requested: f64, done: Option<f64>, identical: bool) -> ViewerFrame {
+        ViewerFrame {
+            camera: 0,
+            requested,
+            done,
+            attempts: 1,
+            identical: done.map(|_| identical),
+            requeued: 2,
+            duplicated: 1,
+            errors: Vec::new(),
+        }
+    }
+
+    fn injected(kind: FaultKind, began: f64, master_started: Option<f64>) -> Injected {
+        Injected {
+            fault: Fault { at: began, kind, slave: None, secs: 1.0, loss_per_mille: 0 },
+            began,
+            master_started,
+            error: None,
+        }
+    }
+
+    #[test]
+    fn the_report_counts_lost_and_differing_frames_and_times_the_recoveries() {
+        let args = Cli::parse_from(["x", "--seconds", "60"]).args;
+        let frames = vec![
+            viewer_frame(1.0, Some(1.5), true),
+            viewer_frame(1.5, Some(4.5), false),
+            viewer_frame(4.5, None, false),
+        ];
+        let round = BatchRound {
+            first: 0,
+            frames: 4,
+            started: 2.0,
+            ended: 9.0,
+            done_at: vec![3.0, 3.5, 8.0],
+            written: 3,
+            identical: 3,
+            status: "exit status: 0".into(),
+        };
+        let faults =
+            vec![injected(FaultKind::MasterKill, 2.0, Some(3.2)), injected(FaultKind::SlaveKill, 5.0, None)];
+        let series = BTreeMap::from([(
+            "master".to_string(),
+            (0..60).map(|t| Sample { t: t as f64, kib: 30_000 + 1_000 * t }).collect::<Vec<_>>(),
+        )]);
+        let r =
+            make_report(&args, (160, 120), 60.0, 61.0, faults, frames, vec![round], series, String::new());
+        assert_eq!((r.viewer.requested, r.viewer.completed, r.viewer.identical, r.viewer.lost), (3, 2, 1, 1));
+        assert_eq!((r.batch.requested, r.batch.completed, r.batch.identical, r.batch.lost), (4, 3, 3, 1));
+        assert!((r.viewer.longest_frame - 3.0).abs() < 1e-9 && (r.batch.longest_frame - 4.5).abs() < 1e-9);
+        assert_eq!(r.lost(), 2);
+        assert!(!r.all_identical());
+        // Restarted at 3.2 s: the next frame completed is the batch's at 3.5 s.
+        assert!(r.recoveries[0].seconds.is_some_and(|s| (s - 0.3).abs() < 1e-9), "{:?}", r.recoveries);
+        assert_eq!((r.tiles_requeued, r.tiles_duplicated), (6, 3));
+        assert_eq!(r.fault_counts[&FaultKind::MasterKill], 1);
+        assert!(!r.rss_flat, "30 → 89 MiB grows");
+        let md = markdown(&r);
+        assert!(md.contains("| viewer | 3 | 2 | 1 | 1 | 3.00 |"), "{md}");
+        assert!(md.contains("**2 frames lost; SOME FRAMES DIFFER; memory GROWS.**"), "{md}");
+        assert!(md.contains("| master killed (-9) and restarted | 1 |"), "{md}");
+        assert!(
+            md.contains("| 2.0 | master killed (-9) and restarted | master | 1.00 |  | 0.30 |  |"),
+            "{md}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        plot(&dir.path().join("chaos.svg"), &r).unwrap();
+    }
+
+    #[test]
+    fn minutes_and_seconds_exclude_each_other() {
+        assert!(Cli::try_parse_from(["x", "--minutes", "5", "--seconds", "60"]).is_err());
+        let a = Cli::parse_from(["x", "--minutes", "30", "--transport", "quic"]).args;
+        assert_eq!((a.minutes, a.slaves, a.transport.as_str()), (Some(30.0), 4, "quic"));
+    }
 }

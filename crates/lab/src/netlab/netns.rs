@@ -224,7 +224,11 @@ impl Lab {
             return Ok(());
         }
         // numgen draws below 1000: all of them is a plain drop.
-        let rule = if per_mille >= 1000 { "iifname \"eth0\" drop".to_string() } else { LinkSpec::loss_rule(per_mille) };
+        let rule = if per_mille >= 1000 {
+            "iifname \"eth0\" drop".to_string()
+        } else {
+            LinkSpec::loss_rule(per_mille)
+        };
         nft(&["add", "table", "inet", "isin_host_loss"])?;
         nft(&["add", "chain", "inet", "isin_host_loss", "in", "{ type filter hook input priority 0; }"])?;
         nft(&["add", "chain", "inet", "isin_host_loss", "out", "{ type filter hook output priority 0; }"])?;

@@ -99,7 +99,9 @@ mod tests {
         assert!(s.flat, "{s:?}");
         assert_eq!((s.first_mib * 1024.0) as u64, 20_000);
         // Warm-up growth in the first quarter does not count.
-        assert!(summarize("m", &run(|t| if t < 20.0 { 10_000 + 2_000 * t as u64 } else { 50_000 }), 100.0).flat);
+        assert!(
+            summarize("m", &run(|t| if t < 20.0 { 10_000 + 2_000 * t as u64 } else { 50_000 }), 100.0).flat
+        );
     }
 
     #[test]
