@@ -225,6 +225,7 @@ struct Soak<'a> {
     /// Faults end; clients stop asking for more frames.
     deadline: Instant,
     procs: Mutex<Procs>,
+    logs: Mutex<Logs>,
     stop: AtomicBool,
 }
 
@@ -235,6 +236,17 @@ impl Soak<'_> {
 
     fn now(&self) -> f64 {
         self.secs(Instant::now())
+    }
+
+    /// Kills `child` and keeps what it logged.
+    fn keep_logs(&self, name: &str, child: Option<ChildGuard>) {
+        if let Some(mut c) = child {
+            let _ = c.child.kill();
+            let _ = c.child.wait();
+            // Give the log reader a moment to pass on the last lines.
+            std::thread::sleep(Duration::from_millis(20));
+            self.logs.lock().unwrap_or_else(|e| e.into_inner()).keep(name, &c);
+        }
     }
 
     fn listen(&self) -> String {
@@ -281,6 +293,7 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
     let scene = args.scene.to_str().context("scene path is not UTF-8")?.to_string();
     let frames_dir = args.out.join("frames");
     let _ = std::fs::remove_dir_all(&frames_dir);
+    let _ = std::fs::remove_dir_all(args.out.join("logs"));
     println!("chaos: local reference of {} cameras at {w}x{h}", cameras.len());
     let reference: Vec<Vec<u8>> = cameras
         .iter()
@@ -335,6 +348,7 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
         start,
         deadline: start + Duration::from_secs_f64(seconds),
         procs: Mutex::new(Procs { master: Some(master), slaves: slaves.into_iter().map(Some).collect() }),
+        logs: Mutex::new(Logs { dir: args.out.join("logs"), files: BTreeMap::new() }),
         stop: AtomicBool::new(false),
     };
     let (injected, viewer_frames, rounds, series) = std::thread::scope(|s| {
@@ -421,7 +435,8 @@ fn apply(soak: &Soak, f: &Fault, master_started: &mut Option<f64>) -> anyhow::Re
     match f.kind {
         FaultKind::SlaveKill => {
             // Dropping the guard kills it (SIGKILL) and reaps it.
-            drop(procs().slaves[slave].take());
+            let gone = procs().slaves[slave].take();
+            soak.keep_logs(&format!("pc{}", slave + 1), gone);
             std::thread::sleep(span);
             let s = soak.start_slave(slave)?;
             procs().slaves[slave] = Some(s);
@@ -433,7 +448,8 @@ fn apply(soak: &Soak, f: &Fault, master_started: &mut Option<f64>) -> anyhow::Re
             signal(pid, libc::SIGCONT);
         }
         FaultKind::MasterKill => {
-            drop(procs().master.take());
+            let gone = procs().master.take();
+            soak.keep_logs("master", gone);
             std::thread::sleep(span);
             *master_started = Some(soak.now());
             let m = soak.start_master()?;
@@ -472,13 +488,14 @@ fn sample_rss(soak: &Soak) -> BTreeMap<String, Vec<Sample>> {
             let mut pids = vec![("bench (viewer)".to_string(), std::process::id())];
             {
                 let p = soak.procs.lock().unwrap_or_else(|e| e.into_inner());
+                let mut logs = soak.logs.lock().unwrap_or_else(|e| e.into_inner());
                 if let Some(m) = &p.master {
-                    m.tail(0);
+                    logs.keep("master", m);
                     pids.push(("master".into(), m.pid()));
                 }
                 for (i, s) in p.slaves.iter().enumerate() {
                     if let Some(s) = s {
-                        s.tail(0);
+                        logs.keep(&format!("pc{}", i + 1), s);
                         pids.push((format!("slave pc{}", i + 1), s.pid()));
                     }
                 }
@@ -492,6 +509,29 @@ fn sample_rss(soak: &Soak) -> BTreeMap<String, Vec<Sample>> {
         std::thread::sleep(Duration::from_millis(100));
     }
     series
+}
+
+/// The processes' logs, appended to `DIR/NAME.log` (restarts continue the
+/// file), read off the guards so that they do not pile up in memory.
+struct Logs {
+    dir: PathBuf,
+    files: BTreeMap<String, Option<std::fs::File>>,
+}
+
+impl Logs {
+    fn keep(&mut self, name: &str, child: &ChildGuard) {
+        use std::io::Write;
+        let lines = child.tail(usize::MAX);
+        let file = self.files.entry(name.to_string()).or_insert_with(|| {
+            std::fs::create_dir_all(&self.dir).ok()?;
+            std::fs::File::create(self.dir.join(format!("{name}.log"))).ok()
+        });
+        if let Some(f) = file {
+            for l in lines {
+                let _ = writeln!(f, "{l}");
+            }
+        }
+    }
 }
 
 /// The viewer: in the master's namespace, one frame at a time along the
