@@ -83,7 +83,9 @@ pub struct ChaosArgs {
     /// Seconds between memory readings.
     #[arg(long, default_value_t = 2.0)]
     rss_every: f64,
-    /// Directory for chaos.json, chaos.md and chaos.svg (and the frames, under `frames/`).
+    /// Directory for chaos.json, chaos.md and chaos.svg; also `frames/` (the local
+    /// reference, and the batch rounds that lost or changed frames) and `logs/`
+    /// (what the master and each slave logged, restarts included).
     #[arg(long = "out", value_name = "DIR", default_value = "target/bench/chaos")]
     out: PathBuf,
 }
@@ -147,6 +149,26 @@ struct BatchRound {
     status: String,
 }
 
+impl BatchRound {
+    /// The longest time from the round's start or a frame to the next frame.
+    fn longest_gap(&self) -> f64 {
+        let mut prev = self.started;
+        let mut longest = 0.0f64;
+        for &d in &self.done_at {
+            longest = longest.max(d - prev);
+            prev = d;
+        }
+        longest
+    }
+
+    fn notable(&self) -> bool {
+        self.written < self.frames
+            || self.identical < self.written
+            || self.status != "exit status: 0"
+            || self.longest_gap() > 1.0
+    }
+}
+
 /// Frames of one client.
 #[derive(Clone, Debug, Default, Serialize)]
 struct Tally {
@@ -198,6 +220,8 @@ struct ChaosReport {
     /// The viewer's frames worth a look: lost, differing, asked more than
     /// once, answered with an error, or longer than a second.
     viewer_frames: Vec<ViewerFrame>,
+    /// The batch rounds worth a look: frames lost or changed, `isin fly`
+    /// failing, or more than a second between two frames.
     rounds: Vec<BatchRound>,
     notes: Vec<String>,
     loadavg_before: String,
@@ -696,6 +720,11 @@ fn batch_loop(soak: &Soak, frames_dir: &Path) -> anyhow::Result<Vec<BatchRound>>
                 identical += usize::from(bytes == soak.reference_png[i]);
             }
         }
+        // A round that checks out is not kept (a 30-minute soak writes some
+        // hundred thousand frames); one that does not stays for a look.
+        if written == frames && identical == frames {
+            let _ = std::fs::remove_dir_all(&dir);
+        }
         rounds.push(BatchRound {
             first,
             frames,
@@ -741,17 +770,7 @@ fn make_report(
         completed: rounds.iter().map(|r| r.written).sum(),
         identical: rounds.iter().map(|r| r.identical).sum(),
         lost: rounds.iter().map(|r| r.frames - r.written).sum(),
-        longest_frame: rounds
-            .iter()
-            .flat_map(|r| {
-                let mut prev = r.started;
-                r.done_at.iter().map(move |&d| {
-                    let gap = d - prev;
-                    prev = d;
-                    gap
-                })
-            })
-            .fold(0.0, f64::max),
+        longest_frame: rounds.iter().map(BatchRound::longest_gap).fold(0.0, f64::max),
     };
     let completions: Vec<f64> = {
         let mut v: Vec<f64> = viewer_frames.iter().filter_map(|f| f.done).collect();
@@ -810,7 +829,7 @@ fn make_report(
         rss_series,
         rss_flat,
         viewer_frames: viewer_frames.into_iter().filter(ViewerFrame::notable).collect(),
-        rounds,
+        rounds: rounds.into_iter().filter(BatchRound::notable).collect(),
         notes,
         loadavg_before,
         loadavg_after: loadavg(),
@@ -1030,6 +1049,7 @@ mod tests {
         assert_eq!(r.fault_counts[&FaultKind::MasterKill], 1);
         assert!(r.rss_flat, "the bench's own memory is not judged");
         assert_eq!(r.viewer_frames.len(), 2, "the differing and the lost frame are kept");
+        assert_eq!((r.batch_rounds, r.rounds.len()), (1, 1), "a round with a frame lost is kept");
         series.insert("slave pc1".into(), growing);
         let grows =
             make_report(&args, (160, 120), 60.0, 61.0, faults, frames, vec![round], series, String::new());
