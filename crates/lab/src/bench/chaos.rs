@@ -289,14 +289,8 @@ impl Soak<'_> {
         }
     }
 
-    fn listen(&self) -> String {
-        format!("{}:7878", self.lab.master().addr)
-    }
-
     fn start_master(&self) -> anyhow::Result<ChildGuard> {
-        let ns = self.lab.master().ns.clone();
-        let (m, ticket) =
-            start_master(Some(&ns), None, &self.scene, &self.listen(), &self.token, &self.master_extra)?;
+        let (m, ticket) = launch_master(self.lab, &self.scene, &self.token, &self.master_extra)?;
         anyhow::ensure!(
             ticket.to_string() == self.ticket.to_string(),
             "the restarted master printed another ticket: {ticket} (was {})",
@@ -306,9 +300,26 @@ impl Soak<'_> {
     }
 
     fn start_slave(&self, i: usize) -> anyhow::Result<ChildGuard> {
-        let ns = self.lab.slave(i).context("no such slave")?.ns.clone();
-        start_slave(Some(&ns), None, &self.ticket, 1, &format!("pc{}", i + 1), &[])
+        launch_slave(self.lab, i, &self.ticket)
     }
+}
+
+/// The master in its namespace, on a fixed port (a restart listens where
+/// its predecessor did).
+fn launch_master(
+    lab: &Lab,
+    scene: &str,
+    token: &str,
+    extra: &[String],
+) -> anyhow::Result<(ChildGuard, Ticket)> {
+    let listen = format!("{}:7878", lab.master().addr);
+    start_master(Some(&lab.master().ns), None, scene, &listen, token, extra)
+}
+
+/// Slave `i` (0-based) in its namespace, one render thread, named `pcN`.
+fn launch_slave(lab: &Lab, i: usize, ticket: &Ticket) -> anyhow::Result<ChildGuard> {
+    let ns = &lab.slave(i).context("no such slave")?.ns;
+    start_slave(Some(ns), None, ticket, 1, &format!("pc{}", i + 1), &[])
 }
 
 /// Runs `isin bench chaos`.
@@ -353,20 +364,9 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
     }
     let token = auth::generate_token()?;
     let loadavg_before = loadavg();
-    let listen = format!("{}:7878", lab.master().addr);
-    let (master, ticket) =
-        start_master(Some(&lab.master().ns), None, &scene, &listen, &token, &master_extra)?;
-    let mut slaves = Vec::new();
-    for i in 0..args.slaves {
-        slaves.push(start_slave(
-            Some(&lab.slave(i).context("no slave")?.ns),
-            None,
-            &ticket,
-            1,
-            &format!("pc{}", i + 1),
-            &[],
-        )?);
-    }
+    let (master, ticket) = launch_master(&lab, &scene, &token, &master_extra)?;
+    let mut slaves =
+        (0..args.slaves).map(|i| launch_slave(&lab, i, &ticket)).collect::<anyhow::Result<Vec<_>>>()?;
     wait_joined(&master, &mut slaves, Duration::from_secs(60))?;
     println!(
         "chaos: {} s over {} with {} slaves (pc1 on {} Mbit/s, the others on {} Mbit/s), seed {}",
@@ -403,7 +403,15 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
         anyhow::Ok((injected, viewer?, batch?, series))
     })?;
     let wall = soak.now();
-    drop(soak.procs.into_inner().unwrap_or_else(|e| e.into_inner()));
+    let procs = std::mem::replace(
+        &mut *soak.procs.lock().unwrap_or_else(|e| e.into_inner()),
+        Procs { master: None, slaves: Vec::new() },
+    );
+    soak.keep_logs("master", procs.master);
+    for (i, s) in procs.slaves.into_iter().enumerate() {
+        soak.keep_logs(&format!("pc{}", i + 1), s);
+    }
+    drop(soak);
     drop(lab);
     let report =
         make_report(&args, (w, h), seconds, wall, injected, viewer_frames, rounds, series, loadavg_before);
