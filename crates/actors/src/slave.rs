@@ -73,11 +73,15 @@ impl Default for SlaveOptions {
     }
 }
 
-/// Frames a cancellation is remembered for: a queued job of a frame this much
-/// older than the newest assigned one is skipped outright (the master keeps
-/// far fewer frames open at once), and cancellations of older frames are
-/// forgotten.
-const CANCEL_MEMORY: u64 = 16;
+/// Frames a cancellation is remembered for: cancellations of frames this much
+/// older than the newest assigned one are forgotten (those of tiles rendered
+/// before their cancel came are never consumed). Forgetting one costs at most
+/// a tile rendered for nothing. A tile is never skipped for its frame's age:
+/// frame numbers count every client's frames, and a batch frame stays open
+/// while viewers run through hundreds of newer ones, so a tile of it handed
+/// out again (its slave died) is far older than what this slave renders —
+/// and still wanted.
+const CANCEL_MEMORY: u64 = 256;
 
 /// What a slave renders with: loads a shipped scene, renders a tile of it.
 /// [`Tracer`] is the real one; tests plug in cheap fakes.
@@ -516,7 +520,7 @@ pub async fn serve<R: Renderer>(
         parked: HashMap::new(),
         renderer,
         pool,
-        latest: Arc::new(AtomicU64::new(0)),
+        latest: 0,
         cancelled: Arc::default(),
         counters,
         last_heard: Instant::now(),
@@ -546,7 +550,8 @@ pub struct SlaveActor<R: Renderer> {
     parked: HashMap<SceneHash, Vec<TileAssignment>>,
     renderer: Arc<R>,
     pool: Arc<rayon::ThreadPool>,
-    latest: Arc<AtomicU64>,
+    /// The newest frame assigned (for forgetting old cancellations).
+    latest: FrameId,
     cancelled: Arc<Mutex<HashSet<(FrameId, TileId)>>>,
     counters: Arc<SlaveCounters>,
     last_heard: Instant,
@@ -638,8 +643,8 @@ impl<R: Renderer> SlaveActor<R> {
 
     /// Queues an assignment's tiles on the pool.
     fn render(&mut self, a: TileAssignment, scene: Arc<R::Scene>) {
-        if a.frame > self.latest.load(Ordering::Acquire) {
-            self.latest.store(a.frame, Ordering::Release);
+        if a.frame > self.latest {
+            self.latest = a.frame;
             // Cancellations of tiles that were already rendered are never
             // consumed by a job: forget those of frames long gone.
             if let Ok(mut c) = self.cancelled.lock() {
@@ -657,22 +662,19 @@ impl<R: Renderer> SlaveActor<R> {
                 tracing::error!(?t, "master assigned a tile outside the {w}x{h} image; skipped");
                 continue;
             }
-            let (renderer, scene, sender, latest, cancelled, counters) = (
+            let (renderer, scene, sender, cancelled, counters) = (
                 self.renderer.clone(),
                 scene.clone(),
                 self.sender.clone(),
-                self.latest.clone(),
                 self.cancelled.clone(),
                 self.counters.clone(),
             );
             let (frame, camera, settings, tile_codec) = (a.frame, a.camera, a.settings, self.codec);
             self.pool.spawn_fifo(move || {
-                // Skip (or stop, between bands of rows) cancelled tiles, tiles
-                // of frames long gone, and the leftovers of a session whose
-                // connection is gone.
+                // Skip (or stop, between bands of rows) cancelled tiles and
+                // the leftovers of a session whose connection is gone.
                 let stop = || {
                     sender.is_closed()
-                        || latest.load(Ordering::Acquire) > frame.saturating_add(CANCEL_MEMORY)
                         || cancelled.lock().map(|mut c| c.remove(&(frame, job.id))).unwrap_or(false)
                 };
                 let (t0, cpu0) = (Instant::now(), thread_cpu_time());

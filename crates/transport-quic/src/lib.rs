@@ -41,6 +41,14 @@
 //! for a peer to make this side buffer without limit), and a 5 ms ACK delay
 //! requested from the peer so a lost last packet is probed quickly.
 //!
+//! ## Restarts
+//! A master restarted with the same identity (`isin master --identity`) keeps
+//! its stateless-reset key, derived from the identity's private key
+//! ([`reset_key`]): a peer still holding a connection to the master that
+//! died gets a stateless reset from the new one for its next packet (a
+//! keep-alive at the latest) and reconnects at once, instead of waiting out
+//! the idle timeout for an answer that never comes.
+//!
 //! ## Limits
 //! As on every transport, an announced frame is checked against the maximum
 //! frame and reserved from the listener's memory budget before its bytes are
@@ -82,12 +90,14 @@ pub use conn::{CLOSE_DONE, CLOSE_FRAME_TIMEOUT, CLOSE_OVER_BUDGET, CLOSE_PROTOCO
 pub use isin_transport_tls as tls;
 pub use stats::WireStats;
 
+use hmac::{Hmac, Mac};
 use isin_transport::{
     BoxFuture, ConnShared, Connection, INITIAL_MAX_FRAME, Listener, ListenerLimits, MemoryBudget, Transport,
     TransportError,
 };
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use quinn::{Endpoint, EndpointConfig, TokioRuntime, VarInt};
+use sha2::{Digest, Sha256};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
@@ -102,6 +112,8 @@ const ACCEPT_QUEUE: usize = 64;
 #[derive(Clone)]
 pub struct QuicTransport {
     server: Option<Arc<QuicServerConfig>>,
+    /// The listening side's stateless-reset key (from its identity).
+    reset: Option<Arc<ResetKey>>,
     pinned: Option<Fingerprint>,
     identity: Option<Fingerprint>,
     options: QuicOptions,
@@ -139,6 +151,7 @@ impl QuicTransport {
     pub fn server(identity: &Identity) -> Result<Self, TlsError> {
         Ok(Self {
             server: Some(Arc::new(quic_server_config(identity)?)),
+            reset: Some(Arc::new(reset_key(identity))),
             pinned: None,
             identity: Some(identity.fingerprint()),
             options: QuicOptions::default(),
@@ -153,6 +166,7 @@ impl QuicTransport {
         quic_client_config(pinned)?;
         Ok(Self {
             server: None,
+            reset: None,
             pinned: Some(pinned),
             identity: None,
             options: QuicOptions::default(),
@@ -205,10 +219,79 @@ async fn resolve(addr: &str) -> Result<SocketAddr, TransportError> {
 fn endpoint(
     bind: SocketAddr,
     server: Option<quinn::ServerConfig>,
+    reset: Option<Arc<ResetKey>>,
     opts: &QuicOptions,
 ) -> std::io::Result<Endpoint> {
     let socket = config::bind_udp(bind, opts.socket_buffer)?;
-    Endpoint::new(EndpointConfig::default(), server, socket, Arc::new(TokioRuntime))
+    let config = match reset {
+        Some(key) => {
+            let mut config = EndpointConfig::new(key);
+            config.cid_generator(|| Box::new(RandomCids));
+            config
+        }
+        None => EndpointConfig::default(),
+    };
+    Endpoint::new(config, server, socket, Arc::new(TokioRuntime))
+}
+
+/// The key a listener's stateless-reset tokens are made with: HMAC-SHA256
+/// keyed by a hash of the identity's private key, so that a master restarted
+/// with the same identity makes the tokens its predecessor gave out.
+pub struct ResetKey(Hmac<Sha256>);
+
+/// The stateless-reset key of `identity` (the same for the same identity;
+/// the tokens tell nothing of the private key).
+pub fn reset_key(identity: &Identity) -> ResetKey {
+    let secret = Sha256::new()
+        .chain_update(b"isin QUIC stateless reset key\0")
+        .chain_update(identity.key_der().secret_pkcs8_der())
+        .finalize();
+    ResetKey(Hmac::new_from_slice(&secret).expect("HMAC takes a key of any length"))
+}
+
+/// Random connection ids of 8 bytes that a listener does not try to tell
+/// from junk: quinn's default ids are signed with a key of the process, so a
+/// restarted master would drop its predecessor's as invalid instead of
+/// answering them with a stateless reset (junk gets one too, at most one
+/// per 20 ms, never larger than what it answers).
+struct RandomCids;
+
+impl quinn::ConnectionIdGenerator for RandomCids {
+    fn generate_cid(&mut self) -> quinn::ConnectionId {
+        let mut id = [0u8; 8];
+        if getrandom::fill(&mut id).is_err() {
+            // No system randomness: ids unique enough from the clock and a counter.
+            static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+            let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+            id[..4].copy_from_slice(&t.subsec_nanos().to_le_bytes());
+            id[4..].copy_from_slice(&N.fetch_add(1, std::sync::atomic::Ordering::Relaxed).to_le_bytes());
+        }
+        quinn::ConnectionId::new(&id)
+    }
+
+    fn cid_len(&self) -> usize {
+        8
+    }
+
+    fn cid_lifetime(&self) -> Option<Duration> {
+        None
+    }
+}
+
+impl quinn::crypto::HmacKey for ResetKey {
+    fn sign(&self, data: &[u8], signature_out: &mut [u8]) {
+        let tag = self.0.clone().chain_update(data).finalize().into_bytes();
+        let n = signature_out.len().min(tag.len());
+        signature_out[..n].copy_from_slice(&tag[..n]);
+    }
+
+    fn signature_len(&self) -> usize {
+        32
+    }
+
+    fn verify(&self, data: &[u8], signature: &[u8]) -> Result<(), quinn::crypto::CryptoError> {
+        self.0.clone().chain_update(data).verify_slice(signature).map_err(|_| quinn::crypto::CryptoError)
+    }
 }
 
 /// Explains a failed QUIC connection attempt in words a user can act on; a
@@ -238,7 +321,8 @@ impl Transport for QuicTransport {
             let bind = resolve(addr).await?;
             let mut server = quinn::ServerConfig::with_crypto(crypto);
             server.transport_config(self.transport_config());
-            let endpoint = endpoint(bind, Some(server), &self.options).map_err(|e| err(e.to_string()))?;
+            let endpoint = endpoint(bind, Some(server), self.reset.clone(), &self.options)
+                .map_err(|e| err(e.to_string()))?;
             let local = endpoint.local_addr().map_err(|e| err(e.to_string()))?.to_string();
             let (tx, rx) = mpsc::channel(ACCEPT_QUEUE);
             let limits = ListenerLimits::new();
@@ -264,7 +348,7 @@ impl Transport for QuicTransport {
             let target = resolve(addr).await?;
             let bind: SocketAddr = if target.is_ipv6() { "[::]:0".parse() } else { "0.0.0.0:0".parse() }
                 .map_err(|_| err("".into()))?;
-            let endpoint = endpoint(bind, None, &self.options).map_err(|e| err(e.to_string()))?;
+            let endpoint = endpoint(bind, None, None, &self.options).map_err(|e| err(e.to_string()))?;
             let mut client = quinn::ClientConfig::new(Arc::new(crypto));
             client.transport_config(self.transport_config());
             let conn = endpoint

@@ -415,3 +415,63 @@ async fn many_clients_at_once_each_get_their_own_frames() {
     assert_eq!(seen.len(), 16);
     assert_eq!(server.wire_stats().connections, 16);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_listener_with_the_same_identity_resets_its_predecessors_connections_at_once() {
+    let id = Identity::generate().unwrap();
+    // An idle timeout far longer than the keep-alive: ending within a few
+    // keep-alives can only be the new listener's stateless reset.
+    let opts = QuicOptions {
+        keep_alive: Duration::from_millis(100),
+        idle_timeout: Duration::from_secs(10),
+        ..QuicOptions::default()
+    };
+    let server = QuicTransport::server(&id).unwrap().with_options(opts.clone());
+    let client = QuicTransport::client(id.fingerprint()).unwrap().with_options(opts);
+    // The first listener on a runtime of its own, which stops running once
+    // it accepted and is then dropped without a word to the peer: a master
+    // killed with -9.
+    // (A transport of its own: a transport's counters hold its connections.)
+    let first = QuicTransport::server(&id).unwrap().with_options(server.options().clone());
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = std::sync::mpsc::channel();
+    let gone = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        let held = rt.block_on(async {
+            let mut l = first.listen("127.0.0.1:0").await.unwrap();
+            addr_tx.send(l.local_addr()).unwrap();
+            timeout(BOUND, l.accept()).await.unwrap().map(|s| (l, s))
+        });
+        stop_rx.recv().unwrap();
+        drop(held);
+        rt.shutdown_background();
+    });
+    let addr: String = addr_rx.recv().unwrap();
+    let mut c = timeout(BOUND, client.connect(&addr)).await.unwrap().unwrap();
+    stop_tx.send(()).unwrap();
+    gone.join().unwrap();
+    // The new listener, same identity, same port.
+    let _again = server.listen(&addr).await.unwrap();
+    let t0 = Instant::now();
+    let end = timeout(Duration::from_secs(5), c.receiver.recv()).await.expect("the connection stayed open");
+    assert!(end.is_none() || end.as_ref().is_some_and(|e| e.is_err()), "{end:?}");
+    assert!(t0.elapsed() < Duration::from_secs(2), "reset after {:?}", t0.elapsed());
+}
+
+#[test]
+fn the_stateless_reset_key_follows_the_identity() {
+    use quinn::crypto::HmacKey;
+    let (a, b) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let sign = |id: &Identity, data: &[u8]| {
+        let mut out = [0u8; 32];
+        isin_transport_quic::reset_key(id).sign(data, &mut out);
+        out
+    };
+    assert_eq!(sign(&a, b"cid"), sign(&a, b"cid"), "a restarted master makes the same tokens");
+    assert_ne!(sign(&a, b"cid"), sign(&b, b"cid"));
+    assert_ne!(sign(&a, b"cid"), sign(&a, b"other cid"));
+    let key = isin_transport_quic::reset_key(&a);
+    assert_eq!(key.signature_len(), 32);
+    assert!(key.verify(b"cid", &sign(&a, b"cid")).is_ok());
+    assert!(key.verify(b"cid", &sign(&b, b"cid")).is_err());
+}

@@ -12,11 +12,14 @@
 //!   emulated cluster at once;
 //! - [`sync`]: `isin bench sync`, a slave joining over a shaped link: scene
 //!   bytes, transfer, build and first tile, then its rejoin;
+//! - [`chaos`]: `isin bench chaos`, a soak of a master, slaves, a viewer and
+//!   a batch job under injected faults (kills, stops, link faults);
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
 //!   and reading their CPU time; [`modes`]: the transport and compression
 //!   modes the benches run; [`report`]: statistics, tables and plots;
 //!   [`replay`]: replaying a camera path, one frame at a time or pipelined.
 
+mod chaos;
 mod cluster;
 mod master;
 pub mod modes;
@@ -51,6 +54,8 @@ enum BenchCommand {
     Master(master::MasterBenchArgs),
     /// A slave joining over a shaped link: scene bytes, transfer, build, first tile; then its rejoin.
     Sync(sync::SyncArgs),
+    /// A soak under injected faults: frames lost, byte-identical, recovery after master restarts, memory.
+    Chaos(chaos::ChaosArgs),
 }
 
 /// Runs `isin bench`.
@@ -62,6 +67,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Shared(a) => shared::run(a),
         BenchCommand::Master(a) => master::run(a),
         BenchCommand::Sync(a) => sync::run(a),
+        BenchCommand::Chaos(a) => chaos::run(a),
     }
 }
 

@@ -179,28 +179,10 @@ impl Lab {
     /// Reshapes every cable (rate and loss), keeping the namespaces.
     pub fn set_link(&mut self, link: LinkSpec) -> anyhow::Result<()> {
         for host in std::iter::once(&self.master).chain(&self.slaves) {
-            for (ns, dev) in [(host.ns.as_str(), "eth0"), (self.switch.as_str(), host.port.as_str())] {
-                match link.rate_mbit {
-                    Some(r) => {
-                        let mut args: Vec<String> =
-                            ["-n", ns, "qdisc", "replace", "dev", dev, "root"].map(String::from).to_vec();
-                        args.extend(LinkSpec::tbf_args(r));
-                        let args: Vec<&str> = args.iter().map(String::as_str).collect();
-                        run("tc", &args)?;
-                    }
-                    None => {
-                        // No root qdisc of ours: nothing to delete is fine.
-                        let _ = run("tc", &["-n", ns, "qdisc", "del", "dev", dev, "root"]);
-                    }
-                }
-            }
-            let _ = run("ip", &["netns", "exec", &host.ns, "nft", "delete", "table", "inet", "isin_loss"]);
+            self.set_rate(host, link.rate_mbit)?;
+            let nft = |args: &[&str]| nft(&host.ns, args);
+            let _ = nft(&["delete", "table", "inet", "isin_loss"]);
             if link.loss_per_mille > 0 {
-                let nft = |args: &[&str]| {
-                    let mut all = vec!["netns", "exec", &host.ns, "nft"];
-                    all.extend_from_slice(args);
-                    run("ip", &all)
-                };
                 nft(&["add", "table", "inet", "isin_loss"])?;
                 nft(&["add", "chain", "inet", "isin_loss", "in", "{ type filter hook input priority 0; }"])?;
                 nft(&["add", "rule", "inet", "isin_loss", "in", &LinkSpec::loss_rule(link.loss_per_mille)])?;
@@ -208,6 +190,56 @@ impl Lab {
         }
         self.link = link;
         tracing::info!("lab link: {}", link.label());
+        Ok(())
+    }
+
+    /// Rate-limits both directions of `host`'s cable to `rate_mbit` (`None`:
+    /// the veth's own speed), leaving the other cables as they are.
+    pub fn set_rate(&self, host: &Host, rate_mbit: Option<u32>) -> anyhow::Result<()> {
+        for (ns, dev) in [(host.ns.as_str(), "eth0"), (self.switch.as_str(), host.port.as_str())] {
+            match rate_mbit {
+                Some(r) => {
+                    let mut args: Vec<String> =
+                        ["-n", ns, "qdisc", "replace", "dev", dev, "root"].map(String::from).to_vec();
+                    args.extend(LinkSpec::tbf_args(r));
+                    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+                    run("tc", &args)?;
+                }
+                None => {
+                    // No root qdisc of ours: nothing to delete is fine.
+                    let _ = run("tc", &["-n", ns, "qdisc", "del", "dev", dev, "root"]);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Drops `per_mille` of the packets of `host`'s cable in both directions
+    /// (on its `eth0`'s input and output; 1000: the cable holds nothing), in
+    /// an nftables table of its own beside the lab-wide loss; 0 removes it.
+    pub fn set_host_loss(&self, host: &Host, per_mille: u32) -> anyhow::Result<()> {
+        let nft = |args: &[&str]| nft(&host.ns, args);
+        let _ = nft(&["delete", "table", "inet", "isin_host_loss"]);
+        if per_mille == 0 {
+            return Ok(());
+        }
+        // numgen draws below 1000: all of them is a plain drop.
+        let rule = if per_mille >= 1000 {
+            "iifname \"eth0\" drop".to_string()
+        } else {
+            LinkSpec::loss_rule(per_mille)
+        };
+        nft(&["add", "table", "inet", "isin_host_loss"])?;
+        nft(&["add", "chain", "inet", "isin_host_loss", "in", "{ type filter hook input priority 0; }"])?;
+        nft(&["add", "chain", "inet", "isin_host_loss", "out", "{ type filter hook output priority 0; }"])?;
+        nft(&["add", "rule", "inet", "isin_host_loss", "in", &rule])?;
+        nft(&["add", "rule", "inet", "isin_host_loss", "out", &rule.replace("iifname", "oifname")])?;
+        Ok(())
+    }
+
+    /// Unplugs (`up` false) or plugs back `host`'s cable: its `eth0` down or up.
+    pub fn set_host_up(&self, host: &Host, up: bool) -> anyhow::Result<()> {
+        run("ip", &["-n", &host.ns, "link", "set", "eth0", if up { "up" } else { "down" }])?;
         Ok(())
     }
 
@@ -243,6 +275,13 @@ impl Drop for Lab {
             remove_namespace(&ns);
         }
     }
+}
+
+/// Runs `nft ARGS…` inside namespace `ns`.
+fn nft(ns: &str, args: &[&str]) -> anyhow::Result<String> {
+    let mut all = vec!["netns", "exec", ns, "nft"];
+    all.extend_from_slice(args);
+    run("ip", &all)
 }
 
 fn offloads_off(ns: &str, dev: &str) {
