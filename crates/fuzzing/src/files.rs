@@ -116,9 +116,11 @@ fn load(source: &str, extra: &[(&str, &[u8])]) -> Result<(), SceneError> {
     Ok(())
 }
 
-/// What a slave does with a loaded scene: fills its shadow cells, renders.
+/// What a slave does with a loaded scene: renders with it. (A slave also
+/// fills every surface's shadow cells first; rendering fills those its
+/// pixels meet, the same code, and the eager fill of a whole quad's cells
+/// cost the file targets nine tenths of their time.)
 fn use_scene(scene: &Scene) {
-    scene.fill_shadow_cells();
     let settings = RenderSettings {
         width: 4,
         height: 4,
@@ -197,8 +199,8 @@ fn load_image(kind: u8, bytes: &[u8]) -> Result<(), SceneError> {
 /// A scene bundle as a slave (or the master, from a client) unpacks it: the
 /// decompressed bytes of a scene stream, at most [`DEFAULT_MAX_FRAME`]
 /// (`isin_cluster::scene_stream::decode_bundle`), whose bundle is loaded,
-/// built, its shadow cells filled and a few pixels rendered. The slave's check of the bundle against its hash is
-/// left out (a master with the token can send any bundle with its right
+/// built and a few pixels rendered. The slave's check of the bundle against
+/// its hash is left out (a master with the token can send any bundle with its right
 /// hash), so that mutated bundles reach the loader.
 pub fn scene_bundle(data: &[u8]) {
     if data.len() > DEFAULT_MAX_FRAME {
