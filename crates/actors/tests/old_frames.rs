@@ -51,9 +51,10 @@ async fn a_requeued_tile_of_an_old_batch_frame_is_rendered_by_a_slave_far_ahead(
     };
 
     // Slave A, by hand: takes the batch frame's only tile and sits on it.
-    let (mut a, _) =
+    let (mut a, welcome) =
         client::handshake(&t, &ticket, client::Join::slave("a", 1, &[], &[Codec::Raw])).await.unwrap();
-    let Message::SceneSync { hash, .. } = next(&mut a).await else { panic!("no scene for slave a") };
+    let hash = welcome.scene.expect("the master has a default scene").hash;
+    slave::receive_scene(&mut a, hash).await.unwrap();
     client::send_message(&a, &Message::Ready { hash: Some(hash) }).unwrap();
 
     let mut batch_camera = Camera::default();
