@@ -443,15 +443,7 @@ mod tests {
     /// A bundle with a compressible asset and an incompressible one, of
     /// about `bytes` bytes.
     pub(crate) fn bundle(bytes: usize) -> SceneBundle {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let noise: Vec<u8> = (0..bytes / 4)
-            .map(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                state as u8
-            })
-            .collect();
+        let noise = crate::testing::Rng(0x2545_f491_4f6c_dd1du64).bytes(bytes / 4);
         let text: Vec<u8> = (0..bytes - bytes / 4).map(|i| b"v 1.0 2.0 3.0\n"[i % 14]).collect();
         let mut assets = BTreeMap::new();
         assets.insert("mesh.obj".to_string(), text);

@@ -12,6 +12,11 @@ impl Rng {
         self.0
     }
 
+    /// `len` bytes of noise (which no compressor shrinks).
+    pub fn bytes(&mut self, len: usize) -> Vec<u8> {
+        (0..len).map(|_| self.next() as u8).collect()
+    }
+
     /// A number below `n` (0 for `n` = 0).
     pub fn below(&mut self, n: u64) -> u64 {
         self.next() % n.max(1)

@@ -202,15 +202,7 @@ mod tests {
 
     /// A bundle of about `bytes` bytes packed (noise: zstd cannot shrink it).
     fn bundle(name: &str, bytes: usize) -> SceneBundle {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ name.len() as u64;
-        let noise = (0..bytes)
-            .map(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                state as u8
-            })
-            .collect();
+        let noise = crate::testing::Rng(0x9e37_79b9_7f4a_7c15u64 ^ name.len() as u64).bytes(bytes);
         let mut assets = BTreeMap::new();
         assets.insert("mesh.obj".to_string(), noise);
         SceneBundle { name: name.into(), source: format!("# {name}"), assets }
