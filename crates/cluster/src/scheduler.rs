@@ -359,18 +359,40 @@ struct FrameState {
     stats: FrameStats,
     /// The tiles out with one holder only, by when they were handed out
     /// (`TileRec::assigned_at`): the candidates a straggler copy is taken
-    /// from, oldest first. Kept exact as tiles are handed out, copied,
-    /// moved, delivered and requeued, so finding a straggler costs a few
-    /// steps however many tiles are out.
-    sole_held: BTreeSet<(Duration, TileId)>,
+    /// from, oldest first. Built at the first search for a straggler (the
+    /// frame's end: until all its tiles are out there is none to copy) and
+    /// from then kept exact as tiles are handed out, copied, moved,
+    /// delivered and requeued, so finding a straggler costs a few steps
+    /// however many tiles are out, and a frame pays nothing for it before.
+    sole_held: Option<BTreeSet<(Duration, TileId)>>,
 }
 
 impl FrameState {
-    /// Records that `tile` is no longer out with one holder: call before its
-    /// `assigned_at` changes.
-    fn unmark_sole(&mut self, tile: TileId) {
-        if let Some(rec) = self.tiles.get(tile as usize) {
-            self.sole_held.remove(&(rec.assigned_at, tile));
+    /// The straggler candidates ([`FrameState::sole_held`]), built now if
+    /// this is the first search, with the tiles they index.
+    fn straggler_index(&mut self) -> (&BTreeSet<(Duration, TileId)>, &[TileRec]) {
+        let tiles = &self.tiles;
+        let index = self.sole_held.get_or_insert_with(|| {
+            tiles
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| r.state == TileState::InFlight && r.holders.len() == 1)
+                .map(|(t, r)| (r.assigned_at, t as TileId))
+                .collect()
+        });
+        (index, tiles)
+    }
+}
+
+/// Notes in a frame's straggler candidates ([`FrameState::sole_held`], if
+/// built) that the tile handed out at `at` is out with one holder (`sole`) or
+/// no longer is.
+fn note_sole(index: &mut Option<BTreeSet<(Duration, TileId)>>, at: Duration, tile: TileId, sole: bool) {
+    if let Some(set) = index {
+        if sole {
+            set.insert((at, tile));
+        } else {
+            set.remove(&(at, tile));
         }
     }
 }
@@ -717,7 +739,7 @@ impl Scheduler {
             f.turnaround_sum += now.saturating_sub(rec.assigned_at);
             f.turnaround_n += 1;
         }
-        f.sole_held.remove(&(rec.assigned_at, tile));
+        note_sole(&mut f.sole_held, rec.assigned_at, tile, false);
         for other in std::mem::take(&mut rec.holders) {
             if other == slave {
                 continue;
@@ -782,7 +804,9 @@ impl Scheduler {
                 .filter(|(_, r)| r.state == TileState::InFlight && r.holders.len() == 1)
                 .map(|(t, r)| (r.assigned_at, t as TileId))
                 .collect();
-            assert_eq!(f.sole_held, want, "frame {}: straggler index", f.id);
+            if let Some(index) = &f.sole_held {
+                assert_eq!(index, &want, "frame {}: straggler index", f.id);
+            }
         }
     }
 
@@ -830,7 +854,7 @@ impl Scheduler {
             turnaround_sum: Duration::ZERO,
             turnaround_n: 0,
             stats: FrameStats::default(),
-            sole_held: BTreeSet::new(),
+            sole_held: None,
         });
         self.last_frame = Some(frame);
         self.all_dirty = true;
@@ -859,13 +883,13 @@ impl Scheduler {
                     0 => {
                         rec.state = TileState::Queued;
                         rec.requeued = true;
-                        f.sole_held.remove(&(rec.assigned_at, tile));
+                        note_sole(&mut f.sole_held, rec.assigned_at, tile, false);
                         f.queue.push_front(tile);
                         n += 1;
                     }
                     // A copy's other holder is left: it may be copied again.
                     1 => {
-                        f.sole_held.insert((rec.assigned_at, tile));
+                        note_sole(&mut f.sole_held, rec.assigned_at, tile, true);
                     }
                     _ => {}
                 }
@@ -941,7 +965,7 @@ impl Scheduler {
                 rec.state = TileState::InFlight;
                 rec.hand_to(*id);
                 rec.assigned_at = now;
-                f.sole_held.insert((now, tile));
+                note_sole(&mut f.sole_held, now, tile, true);
                 if std::mem::take(&mut rec.requeued) {
                     *reassigned.entry((*id, f.id)).or_default() += 1;
                 }
@@ -971,14 +995,14 @@ impl Scheduler {
                     // The oldest tile out longer than its frame's mean turnaround.
                     let straggler = self
                         .frames
-                        .iter()
+                        .iter_mut()
                         .enumerate()
                         .filter(|(_, f)| !f.done && f.turnaround_n > 0)
                         .filter_map(|(fi, f)| oldest_straggler(f, *id, now).map(|(at, t)| (at, fi, t)))
                         .min();
                     let Some((_, fi, tile)) = straggler else { break };
                     let f = &mut self.frames[fi];
-                    f.unmark_sole(tile);
+                    note_sole(&mut f.sole_held, f.tiles[tile as usize].assigned_at, tile, false);
                     let rec = &mut f.tiles[tile as usize];
                     rec.hand_to(*id);
                     s.in_flight.insert((f.id, tile));
@@ -1019,12 +1043,13 @@ fn frame_tile_size(cfg: &SchedulerConfig, width: u32, height: u32, threads: u32)
 /// held by one slave only, not `slave` (with when it was handed out). Only
 /// `slave`'s own tiles are stepped over, so the cost is bounded by what one
 /// slave holds, not by the tiles out.
-fn oldest_straggler(f: &FrameState, slave: SlaveId, now: Duration) -> Option<(Duration, TileId)> {
+fn oldest_straggler(f: &mut FrameState, slave: SlaveId, now: Duration) -> Option<(Duration, TileId)> {
     let mean = f.turnaround_sum / f.turnaround_n.max(1);
-    f.sole_held
+    let (index, tiles) = f.straggler_index();
+    index
         .iter()
         .take_while(|&&(at, _)| now.saturating_sub(at) > mean)
-        .find(|&&(_, t)| f.tiles.get(t as usize).is_some_and(|r| !r.holders.contains(&slave)))
+        .find(|&&(_, t)| tiles.get(t as usize).is_some_and(|r| !r.holders.contains(&slave)))
         .copied()
 }
 
@@ -1073,13 +1098,13 @@ fn move_waiting_tiles(
             }
             outputs.push_back(Output::Cancel { slave: victim, frame, tiles: vec![tile] });
             let f = &mut frames[fi];
-            f.unmark_sole(tile);
+            note_sole(&mut f.sole_held, f.tiles[tile as usize].assigned_at, tile, false);
             let rec = &mut f.tiles[tile as usize];
             rec.holders.clear();
             rec.hand_to(*id);
             rec.assigned_at = now;
             let job = TileJob { id: tile, tile: rec.tile };
-            f.sole_held.insert((now, tile));
+            note_sole(&mut f.sole_held, now, tile, true);
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
             s.in_flight.insert((frame, tile));

@@ -174,9 +174,7 @@ impl Sim {
         }
         self.sched.handle_timeout(now);
         self.drain();
-        if now.as_millis() % 16 == 0 {
-            self.sched.assert_sole_held_exact();
-        }
+        self.sched.assert_sole_held_exact();
     }
 
     fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Sim) -> bool) {
@@ -484,6 +482,46 @@ fn a_copy_whose_other_holder_dies_can_be_copied_again() {
     // The copy's holder dies: `a` holds the tile alone again, and `c` copies it.
     s.handle_disconnect(5 * MS, 2);
     assert_eq!(assigned(&mut s, 5 * MS), [(3, 0)]);
+    s.assert_sole_held_exact();
+}
+
+#[test]
+fn a_tile_requeued_at_the_end_of_a_frame_can_be_copied_once_out_again() {
+    let config = SchedulerConfig {
+        tile_size: 8,
+        min_tile_size: 8,
+        queue_depth: 0,
+        duplicate_stragglers: true,
+        ..cfg()
+    };
+    let mut s = Scheduler::new(config);
+    let assigned = |s: &mut Scheduler, now: Duration| -> Vec<(SlaveId, TileId)> {
+        let mut got = Vec::new();
+        while let Some(out) = s.poll_output(now) {
+            if let Output::Assign { slave, tiles, .. } = out {
+                got.extend(tiles.iter().map(|t| (slave, t.id)));
+            }
+        }
+        got
+    };
+    // Three tiles for three slaves; `c` answers at once and copies `a`'s.
+    for (id, name) in [(1, "a"), (2, "b"), (3, "c")] {
+        s.handle_join(Duration::ZERO, id, name, 1);
+    }
+    s.submit_frame(Duration::ZERO, 1, 24, 8).unwrap();
+    let mut first = assigned(&mut s, Duration::ZERO);
+    first.sort_unstable();
+    assert_eq!(first, [(1, 0), (2, 1), (3, 2)]);
+    assert!(matches!(s.handle_result(MS, 3, 1, 2), ResultOutcome::Accepted { .. }));
+    assert_eq!(assigned(&mut s, 3 * MS), [(3, 0)]);
+    // `b` dies: its tile goes back to the queue, and out again to `d`.
+    s.handle_disconnect(4 * MS, 2);
+    assert_eq!(assigned(&mut s, 4 * MS), []);
+    s.handle_join(5 * MS, 4, "d", 1);
+    assert_eq!(assigned(&mut s, 5 * MS), [(4, 1)]);
+    // Late again, it is copied to the next idle slave.
+    s.handle_join(10 * MS, 5, "e", 1);
+    assert_eq!(assigned(&mut s, 10 * MS), [(5, 1)]);
     s.assert_sole_held_exact();
 }
 
