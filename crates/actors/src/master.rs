@@ -275,6 +275,20 @@ struct Closed {
 #[rtype(result = "MasterStatus")]
 pub struct GetStatus;
 
+/// Asks for the number of slaves declared dead so far: a poll that costs
+/// the master nothing, where [`GetStatus`] builds the list of every slave.
+#[derive(Message)]
+#[rtype(result = "u64")]
+pub struct GetDeaths;
+
+impl Handler<GetDeaths> for Master {
+    type Result = u64;
+
+    fn handle(&mut self, _: GetDeaths, _: &mut Self::Context) -> u64 {
+        self.core.deaths()
+    }
+}
+
 impl Handler<Accepted> for Master {
     type Result = ();
 

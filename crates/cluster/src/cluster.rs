@@ -495,6 +495,12 @@ impl Cluster {
         ClusterStatus { slaves: self.sched.slaves(), peers: self.peers.len(), ..self.status.clone() }
     }
 
+    /// Slaves declared dead so far: [`ClusterStatus::deaths`] without
+    /// building the rest of [`Cluster::status`] (its list of every slave).
+    pub fn deaths(&self) -> u64 {
+        self.status.deaths
+    }
+
     /// The earliest time at which [`Cluster::handle_timeout`] has work to do.
     pub fn poll_timeout(&self) -> Option<Duration> {
         let liveness = self.sched.config().heartbeat_timeout;
