@@ -372,16 +372,19 @@ impl FrameState {
     /// this is the first search, with the tiles they index.
     fn straggler_index(&mut self) -> (&BTreeSet<(Duration, TileId)>, &[TileRec]) {
         let tiles = &self.tiles;
-        let index = self.sole_held.get_or_insert_with(|| {
-            tiles
-                .iter()
-                .enumerate()
-                .filter(|(_, r)| r.state == TileState::InFlight && r.holders.len() == 1)
-                .map(|(t, r)| (r.assigned_at, t as TileId))
-                .collect()
-        });
-        (index, tiles)
+        (self.sole_held.get_or_insert_with(|| sole_held_now(tiles)), tiles)
     }
+}
+
+/// The tiles of `tiles` out with one holder, by hand-out time: what
+/// [`FrameState::sole_held`] holds once built.
+fn sole_held_now(tiles: &[TileRec]) -> BTreeSet<(Duration, TileId)> {
+    tiles
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.state == TileState::InFlight && r.holders.len() == 1)
+        .map(|(t, r)| (r.assigned_at, t as TileId))
+        .collect()
 }
 
 /// Notes in a frame's straggler candidates ([`FrameState::sole_held`], if
@@ -797,15 +800,8 @@ impl Scheduler {
     #[cfg(test)]
     pub(crate) fn assert_sole_held_exact(&self) {
         for f in self.frames.iter().filter(|f| !f.done) {
-            let want: BTreeSet<(Duration, TileId)> = f
-                .tiles
-                .iter()
-                .enumerate()
-                .filter(|(_, r)| r.state == TileState::InFlight && r.holders.len() == 1)
-                .map(|(t, r)| (r.assigned_at, t as TileId))
-                .collect();
             if let Some(index) = &f.sole_held {
-                assert_eq!(index, &want, "frame {}: straggler index", f.id);
+                assert_eq!(index, &sole_held_now(&f.tiles), "frame {}: straggler index", f.id);
             }
         }
     }

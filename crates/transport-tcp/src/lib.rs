@@ -276,7 +276,7 @@ async fn tls_accept(
 }
 
 /// Explains a failed TLS handshake in words a user can act on.
-fn describe(e: &std::io::Error, verifier: &PinnedServerVerifier) -> TransportError {
+fn describe(addr: &str, e: &std::io::Error, verifier: &PinnedServerVerifier) -> TransportError {
     if let Some(mismatch) = verifier.rejected() {
         return TransportError::Untrusted { reason: mismatch.to_string() };
     }
@@ -286,7 +286,7 @@ fn describe(e: &std::io::Error, verifier: &PinnedServerVerifier) -> TransportErr
     } else {
         ""
     };
-    TransportError::Io(std::io::Error::new(e.kind(), format!("TLS handshake failed: {text}{hint}")))
+    TransportError::Connect { addr: addr.to_string(), reason: format!("TLS handshake failed: {text}{hint}") }
 }
 
 impl Transport for TcpTransport {
@@ -353,7 +353,7 @@ impl Transport for TcpTransport {
             let tls = TlsConnector::from(Arc::new(cfg))
                 .connect(name, Counted::new(sock, shared.clone()))
                 .await
-                .map_err(|e| describe(&e, &verifier))?;
+                .map_err(|e| describe(addr, &e, &verifier))?;
             let (r, w) = tokio::io::split(tls);
             Ok(stream::spawn_with(r, w, addr.to_string(), shared, Counting::External))
         })
