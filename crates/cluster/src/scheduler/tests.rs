@@ -449,25 +449,31 @@ fn idle_slave_duplicates_the_straggler_and_first_result_wins() {
     let _ = fast;
 }
 
-#[test]
-fn a_copy_whose_other_holder_dies_can_be_copied_again() {
-    let config = SchedulerConfig {
+/// A scheduler of 8×8 tiles, no queue beyond the threads, copying stragglers.
+fn eight_pixel_tiles() -> Scheduler {
+    Scheduler::new(SchedulerConfig {
         tile_size: 8,
         min_tile_size: 8,
         queue_depth: 0,
         duplicate_stragglers: true,
         ..cfg()
-    };
-    let mut s = Scheduler::new(config);
-    let assigned = |s: &mut Scheduler, now: Duration| -> Vec<(SlaveId, TileId)> {
-        let mut got = Vec::new();
-        while let Some(out) = s.poll_output(now) {
-            if let Output::Assign { slave, tiles, .. } = out {
-                got.extend(tiles.iter().map(|t| (slave, t.id)));
-            }
+    })
+}
+
+/// The tiles handed out at `now`, as (slave, tile).
+fn assigned(s: &mut Scheduler, now: Duration) -> Vec<(SlaveId, TileId)> {
+    let mut got = Vec::new();
+    while let Some(out) = s.poll_output(now) {
+        if let Output::Assign { slave, tiles, .. } = out {
+            got.extend(tiles.iter().map(|t| (slave, t.id)));
         }
-        got
-    };
+    }
+    got
+}
+
+#[test]
+fn a_copy_whose_other_holder_dies_can_be_copied_again() {
+    let mut s = eight_pixel_tiles();
     // Two tiles: `a` takes one, `b` the other and answers it at once.
     s.handle_join(Duration::ZERO, 1, "a", 1);
     s.submit_frame(Duration::ZERO, 1, 16, 8).unwrap();
@@ -487,23 +493,7 @@ fn a_copy_whose_other_holder_dies_can_be_copied_again() {
 
 #[test]
 fn a_tile_requeued_at_the_end_of_a_frame_can_be_copied_once_out_again() {
-    let config = SchedulerConfig {
-        tile_size: 8,
-        min_tile_size: 8,
-        queue_depth: 0,
-        duplicate_stragglers: true,
-        ..cfg()
-    };
-    let mut s = Scheduler::new(config);
-    let assigned = |s: &mut Scheduler, now: Duration| -> Vec<(SlaveId, TileId)> {
-        let mut got = Vec::new();
-        while let Some(out) = s.poll_output(now) {
-            if let Output::Assign { slave, tiles, .. } = out {
-                got.extend(tiles.iter().map(|t| (slave, t.id)));
-            }
-        }
-        got
-    };
+    let mut s = eight_pixel_tiles();
     // Three tiles for three slaves; `c` answers at once and copies `a`'s.
     for (id, name) in [(1, "a"), (2, "b"), (3, "c")] {
         s.handle_join(Duration::ZERO, id, name, 1);
