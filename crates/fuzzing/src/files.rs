@@ -11,7 +11,7 @@
 use isin_cluster::protocol::DEFAULT_MAX_FRAME;
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, SceneError, Tile, parse_scene};
 use std::collections::BTreeMap;
-use std::sync::OnceLock;
+use std::sync::{Once, OnceLock};
 
 /// The scene's name in error messages.
 const NAME: &str = "fuzz.toml";
@@ -101,9 +101,24 @@ fn scene_of(kind: &str, path: &str) -> String {
     )
 }
 
+/// Makes the calling thread rayon's only worker, once: the loader and the
+/// BVH build run their parallel loops inline. A pool of other threads costs a
+/// one-file scene most of its time handing work over and waking and parking
+/// workers (three quarters of the MTL target's, in the kernel), and the work
+/// is the same code either way.
+fn one_thread() {
+    static POOL: Once = Once::new();
+    POOL.call_once(|| {
+        // Fails only if the global pool exists already (a test binary's
+        // other tests): the targets then run on that pool, as before.
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(1).use_current_thread().build_global();
+    });
+}
+
 /// Loads `source` with the fixtures and `extra` files; a scene that loads is
 /// built and a few of its pixels rendered.
 fn load(source: &str, extra: &[(&str, &[u8])]) -> Result<(), SceneError> {
+    one_thread();
     let mut assets = fixtures().clone();
     for (path, bytes) in extra {
         assets.insert(path.to_string(), bytes.to_vec());
@@ -206,6 +221,7 @@ pub fn scene_bundle(data: &[u8]) {
     if data.len() > DEFAULT_MAX_FRAME {
         return;
     }
+    one_thread();
     let Ok(bundle) = isin_cluster::scene_stream::decode_bundle(data) else { return };
     let mut assets = bundle.clone();
     let Ok(parts) = parse_scene(&bundle.name, &bundle.source, &mut assets) else { return };
