@@ -53,13 +53,7 @@ pub fn server_transport(
 /// The transport a slave or viewer reaches the master of `ticket` with: TLS
 /// pinning the ticket's fingerprint for `tcp` and `quic`, plaintext only for
 /// a `tcp-insecure` ticket (never as a fallback).
-pub fn client_transport(ticket: &Ticket) -> anyhow::Result<Arc<dyn Transport>> {
-    Ok(match ticket.transport {
-        TransportKind::Tcp => Arc::new(TcpTransport::client(ticket.pinned()?)?),
-        TransportKind::TcpInsecure => Arc::new(TcpTransport::insecure()),
-        TransportKind::Quic => Arc::new(QuicTransport::client(ticket.pinned()?)?),
-    })
-}
+pub use isin_lab::client::client_transport;
 
 /// Reads `cert.der` and `key.der` from `dir`, or generates them there.
 fn load_or_create_identity(dir: &Path) -> anyhow::Result<Identity> {
@@ -102,15 +96,19 @@ const CLIENT_MAX_BACKOFF: Duration = Duration::from_secs(5);
 /// with capped exponential backoff while the master cannot be reached (it
 /// may be restarting), and saying so once a minute. Gives up at once when
 /// retrying cannot help (a wrong token or fingerprint, a refused scene).
+///
+/// With `direct` (`HOST:PORT`), the client listens there for slaves that
+/// deliver its tiles straight ([`viewer::connect_direct`]).
 pub async fn connect_client(
     transport: &dyn Transport,
     ticket: &Ticket,
     setup: viewer::Setup<'_>,
+    direct: Option<&str>,
 ) -> anyhow::Result<viewer::Connected> {
     let mut backoff = Duration::from_millis(100);
     let mut said: Option<Instant> = None;
     loop {
-        match viewer::connect_with(transport, ticket, setup).await {
+        match connect_once(transport, ticket, setup, direct).await? {
             Ok(c) => return Ok(c),
             Err(e) if !e.is_retryable() => {
                 return Err(
@@ -130,6 +128,26 @@ pub async fn connect_client(
             }
         }
     }
+}
+
+/// One attempt of [`connect_client`]: the outer error is this machine's
+/// (the `direct` address cannot be listened on), the inner the master's.
+pub async fn connect_once(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    setup: viewer::Setup<'_>,
+    direct: Option<&str>,
+) -> anyhow::Result<Result<viewer::Connected, isin_actors::client::JoinError>> {
+    Ok(match direct {
+        None => viewer::connect_with(transport, ticket, setup).await,
+        Some(addr) => {
+            let (server, fingerprint) = isin_lab::client::direct_server(ticket.transport)?;
+            let listener = viewer::DirectListener::bind(server.as_ref(), addr, fingerprint)
+                .await
+                .with_context(|| format!("--direct {addr}"))?;
+            viewer::connect_direct(transport, ticket, setup, listener).await
+        }
+    })
 }
 
 /// Runs `job` within `timeout` (if given), as `--timeout` asks.
@@ -152,6 +170,7 @@ pub async fn within<T>(
 /// asks again.
 pub fn render_frame(
     ticket: &Ticket,
+    direct: Option<&str>,
     path: &Path,
     width: Option<u32>,
     height: Option<u32>,
@@ -170,7 +189,7 @@ pub fn render_frame(
         let work = isin_cluster::scheduler::Work::Batch;
         let setup = viewer::Setup { name: "render", work, scene: Some(&bundle), job: None };
         loop {
-            let mut c = connect_client(transport.as_ref(), ticket, setup).await?;
+            let mut c = connect_client(transport.as_ref(), ticket, setup, direct).await?;
             match viewer::collect_frame(&c.addr, &mut c.events, camera, settings).await {
                 Ok((frame, stats)) => {
                     let wire = c.addr.send(viewer::GetWireStats).await?;
@@ -226,7 +245,12 @@ async fn start_embedded(
     println!("join more slaves with: {}", super::ticket::join_hint(&ticket));
     let master = Master::new(cfg)?.serve(listener);
     for i in 0..slaves {
-        let opts = SlaveOptions { name: format!("local{i}"), threads, ..SlaveOptions::default() };
+        let opts = SlaveOptions {
+            name: format!("local{i}"),
+            threads,
+            direct: Some(isin_lab::client::direct_dialer(TransportKind::Tcp)),
+            ..SlaveOptions::default()
+        };
         let (t, tk) = (tcp.clone(), ticket.clone());
         actix::spawn(async move {
             if let Err(e) = slave::run(t, tk, opts, Arc::new(Tracer)).await {
@@ -299,7 +323,7 @@ pub fn run_embedded_window(
         })
         .context("cannot start the embedded cluster")?;
     let ticket = ticket_rx.recv().context("the embedded cluster did not start")??;
-    super::view::run_remote(ticket, Some(extent), None, window)
+    super::view::run_remote(ticket, Some(extent), None, None, window)
 }
 
 /// Without a display: a few frames through the embedded cluster, the first

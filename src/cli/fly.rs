@@ -57,6 +57,9 @@ pub struct FlyArgs {
     /// resumes from the first frame not written.
     #[command(flatten)]
     pub cluster: super::ticket::TicketArgs,
+    /// With --connect: where slaves may deliver the frames' tiles straight.
+    #[command(flatten)]
+    pub direct: super::ticket::DirectArgs,
     /// With a ticket: give up after this many seconds.
     #[arg(long, value_name = "SECONDS", value_parser = super::bounded::timeout)]
     pub timeout: Option<u64>,
@@ -270,7 +273,8 @@ fn run_cluster(
         // Frames (indices into `cameras`) written by this run.
         let mut written = std::collections::BTreeSet::new();
         loop {
-            let mut c = super::cluster::connect_client(transport.as_ref(), &ticket, setup).await?;
+            let direct = args.direct.direct.as_deref();
+            let mut c = super::cluster::connect_client(transport.as_ref(), &ticket, setup, direct).await?;
             let done_before: std::collections::BTreeSet<u32> = c.done.iter().copied().collect();
             let todo: Vec<u32> = (0..spec.frames)
                 .filter(|&k| !written.contains(&k))

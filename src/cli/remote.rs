@@ -60,12 +60,14 @@ pub struct Remote {
 impl Remote {
     /// Connects to the master of `ticket` as viewer `name`, flying `own` (a
     /// scene of the user's, sent to the master unless it holds it) or the
-    /// master's default scene; returns once the master has welcomed us, with
-    /// the source to give the window.
+    /// master's default scene, taking tiles straight from the slaves at
+    /// `direct` if given; returns once the master has welcomed us, with the
+    /// source to give the window.
     pub fn connect(
         ticket: Ticket,
         name: String,
         own: Option<(SceneInfo, SceneBundle)>,
+        direct: Option<String>,
     ) -> anyhow::Result<(Remote, ChannelSource)> {
         let addr = ticket.addr.clone();
         let (requests, request_rx) = mpsc::unbounded_channel::<FrameRequest>();
@@ -88,15 +90,17 @@ impl Remote {
                     let (own_info, own) = own.map_or((None, None), |(info, bundle)| (Some(info), Some(bundle)));
                     let setup =
                         viewer::Setup { name: &name, work: Work::Interactive, scene: own.as_ref(), job: None };
-                    let connected = viewer::connect_with(transport.as_ref(), &ticket, setup).await;
+                    let connected =
+                        cluster::connect_once(transport.as_ref(), &ticket, setup, direct.as_deref()).await;
                     let scene = match connected {
-                        Ok(c) => match own_info.or(c.default_scene.clone()) {
+                        Err(e) => Err(e),
+                        Ok(Ok(c)) => match own_info.or(c.default_scene.clone()) {
                             Some(scene) => Ok((c, scene)),
                             None => Err(anyhow::anyhow!(
                                 "the master serves no scene of its own: name one (isin view SCENE --connect TICKET)"
                             )),
                         },
-                        Err(e) => Err(anyhow::Error::new(e)),
+                        Ok(Err(e)) => Err(anyhow::Error::new(e)),
                     };
                     let (connected, scene) = match scene {
                         Ok(v) => v,
@@ -116,6 +120,7 @@ impl Remote {
                         ticket,
                         name,
                         own,
+                        direct,
                         current: None,
                         tiles: BTreeMap::new(),
                         told_waiting: false,
@@ -156,6 +161,8 @@ struct Link {
     ticket: Ticket,
     name: String,
     own: Option<SceneBundle>,
+    /// Where slaves deliver tiles straight, if they do.
+    direct: Option<String>,
     /// The latest request and when it was posted.
     current: Option<(u64, Instant)>,
     /// Tiles received per slave id since the connection was made.
@@ -288,7 +295,8 @@ impl Link {
         let setup =
             viewer::Setup { name: &self.name, work: Work::Interactive, scene: self.own.as_ref(), job: None };
         let connected = {
-            let connect = cluster::connect_client(self.transport.as_ref(), &self.ticket, setup);
+            let direct = self.direct.as_deref();
+            let connect = cluster::connect_client(self.transport.as_ref(), &self.ticket, setup, direct);
             tokio::pin!(connect);
             loop {
                 tokio::select! {

@@ -64,6 +64,9 @@ pub struct RenderArgs {
     /// reconnects and goes on.
     #[command(flatten)]
     pub cluster: super::ticket::TicketArgs,
+    /// With --connect: where slaves may deliver the tiles straight.
+    #[command(flatten)]
+    pub direct: super::ticket::DirectArgs,
     /// With a ticket: give up after this many seconds (waiting for slaves, or
     /// for a master that is down, included).
     #[arg(long, value_name = "SECONDS", value_parser = super::bounded::timeout)]
@@ -187,6 +190,7 @@ fn run_cluster(args: &RenderArgs, ticket: isin_transport::Ticket, output: Output
     let t0 = Instant::now();
     let (frame, stats, scene, wire) = super::cluster::render_frame(
         &ticket,
+        args.direct.direct.as_deref(),
         &args.scene,
         args.width,
         args.height,

@@ -36,6 +36,8 @@ pub fn run(args: SlaveArgs) -> anyhow::Result<()> {
         opts.threads = n;
     }
     opts.name = args.name.unwrap_or_else(|| format!("slave-{}", std::process::id()));
+    // Viewers that take their tiles straight are dialled the master's way.
+    opts.direct = Some(isin_lab::client::direct_dialer(ticket.transport));
     let cache = match args.cache_tiles {
         Some(dir) => Some(Arc::new(
             FrameCache::new(Tracer, Some(dir.clone()))

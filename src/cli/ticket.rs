@@ -14,6 +14,18 @@ pub const TICKET_ENV: &str = "ISIN_TICKET";
 /// The longest ticket file read: a ticket is one short line.
 const MAX_TICKET_FILE: u64 = 4096;
 
+/// A viewer's offer to take its tiles straight from the slaves.
+#[derive(Args, Debug, Clone, Default)]
+pub struct DirectArgs {
+    /// Take tiles straight from the slaves where they can reach this
+    /// machine at HOST:PORT (port 0: any), not all through the master: for
+    /// several viewers on a master whose link is the limit. The master still
+    /// schedules every tile and checks a sample of them; a slave that cannot
+    /// reach the address sends its tiles through the master.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub direct: Option<String>,
+}
+
 /// The options naming a master, shared by every client command.
 #[derive(Args, Debug, Clone)]
 pub struct TicketArgs {

@@ -165,6 +165,9 @@ pub struct ViewArgs {
     /// Show what a cluster renders instead.
     #[command(flatten)]
     pub cluster: super::ticket::TicketArgs,
+    /// With --connect: where slaves may deliver the tiles straight.
+    #[command(flatten)]
+    pub direct: super::ticket::DirectArgs,
     #[command(flatten)]
     pub window: WindowArgs,
     /// Render threads of the local slave (default, or 0: one per core; without --connect).
@@ -190,7 +193,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
                 Some((isin_cluster::protocol::SceneInfo { name, hash, camera, settings }, bundle))
             }
         };
-        return run_remote(ticket, None, own, &args.window);
+        return run_remote(ticket, None, own, args.direct.direct.clone(), &args.window);
     }
     let scene_path = args
         .scene
@@ -214,10 +217,11 @@ pub fn run_remote(
     ticket: Ticket,
     extent: Option<f32>,
     own: Option<(isin_cluster::protocol::SceneInfo, isin_tracer::SceneBundle)>,
+    direct: Option<String>,
     window: &WindowArgs,
 ) -> anyhow::Result<()> {
     let addr = ticket.addr.clone();
-    let (remote, source) = Remote::connect(ticket, format!("view-{}", std::process::id()), own)?;
+    let (remote, source) = Remote::connect(ticket, format!("view-{}", std::process::id()), own, direct)?;
     let scene = remote.scene.clone();
     let extent = extent.unwrap_or_else(|| extent_from_camera(&scene.camera));
     let title = format!("isin — {} via {addr}", scene.name);

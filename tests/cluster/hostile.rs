@@ -159,6 +159,7 @@ fn logged_in_viewers_cannot_pin_the_masters_memory() {
             cached_scenes: vec![],
             codecs: vec![],
             work: Default::default(),
+            direct: None,
         };
         write_message(&mut s, &Message::Hello(hello));
         assert!(matches!(read_message(&mut s), Message::Welcome(_)), "viewer {i} not welcomed");

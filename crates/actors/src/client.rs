@@ -4,7 +4,7 @@
 use isin_cluster::auth;
 use isin_cluster::codec::Codec;
 use isin_cluster::protocol::{
-    self, DEFAULT_MAX_FRAME, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, Welcome,
+    self, DEFAULT_MAX_FRAME, DirectOffer, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, Welcome,
 };
 use isin_cluster::scheduler::Work;
 use isin_transport::{Connection, Ticket, Transport, TransportError};
@@ -93,17 +93,35 @@ pub struct Join<'a> {
     pub codecs: &'a [Codec],
     /// What kind of work the frames are (viewers).
     pub work: Work,
+    /// Where slaves may send the viewer's tiles straight (viewers).
+    pub direct: Option<&'a DirectOffer>,
 }
 
 impl<'a> Join<'a> {
     /// A slave with `threads` render threads.
     pub fn slave(name: &'a str, threads: u32, cached_scenes: &'a [SceneHash], codecs: &'a [Codec]) -> Self {
-        Self { role: Role::Slave, name, threads, cached_scenes, codecs, work: Work::Interactive }
+        Self {
+            role: Role::Slave,
+            name,
+            threads,
+            cached_scenes,
+            codecs,
+            work: Work::Interactive,
+            direct: None,
+        }
     }
 
     /// A viewer whose frames are `work`, decoding every codec.
     pub fn viewer(name: &'a str, work: Work) -> Self {
-        Self { role: Role::Viewer, name, threads: 0, cached_scenes: &[], codecs: &Codec::ALL, work }
+        Self {
+            role: Role::Viewer,
+            name,
+            threads: 0,
+            cached_scenes: &[],
+            codecs: &Codec::ALL,
+            work,
+            direct: None,
+        }
     }
 }
 
@@ -113,7 +131,7 @@ pub async fn handshake(
     ticket: &Ticket,
     join: Join<'_>,
 ) -> Result<(Connection, Welcome), JoinError> {
-    let Join { role, name, threads, cached_scenes, codecs, work } = join;
+    let Join { role, name, threads, cached_scenes, codecs, work, direct } = join;
     let mut conn = tokio::time::timeout(HANDSHAKE_TIMEOUT, transport.connect(&ticket.addr))
         .await
         .map_err(|_| JoinError::Timeout(HANDSHAKE_TIMEOUT))??;
@@ -126,8 +144,9 @@ pub async fn handshake(
     let proof = auth::client_proof(&ticket.token, role, &nonce, &client_nonce);
     let codecs = codecs.iter().map(|c| c.name().to_string()).collect();
     let cached_scenes = cached_scenes.iter().take(protocol::MAX_CACHED_SCENES).copied().collect();
-    let hello =
-        Hello { role, name: name.to_string(), threads, client_nonce, proof, cached_scenes, codecs, work };
+    let direct = direct.cloned().map(Box::new);
+    let name = name.to_string();
+    let hello = Hello { role, name, threads, client_nonce, proof, cached_scenes, codecs, work, direct };
     send_message(&conn, &Message::Hello(hello))?;
     // The master's welcome is small, but what follows (the scene) is not,
     // and may take minutes on a slow link.

@@ -20,16 +20,19 @@
 //! pipeline frames, handing out the next frame's tiles while the older frame's
 //! are still queued here.
 
+mod direct;
 mod incoming;
+
+pub use direct::{ACK_TIMEOUT, Dialer, REDIAL_AFTER};
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
+use direct::{Links, Rendered};
 use incoming::Incoming;
 use isin_cluster::codec::{self, Codec};
-use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId, TileResult};
+use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
-use isin_transport::{Delivery, FrameSender, Ticket, Transport, TransportError};
-use serde_bytes::ByteBuf;
+use isin_transport::{FrameSender, Ticket, Transport, TransportError};
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -56,6 +59,9 @@ pub struct SlaveOptions {
     /// Bytes of loaded scenes kept (as [`Renderer::footprint`] counts them);
     /// the least recently used go first, the one in use never.
     pub scene_cache_bytes: usize,
+    /// How to reach viewers that take their tiles straight
+    /// ([`protocol::DirectRoute`]); `None`: all tiles go through the master.
+    pub direct: Option<Dialer>,
 }
 
 impl Default for SlaveOptions {
@@ -69,6 +75,7 @@ impl Default for SlaveOptions {
             max_attempts: None,
             codecs: Codec::ALL.to_vec(),
             scene_cache_bytes: 4 << 30,
+            direct: None,
         }
     }
 }
@@ -397,6 +404,7 @@ pub const RETRY_REPORT: Duration = Duration::from_secs(60);
 /// ready for tiles.
 pub struct Session {
     conn: isin_transport::Connection,
+    id: u64,
     name: String,
     codec: Codec,
 }
@@ -446,7 +454,7 @@ pub async fn join<R: Renderer>(
         welcome.name,
         welcome.codec
     );
-    Ok(Session { conn, name: welcome.name, codec: welcome.codec })
+    Ok(Session { conn, id: welcome.id, name: welcome.name, codec: welcome.codec })
 }
 
 /// Receives the scene `hash` on a connection that just logged in as a slave
@@ -513,8 +521,10 @@ pub async fn serve<R: Renderer>(
 ) -> String {
     let (done_tx, done_rx) = oneshot::channel();
     let isin_transport::Connection { sender, mut receiver, .. } = session.conn;
+    let links = Links::new(opts.direct.clone(), sender.clone(), session.id, session.name.clone());
     let actor = SlaveActor {
         sender,
+        links,
         scenes,
         incoming: None,
         parked: HashMap::new(),
@@ -543,6 +553,8 @@ pub async fn serve<R: Renderer>(
 /// The slave actor (see the [module docs](self)).
 pub struct SlaveActor<R: Renderer> {
     sender: FrameSender,
+    /// Links to viewers that take their tiles straight.
+    links: Arc<Links>,
     scenes: SharedScenes<R::Scene>,
     /// A scene coming in (one at a time: the master queues the others).
     incoming: Option<Incoming>,
@@ -564,6 +576,7 @@ pub struct SlaveActor<R: Renderer> {
 
 impl<R: Renderer> SlaveActor<R> {
     fn finish(&mut self, why: String, ctx: &mut Context<Self>) {
+        self.links.close();
         self.sender.close();
         if let Some(done) = self.done.take() {
             let _ = done.send(why);
@@ -652,6 +665,10 @@ impl<R: Renderer> SlaveActor<R> {
             }
         }
         let (w, h) = (a.settings.width, a.settings.height);
+        let route: Option<Arc<protocol::DirectRoute>> = a.direct.map(Arc::from);
+        if let Some(r) = &route {
+            self.links.prepare(r);
+        }
         for job in a.tiles {
             let t = job.tile;
             let inside = t.w > 0
@@ -662,12 +679,14 @@ impl<R: Renderer> SlaveActor<R> {
                 tracing::error!(?t, "master assigned a tile outside the {w}x{h} image; skipped");
                 continue;
             }
-            let (renderer, scene, sender, cancelled, counters) = (
+            let (renderer, scene, sender, cancelled, counters, links, route) = (
                 self.renderer.clone(),
                 scene.clone(),
                 self.sender.clone(),
                 self.cancelled.clone(),
                 self.counters.clone(),
+                self.links.clone(),
+                route.clone(),
             );
             let (frame, camera, settings, tile_codec) = (a.frame, a.camera, a.settings, self.codec);
             self.pool.spawn_fifo(move || {
@@ -705,25 +724,24 @@ impl<R: Renderer> SlaveActor<R> {
                     (Some(a), Some(b)) => b.saturating_sub(a),
                     _ => t0.elapsed(),
                 };
-                let render_micros = took.as_micros() as u64;
-                let msg = Message::TileResult(TileResult {
+                let rendered = Rendered {
                     frame,
                     id: job.id,
                     tile: t,
-                    render_micros,
+                    render_micros: took.as_micros() as u64,
                     codec: tile_codec,
-                    pixels: ByteBuf::from(codec::encode(tile_codec, t.w, &pixels)),
-                });
-                match protocol::encode(&msg) {
-                    Ok(bytes) => {
-                        // Tiles may overtake each other (over QUIC a lost
-                        // packet then delays only its own tile), never the
-                        // ordered messages around them.
-                        let _ = sender.send_as(bytes, Delivery::Independent);
-                        counters.tiles.fetch_add(1, Ordering::Relaxed);
+                    pixels: codec::encode(tile_codec, t.w, &pixels),
+                };
+                // Tiles may overtake each other (over QUIC a lost packet
+                // then delays only its own tile), never the ordered
+                // messages around them.
+                match &route {
+                    Some(r) => links.deliver(r, rendered),
+                    None => {
+                        direct::send_result(&sender, rendered.into_result());
                     }
-                    Err(e) => tracing::error!("cannot encode tile: {e}"),
                 }
+                counters.tiles.fetch_add(1, Ordering::Relaxed);
             });
         }
     }
@@ -734,6 +752,7 @@ impl<R: Renderer> Actor for SlaveActor<R> {
 
     fn started(&mut self, ctx: &mut Self::Context) {
         ctx.run_interval(self.heartbeat_interval, |s, ctx| {
+            s.links.expire();
             if s.last_heard.elapsed() > s.master_timeout {
                 let why = format!("master silent for {:?}", s.master_timeout);
                 return s.finish(why, ctx);

@@ -2,15 +2,25 @@
 //! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
 //! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
 
+mod direct;
+
+pub use direct::DirectListener;
+
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use isin_cluster::protocol::{self, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status};
+use isin_cluster::protocol::{
+    self, DirectTile, FrameId, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, TileId,
+};
 use isin_cluster::scene_stream;
 use isin_cluster::scheduler::Work;
 use isin_tracer::{Camera, Frame, RenderSettings, SceneBundle, Tile};
 use isin_transport::{ConnStats, FrameSender, Ticket, Transport, TransportError};
+use std::collections::{BTreeMap, HashSet};
 use std::time::Duration;
 use tokio::sync::mpsc;
+
+/// Requests whose sizes (and direct tiles seen) a viewer remembers.
+const REQUESTS_REMEMBERED: usize = 256;
 
 /// What the viewer reports to whoever drives it.
 #[derive(Clone, Debug, PartialEq)]
@@ -55,7 +65,25 @@ pub struct ViewerActor {
     /// The scene every request names (`None`: the master's default).
     scene: Option<SceneHash>,
     status: Option<Status>,
+    /// Recent requests: their image sizes, and the direct tiles of each
+    /// passed on so far (a tile two slaves rendered comes twice).
+    requests: BTreeMap<u64, Sent>,
 }
+
+/// A request as the viewer remembers it, for checking direct tiles.
+#[derive(Debug, Default)]
+struct Sent {
+    width: u32,
+    height: u32,
+    done: bool,
+    seen: HashSet<(FrameId, TileId)>,
+}
+
+/// A tile straight from a slave; answers whether it is one of this viewer's
+/// (a tile of a finished request, or one seen already, is, and is dropped).
+#[derive(Message)]
+#[rtype(result = "bool")]
+struct DirectIn(DirectTile);
 
 /// Asks for the cluster's status as the master last pushed it.
 #[derive(Message)]
@@ -158,6 +186,11 @@ impl ViewerActor {
         queue: Option<Option<u32>>,
     ) {
         self.next_request = self.next_request.max(request);
+        let sent = Sent { width: settings.width, height: settings.height, ..Sent::default() };
+        self.requests.insert(request, sent);
+        while self.requests.len() > REQUESTS_REMEMBERED {
+            self.requests.pop_first();
+        }
         let scene = self.scene;
         let m = match queue {
             Some(job_frame) => Message::QueueFrame { request, scene, camera, settings, job_frame },
@@ -235,6 +268,41 @@ impl Handler<GetSlaves> for ViewerActor {
     }
 }
 
+impl Handler<DirectIn> for ViewerActor {
+    type Result = bool;
+
+    fn handle(&mut self, DirectIn(d): DirectIn, _: &mut Self::Context) -> bool {
+        let t = d.tile;
+        let Some(sent) = self.requests.get_mut(&t.request) else {
+            // Older than what is remembered: a request of this viewer's, long gone.
+            return t.request <= self.next_request;
+        };
+        let r = t.tile;
+        let inside = r.w > 0
+            && r.h > 0
+            && r.x.checked_add(r.w).is_some_and(|x| x <= sent.width)
+            && r.y.checked_add(r.h).is_some_and(|y| y <= sent.height);
+        if !inside {
+            return false;
+        }
+        if sent.done || !sent.seen.insert((d.frame, d.id)) {
+            return true;
+        }
+        let event = match t.decoded_pixels() {
+            Ok(pixels) => ViewerEvent::Tile {
+                request: t.request,
+                slave: t.slave,
+                slave_name: t.slave_name,
+                tile: r,
+                pixels,
+            },
+            Err(_) => return false,
+        };
+        let _ = self.sink.send(event);
+        true
+    }
+}
+
 impl Handler<Inbound> for ViewerActor {
     type Result = ();
 
@@ -254,7 +322,13 @@ impl Handler<Inbound> for ViewerActor {
                     pixels,
                 }),
             },
-            Ok(Message::FrameDone { request, stats }) => Some(ViewerEvent::FrameDone { request, stats }),
+            Ok(Message::FrameDone { request, stats }) => {
+                if let Some(sent) = self.requests.get_mut(&request) {
+                    sent.done = true;
+                    sent.seen = HashSet::new();
+                }
+                Some(ViewerEvent::FrameDone { request, stats })
+            }
             Ok(Message::Slaves { slaves }) => {
                 // Kept for GetSlaves rather than sent as an event: drivers that
                 // only want frames need not hear about it.
@@ -365,8 +439,32 @@ pub async fn connect_with(
     ticket: &Ticket,
     setup: Setup<'_>,
 ) -> Result<Connected, JoinError> {
-    let (mut conn, welcome) =
-        client::handshake(transport, ticket, client::Join::viewer(setup.name, setup.work)).await?;
+    connect_client(transport, ticket, setup, None).await
+}
+
+/// [`connect_with`] for a client that takes its tiles straight from the
+/// slaves where it can: they dial `direct` (the master still schedules every
+/// tile, and sees a sample of them itself).
+pub async fn connect_direct(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    setup: Setup<'_>,
+    direct: DirectListener,
+) -> Result<Connected, JoinError> {
+    connect_client(transport, ticket, setup, Some(direct)).await
+}
+
+async fn connect_client(
+    transport: &dyn Transport,
+    ticket: &Ticket,
+    setup: Setup<'_>,
+    direct: Option<DirectListener>,
+) -> Result<Connected, JoinError> {
+    let join = client::Join {
+        direct: direct.as_ref().map(|d| d.offer()),
+        ..client::Join::viewer(setup.name, setup.work)
+    };
+    let (mut conn, welcome) = client::handshake(transport, ticket, join).await?;
     let mut slaves = None;
     let scene = match setup.scene {
         None => None,
@@ -415,8 +513,20 @@ pub async fn connect_with(
     let (sink, events) = mpsc::unbounded_channel();
     let isin_transport::Connection { sender, mut receiver, .. } = conn;
     let slaves_version = u64::from(slaves.is_some());
-    let actor = ViewerActor { sender, sink, next_request: 0, slaves, slaves_version, scene, status: None };
+    let actor = ViewerActor {
+        sender,
+        sink,
+        next_request: 0,
+        slaves,
+        slaves_version,
+        scene,
+        status: None,
+        requests: BTreeMap::new(),
+    };
     let addr = actor.start();
+    if let Some(d) = direct {
+        d.serve(addr.clone());
+    }
     let target = addr.clone();
     tokio::spawn(async move {
         while let Some(frame) = receiver.recv().await {

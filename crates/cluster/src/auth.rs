@@ -96,6 +96,14 @@ pub fn server_proof(token: &str, role: Role, server_nonce: &[u8; 32], client_non
     mac(token, b"isin-server", role, server_nonce, client_nonce)
 }
 
+/// A secret for one purpose, `label`, derived from `key` (HMAC-SHA256):
+/// one seed keys several things without one revealing another.
+pub fn derive(key: &[u8; 32], label: &[u8]) -> [u8; 32] {
+    let mut m = HmacSha256::new_from_slice(key).expect("HMAC accepts keys of any length");
+    m.update(label);
+    m.finalize().into_bytes().into()
+}
+
 /// Constant-time comparison of two proofs.
 pub fn proofs_match(a: &[u8; 32], b: &[u8; 32]) -> bool {
     a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0

@@ -111,9 +111,9 @@ use crate::auth::{self, Nonces};
 use crate::codec::{self, Codec, Compression};
 use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
-    self, ClientStatus, FrameId, FrameStats, HANDSHAKE_MAX_FRAME, Hello, JobSpec, MAX_JOB_FRAMES, Message,
-    ProtocolError, Role, SceneHash, SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment,
-    TileResultRef, Welcome,
+    self, ClientStatus, DirectOffer, DirectRoute, FrameId, FrameStats, HANDSHAKE_MAX_FRAME, Hello, JobSpec,
+    MAX_DIRECT_ADDR, MAX_DIRECT_FINGERPRINT, MAX_JOB_FRAMES, Message, ProtocolError, Role, SceneHash,
+    SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment, TileDelivered, TileResultRef, Welcome,
 };
 use crate::scene_stream::{Packed, ProgressLog, Receiver};
 use crate::scheduler::{
@@ -337,6 +337,8 @@ struct Client {
     job: Option<SceneHash>,
     /// Frames completed for it.
     frames_done: u64,
+    /// Where slaves may send its tiles straight ([`Hello::direct`]).
+    direct: Option<DirectOffer>,
 }
 
 #[derive(Debug)]
@@ -372,6 +374,10 @@ struct FrameSpec {
     request: u64,
     /// Bytes received when it was requested.
     bytes_at_start: u64,
+    /// Where its slaves deliver its tiles straight (its viewer's offer).
+    direct: Option<DirectOffer>,
+    /// Tiles that went straight to the viewer.
+    delivered: u32,
 }
 
 /// The master's state machine. See the [module docs](self).
@@ -408,6 +414,9 @@ pub struct Cluster {
     status: ClusterStatus,
     /// Where tiles are decoded to be checked (reused: no allocation per tile).
     scratch: Vec<u8>,
+    /// Picks the tiles of direct frames the master checks itself
+    /// ([`protocol::via_master`]); slaves never learn it.
+    verify_secret: [u8; 32],
     /// When the status was last pushed, and each slave's tiles then (for
     /// its rate).
     last_status: Duration,
@@ -448,6 +457,7 @@ impl Cluster {
             budgets: cfg.budgets,
             slave_max_frame,
             nonces: Nonces::new(cfg.seed),
+            verify_secret: auth::derive(&cfg.seed, b"isin direct tiles checked by the master"),
             sched,
             peers: BTreeMap::new(),
             handshaking: 0,
@@ -688,6 +698,7 @@ impl Cluster {
                 self.drain(now);
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r.borrowed()),
+            (PeerState::Slave, Message::TileDelivered(d)) => self.on_delivered(now, peer, d),
             (PeerState::Slave, Message::NeedScene { hash }) => self.send_scene(now, peer, hash),
             (PeerState::Slave | PeerState::Syncing { .. }, Message::SceneAck { hash, chunks_received }) => {
                 self.on_scene_ack(now, peer, hash, chunks_received)
@@ -1051,7 +1062,14 @@ impl Cluster {
         let max_frame = peer.max_frame;
         match hello.role {
             Role::Viewer => {
-                peer.state = PeerState::Viewer(Client { work: hello.work, ..Client::default() });
+                let direct = hello.direct.map(|o| *o).filter(|o| {
+                    o.addr.len() <= MAX_DIRECT_ADDR
+                        && o.fingerprint.as_ref().is_none_or(|f| f.len() <= MAX_DIRECT_FINGERPRINT)
+                });
+                if let Some(o) = &direct {
+                    tracing::info!(viewer = %peer.name, "viewer {} takes its tiles from slaves at {}", peer.name, o.addr);
+                }
+                peer.state = PeerState::Viewer(Client { work: hello.work, direct, ..Client::default() });
                 tracing::info!(viewer = %peer.name, addr = %peer.addr, "viewer {} connected", peer.name);
                 self.out.push_back(Transmit::Limit { peer: id, max_frame });
                 self.send(id, Message::Welcome(welcome));
@@ -1118,6 +1136,47 @@ impl Cluster {
         match self.sched.handle_result(now, id, r.frame, r.id) {
             ResultOutcome::Accepted { tile } => self.forward(id, r, tile),
             outcome => tracing::trace!(?outcome, "tile result dropped"),
+        }
+        self.drain(now);
+    }
+
+    /// A slave says a tile of a direct frame reached its viewer: counted
+    /// done like a result, nothing forwarded. A tile the master wanted to
+    /// see itself ([`protocol::via_master`]) or of a frame that is not
+    /// direct cannot have been delivered so: the slave goes.
+    fn on_delivered(&mut self, now: Duration, id: PeerId, d: TileDelivered) {
+        let rect = match self.sched.check_result(id, d.frame, d.id) {
+            ResultCheck::Held { tile } => tile,
+            ResultCheck::Finished => {
+                self.sched.handle_result(now, id, d.frame, d.id);
+                return;
+            }
+            ResultCheck::Stale => return,
+            ResultCheck::Foreign => {
+                let r = TileResultRef {
+                    frame: d.frame,
+                    id: d.id,
+                    tile: d.tile,
+                    render_micros: d.render_micros,
+                    codec: Codec::Raw,
+                    pixels: &[],
+                };
+                return self.on_foreign(now, id, &r);
+            }
+        };
+        let direct = self.frames.get(&d.frame).is_some_and(|s| s.direct.is_some());
+        if !direct || protocol::via_master(&self.verify_secret, d.frame, d.id) {
+            return self.refuse(now, id, format!("tile {} was to come through the master", d.id));
+        }
+        if d.tile != rect {
+            let got = d.tile;
+            return self.refuse(now, id, format!("tile {} is {got:?}, but {rect:?} was assigned", d.id));
+        }
+        self.sched.record_render_time(d.frame, d.id, d.render_micros);
+        if let ResultOutcome::Accepted { .. } = self.sched.handle_result(now, id, d.frame, d.id)
+            && let Some(spec) = self.frames.get_mut(&d.frame)
+        {
+            spec.delivered += 1;
         }
         self.drain(now);
     }
@@ -1212,6 +1271,10 @@ impl Cluster {
         self.tell_if_waiting();
         self.status.frames_requested += 1;
         self.scenes.acquire(&scene);
+        let direct = match self.peers.get(&viewer).map(|p| &p.state) {
+            Some(PeerState::Viewer(c)) => c.direct.clone(),
+            _ => None,
+        };
         let spec = FrameSpec {
             scene,
             job_frame,
@@ -1220,6 +1283,8 @@ impl Cluster {
             viewer,
             request,
             bytes_at_start: self.bytes_received,
+            direct,
+            delivered: 0,
         };
         self.frames.insert(frame, spec);
         tracing::debug!(frame, request, queue, "frame requested {w}x{h}");
@@ -1302,12 +1367,25 @@ impl Cluster {
                         );
                     }
                     tracing::trace!(slave, frame, "assigning {} tiles", tiles.len());
+                    let direct = spec.direct.as_ref().map(|offer| {
+                        Box::new(DirectRoute {
+                            viewer: spec.viewer,
+                            request: spec.request,
+                            offer: offer.clone(),
+                            via_master: tiles
+                                .iter()
+                                .map(|t| t.id)
+                                .filter(|&id| protocol::via_master(&self.verify_secret, frame, id))
+                                .collect(),
+                        })
+                    });
                     let message = Message::TileAssignment(TileAssignment {
                         frame,
                         scene: spec.scene,
                         camera: spec.camera,
                         settings: spec.settings,
                         tiles,
+                        direct,
                     });
                     self.send(slave, message);
                 }
@@ -1332,6 +1410,7 @@ impl Cluster {
                     stats.bytes_in = self.bytes_received.saturating_sub(from);
                     self.bytes_at_last_done = self.bytes_received;
                     self.status.frames_done += 1;
+                    stats.direct = self.frames.get(&frame).map_or(0, |s| s.delivered);
                     self.status.last_frame = Some(stats.clone());
                     let Some(spec) = self.close_frame(frame) else { continue };
                     tracing::debug!(

@@ -16,8 +16,13 @@ use serde_bytes::ByteBuf;
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 
+mod direct;
 mod in_place;
 
+pub use direct::{
+    DirectOffer, DirectRoute, DirectTile, MAX_DIRECT_ADDR, MAX_DIRECT_FINGERPRINT, TileDelivered,
+    VERIFY_ONE_IN, via_master,
+};
 pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
 
 /// Version of the protocol spoken by this build; peers must match exactly.
@@ -32,8 +37,10 @@ pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
 /// compressed and in chunks under flow control ([`Message::SceneBegin`],
 /// [`Message::SceneChunk`], [`Message::SceneAck`]), no longer as one
 /// `SceneSync`; clients upload theirs the same way: [`Message::SceneUpload`]
-/// with the header, then the chunks.)
-pub const PROTOCOL_VERSION: u16 = 7;
+/// with the header, then the chunks. 8: viewers may take tiles straight from
+/// slaves ([`Hello::direct`], [`TileAssignment::direct`], [`Message::DirectHello`],
+/// [`Message::DirectTile`], [`Message::DirectAck`], [`Message::TileDelivered`]).)
+pub const PROTOCOL_VERSION: u16 = 8;
 
 /// Most scene hashes a slave may list as cached in its [`Hello`].
 pub const MAX_CACHED_SCENES: usize = 64;
@@ -99,6 +106,10 @@ pub struct Hello {
     /// Viewers: what kind of work their frames are (slaves: ignored).
     #[serde(default)]
     pub work: Work,
+    /// Viewers: where slaves may send this viewer's tiles straight
+    /// ([`direct`](self::direct); slaves: ignored).
+    #[serde(default)]
+    pub direct: Option<Box<DirectOffer>>,
 }
 
 /// What a viewer needs to know about the scene being served.
@@ -203,6 +214,10 @@ pub struct TileAssignment {
     pub settings: RenderSettings,
     /// The tiles.
     pub tiles: Vec<TileJob>,
+    /// Deliver them straight to the frame's viewer, not through the master
+    /// (`None`: through the master).
+    #[serde(default)]
+    pub direct: Option<Box<DirectRoute>>,
 }
 
 /// Slave → master: a rendered tile.
@@ -318,6 +333,10 @@ pub struct FrameStats {
     pub moved: u32,
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
+    /// Tiles that went straight from their slave to the viewer
+    /// ([`Message::TileDelivered`]); the rest came through the master.
+    #[serde(default)]
+    pub direct: u32,
     /// Bytes of the messages the master received from all peers while the
     /// frame was open (tiles and heartbeats; the transport's framing and
     /// encryption not counted): the frame's cost on the slaves' links.
@@ -499,6 +518,25 @@ pub enum Message {
     /// [`Message::StatusRequest`], and is pushed to every viewer when a slave
     /// joins or dies and every second while frames are open.
     Status(Status),
+    /// Slave → viewer, first on a direct link: the key of the viewer's
+    /// [`DirectOffer`], as the master passed it on.
+    DirectHello {
+        /// The key.
+        key: [u8; 32],
+        /// The slave's id at the master.
+        slave: u64,
+    },
+    /// Slave → viewer: a tile of one of its frames, straight.
+    DirectTile(DirectTile),
+    /// Viewer → slave: the tile arrived and is shown.
+    DirectAck {
+        /// Its frame.
+        frame: FrameId,
+        /// Its id.
+        id: TileId,
+    },
+    /// Slave → master: a tile of a direct frame reached its viewer.
+    TileDelivered(TileDelivered),
 }
 
 /// A batch job as its client describes it ([`Message::SubmitJob`]).
@@ -615,6 +653,10 @@ impl Message {
             Message::JobAccepted { .. } => "JobAccepted",
             Message::StatusRequest => "StatusRequest",
             Message::Status(_) => "Status",
+            Message::DirectHello { .. } => "DirectHello",
+            Message::DirectTile(_) => "DirectTile",
+            Message::DirectAck { .. } => "DirectAck",
+            Message::TileDelivered(_) => "TileDelivered",
         }
     }
 }
@@ -771,6 +813,11 @@ mod tests {
                 cached_scenes: vec![[3; 32]],
                 codecs: codec::offer(),
                 work: Work::Batch,
+                direct: Some(Box::new(DirectOffer {
+                    addr: "10.1.2.3:4000".into(),
+                    fingerprint: None,
+                    key: [6; 32],
+                })),
             }),
             Message::Welcome(Welcome {
                 id: 9,
@@ -860,6 +907,25 @@ mod tests {
                 camera: Camera::default(),
                 settings: RenderSettings::default(),
                 tiles: vec![TileJob { id: 1, tile: Tile { x: 0, y: 32, w: 32, h: 16 } }],
+                direct: Some(Box::new(DirectRoute {
+                    viewer: 4,
+                    request: 8,
+                    offer: DirectOffer {
+                        addr: "viewer.lan:4000".into(),
+                        fingerprint: Some("0f".repeat(32)),
+                        key: [9; 32],
+                    },
+                    via_master: vec![1],
+                })),
+            }),
+            Message::DirectHello { key: [9; 32], slave: 3 },
+            Message::DirectAck { frame: 2, id: 1 },
+            Message::TileDelivered(TileDelivered {
+                frame: 2,
+                id: 1,
+                tile: Tile { x: 0, y: 32, w: 32, h: 16 },
+                render_micros: 70,
+                bytes: 3072,
             }),
             Message::Cancel { frame: 2, tiles: vec![1, 5] },
             Message::TileResult(TileResult {

@@ -4,7 +4,10 @@
 //! what adds coverage.
 
 use isin_cluster::codec::{self, Codec};
-use isin_cluster::protocol::{self, Hello, Message, Role, SceneInfo, TileResult, Welcome};
+use isin_cluster::protocol::{
+    self, DirectOffer, DirectRoute, DirectTile, FrameTile, Hello, Message, Role, SceneInfo, TileAssignment,
+    TileDelivered, TileJob, TileResult, Welcome,
+};
 use isin_cluster::scheduler::Work;
 use isin_fuzzing::files::{MTL, fixtures, quad_obj, triangle_buffer, triangle_gltf};
 use isin_tracer::{Camera, RenderSettings, SceneBundle, Tile};
@@ -139,6 +142,11 @@ fn messages() -> Vec<Message> {
             cached_scenes: vec![[3; 32]],
             codecs: codec::offer(),
             work: Work::Batch,
+            direct: Some(Box::new(DirectOffer {
+                addr: "10.0.0.2:7000".into(),
+                fingerprint: None,
+                key: [4; 32],
+            })),
         }),
         Message::Welcome(Welcome {
             id: 9,
@@ -181,6 +189,38 @@ fn messages() -> Vec<Message> {
                 alive: true,
             }],
         },
+        Message::TileAssignment(TileAssignment {
+            frame: 5,
+            scene: [5; 32],
+            camera: Camera::default(),
+            settings,
+            tiles: vec![TileJob { id: 0, tile }, TileJob { id: 1, tile }],
+            direct: Some(Box::new(DirectRoute {
+                viewer: 3,
+                request: 4,
+                offer: DirectOffer {
+                    addr: "[::1]:9".into(),
+                    fingerprint: Some("ab".repeat(32)),
+                    key: [1; 32],
+                },
+                via_master: vec![1],
+            })),
+        }),
+        Message::DirectHello { key: [1; 32], slave: 9 },
+        Message::DirectTile(DirectTile {
+            frame: 5,
+            id: 0,
+            tile: FrameTile {
+                request: 4,
+                slave: 9,
+                slave_name: "box#9".into(),
+                tile,
+                codec: Codec::Raw,
+                pixels: ByteBuf::from(rgb.clone()),
+            },
+        }),
+        Message::DirectAck { frame: 5, id: 0 },
+        Message::TileDelivered(TileDelivered { frame: 5, id: 0, tile, render_micros: 10, bytes: 24 }),
         Message::Heartbeat,
         Message::Error { message: "no".into() },
         Message::Notice { message: "wait".into() },

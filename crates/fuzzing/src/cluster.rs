@@ -510,6 +510,7 @@ impl Net {
                         cached_scenes: cached,
                         codecs: p.offered.iter().map(|c| c.name().to_string()).collect(),
                         work: p.work,
+                        direct: None,
                     }));
                 }
             }

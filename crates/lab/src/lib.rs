@@ -5,5 +5,5 @@
 //! crate is only ever called from inside `isin`.
 
 pub mod bench;
-mod client;
+pub mod client;
 pub mod netlab;

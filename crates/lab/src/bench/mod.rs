@@ -12,6 +12,8 @@
 //!   emulated cluster at once;
 //! - [`sync`]: `isin bench sync`, a slave joining over a shaped link: scene
 //!   bytes, transfer, build and first tile, then its rejoin;
+//! - [`viewers`]: `isin bench viewers`, several viewers on a master behind a
+//!   slow link, tiles relayed by the master against straight from slaves;
 //! - [`chaos`]: `isin bench chaos`, a soak of a master, slaves, a viewer and
 //!   a batch job under injected faults (kills, stops, link faults);
 //! - [`procs`]: starting masters and slaves (inside the lab or on loopback)
@@ -30,6 +32,7 @@ mod scaling;
 mod shared;
 mod sync;
 mod transports;
+mod viewers;
 
 use clap::{Args, Subcommand};
 
@@ -56,6 +59,8 @@ enum BenchCommand {
     Sync(sync::SyncArgs),
     /// A soak under injected faults: frames lost, byte-identical, recovery after master restarts, memory.
     Chaos(chaos::ChaosArgs),
+    /// Several viewers on a master behind a slow link: tiles through the master against straight from slaves.
+    Viewers(viewers::ViewersArgs),
 }
 
 /// Runs `isin bench`.
@@ -68,6 +73,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Master(a) => master::run(a),
         BenchCommand::Sync(a) => sync::run(a),
         BenchCommand::Chaos(a) => chaos::run(a),
+        BenchCommand::Viewers(a) => viewers::run(a),
     }
 }
 

@@ -562,6 +562,7 @@ impl Net {
                     cached_scenes: cached,
                     codecs,
                     work: p.work,
+                    direct: None,
                 }));
             }
             (Kind::Slave(s), Message::Welcome(w)) => {
