@@ -213,6 +213,9 @@ fn run_cluster(args: &RenderArgs, ticket: isin_transport::Ticket, output: Output
         stats.duplicated,
         stats.requeued
     )?;
+    if args.direct.direct.is_some() {
+        writeln!(r, "direct     {} of {} tiles straight from the slaves", stats.direct, stats.tiles)?;
+    }
     writeln!(
         r,
         "render     {:.1} ms (master: {:.1} ms)",

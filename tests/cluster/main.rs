@@ -139,6 +139,20 @@ cluster_test!(
     insecure
 );
 
+cluster_test!(
+    tiles_straight_from_the_slaves_are_the_same_pixels,
+    |t: Transport| {
+        let c = Cluster::start(t, 2, &[]);
+        let direct: Vec<&str> = SLOW.iter().copied().chain(["--direct", "127.0.0.1:0"]).collect();
+        let (cluster, stdout) = c.render("direct.png", &direct);
+        assert_same_pixels(&cluster, &render_local(SLOW), "tiles straight from the slaves vs isin render");
+        let line = stdout.lines().find(|l| l.starts_with("direct")).expect("direct line");
+        let n: u32 = line.split_whitespace().nth(1).and_then(|n| n.parse().ok()).expect("a count");
+        assert!(n > 0, "no tile went straight to the viewer: {line}");
+    },
+    insecure
+);
+
 cluster_test!(kill_mid_frame, |t: Transport| {
     // No straggler copies: the killed slave's tiles can only come back through
     // reassignment once it is declared dead (at once over TCP, whose socket
