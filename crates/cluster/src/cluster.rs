@@ -361,6 +361,8 @@ struct Peer {
     foreign: u32,
     /// Scenes sent to it (slaves).
     scene_sends: u32,
+    /// Viewers whose direct offer it was sent (slaves).
+    offers_sent: BTreeSet<PeerId>,
 }
 
 /// A frame the master has open, as its viewer asked for it.
@@ -578,6 +580,7 @@ impl Cluster {
                 decodes: Vec::new(),
                 foreign: 0,
                 scene_sends: 0,
+                offers_sent: BTreeSet::new(),
             },
         );
         self.handshaking += 1;
@@ -1367,11 +1370,14 @@ impl Cluster {
                         );
                     }
                     tracing::trace!(slave, frame, "assigning {} tiles", tiles.len());
+                    let first = |peers: &mut BTreeMap<PeerId, Peer>| {
+                        peers.get_mut(&slave).is_some_and(|p| p.offers_sent.insert(spec.viewer))
+                    };
                     let direct = spec.direct.as_ref().map(|offer| {
                         Box::new(DirectRoute {
                             viewer: spec.viewer,
                             request: spec.request,
-                            offer: offer.clone(),
+                            offer: first(&mut self.peers).then(|| offer.clone()),
                             via_master: tiles
                                 .iter()
                                 .map(|t| t.id)

@@ -910,11 +910,11 @@ mod tests {
                 direct: Some(Box::new(DirectRoute {
                     viewer: 4,
                     request: 8,
-                    offer: DirectOffer {
+                    offer: Some(DirectOffer {
                         addr: "viewer.lan:4000".into(),
                         fingerprint: Some("0f".repeat(32)),
                         key: [9; 32],
-                    },
+                    }),
                     via_master: vec![1],
                 })),
             }),

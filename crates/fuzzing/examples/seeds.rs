@@ -198,11 +198,11 @@ fn messages() -> Vec<Message> {
             direct: Some(Box::new(DirectRoute {
                 viewer: 3,
                 request: 4,
-                offer: DirectOffer {
+                offer: Some(DirectOffer {
                     addr: "[::1]:9".into(),
                     fingerprint: Some("ab".repeat(32)),
                     key: [1; 32],
-                },
+                }),
                 via_master: vec![1],
             })),
         }),

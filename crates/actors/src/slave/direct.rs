@@ -1,8 +1,8 @@
 //! A slave's links to viewers that take their tiles straight
 //! ([`isin_cluster::protocol::DirectRoute`]).
 //!
-//! One link per viewer offer, dialled when the first assignment naming it
-//! comes. A render job delivers a tile over the link if it is up, else
+//! One link per viewer, dialled when the first assignment routed to it
+//! comes (the master sends its offer once; it is kept by viewer id). A render job delivers a tile over the link if it is up, else
 //! through the master as usual; a delivered tile waits in the link's
 //! `pending` until the viewer acknowledges it, and only then does the
 //! master hear of it ([`Message::TileDelivered`]). When a link breaks, or
@@ -19,7 +19,7 @@ use isin_cluster::protocol::{
 use isin_tracer::Tile;
 use isin_transport::{Delivery, FrameSender, Transport};
 use serde_bytes::ByteBuf;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
@@ -34,6 +34,10 @@ pub const REDIAL_AFTER: Duration = Duration::from_secs(1);
 /// Most tiles that may wait for acknowledgement on one link; beyond it tiles
 /// go through the master.
 const MAX_PENDING: usize = 4096;
+
+/// Viewers whose offers (and links) a slave keeps; the oldest go first (a
+/// viewer whose offer was dropped gets its tiles through the master).
+const MAX_VIEWERS: usize = 256;
 
 /// Makes the transport a slave reaches a viewer's offer with: TLS pinning
 /// the offer's fingerprint (its text, as a ticket writes it), or plaintext
@@ -93,7 +97,8 @@ pub(crate) fn send_result(master: &FrameSender, r: TileResult) -> bool {
     }
 }
 
-type Key = (String, [u8; 32]);
+/// A viewer, by its id at the master.
+type Key = u64;
 
 enum State {
     Dialling,
@@ -145,20 +150,42 @@ pub(crate) struct Links {
     master: FrameSender,
     slave: u64,
     slave_name: String,
+    /// Viewers' offers, as the master sent them.
+    offers: Mutex<BTreeMap<Key, DirectOffer>>,
     links: Mutex<HashMap<Key, State>>,
 }
 
 impl Links {
     /// No links yet; `dialer` `None`: every tile goes through the master.
     pub fn new(dialer: Option<Dialer>, master: FrameSender, slave: u64, slave_name: String) -> Arc<Self> {
-        Arc::new(Self { dialer, master, slave, slave_name, links: Mutex::default() })
+        Arc::new(Self {
+            dialer,
+            master,
+            slave,
+            slave_name,
+            offers: Mutex::default(),
+            links: Mutex::default(),
+        })
     }
 
     /// Dials `route`'s viewer unless a link to it is up or being dialled
     /// (or failed less than [`REDIAL_AFTER`] ago). Call from the runtime.
     pub fn prepare(self: &Arc<Self>, route: &DirectRoute) {
         let Some(dialer) = self.dialer.clone() else { return };
-        let key = (route.offer.addr.clone(), route.offer.key);
+        let key = route.viewer;
+        let offer = {
+            let mut offers = lock(&self.offers);
+            if let Some(o) = &route.offer {
+                offers.insert(key, o.clone());
+                while offers.len() > MAX_VIEWERS {
+                    if let Some((old, _)) = offers.pop_first() {
+                        lock(&self.links).remove(&old);
+                    }
+                }
+            }
+            offers.get(&key).cloned()
+        };
+        let Some(offer) = offer else { return };
         {
             let mut links = lock(&self.links);
             match links.get(&key) {
@@ -166,9 +193,9 @@ impl Links {
                 Some(State::Down(at)) if at.elapsed() < REDIAL_AFTER => return,
                 _ => {}
             }
-            links.insert(key.clone(), State::Dialling);
+            links.insert(key, State::Dialling);
         }
-        let (me, offer) = (self.clone(), route.offer.clone());
+        let me = self.clone();
         tokio::spawn(async move {
             match me.dial(&dialer, &offer).await {
                 Ok(conn) => me.run(key, conn).await,
@@ -201,17 +228,17 @@ impl Links {
     async fn run(self: Arc<Self>, key: Key, conn: isin_transport::Connection) {
         let isin_transport::Connection { sender, mut receiver, .. } = conn;
         let up = Arc::new(Up { sender, waiting: Mutex::default() });
-        lock(&self.links).insert(key.clone(), State::Up(up.clone()));
+        lock(&self.links).insert(key, State::Up(up.clone()));
         while let Some(Ok(frame)) = receiver.recv().await {
             match protocol::decode(&frame, protocol::HANDSHAKE_MAX_FRAME) {
                 Ok(Message::DirectAck { frame, id }) => self.acknowledged(&up, frame, id),
                 Ok(Message::Heartbeat) => {}
                 Ok(other) => {
-                    tracing::warn!("the viewer at {} sent {}; link closed", key.0, other.kind());
+                    tracing::warn!("viewer #{key} sent {}; link closed", other.kind());
                     break;
                 }
                 Err(e) => {
-                    tracing::warn!("bad frame from the viewer at {}: {e}; link closed", key.0);
+                    tracing::warn!("bad frame from viewer #{key}: {e}; link closed");
                     break;
                 }
             }
@@ -246,7 +273,7 @@ impl Links {
     /// otherwise (or if it is a tile the master wants itself) sends it to
     /// the master. Runs on render threads.
     pub fn deliver(&self, route: &DirectRoute, t: Rendered) {
-        let up = match lock(&self.links).get(&(route.offer.addr.clone(), route.offer.key)) {
+        let up = match lock(&self.links).get(&route.viewer) {
             Some(State::Up(up)) if !route.via_master.contains(&t.id) => up.clone(),
             _ => {
                 send_result(&self.master, t.into_result());
@@ -293,20 +320,17 @@ impl Links {
     pub fn expire(&self) {
         let stalled: Vec<(Key, Arc<Up>)> = lock(&self.links)
             .iter()
-            .filter_map(|(k, s)| match s {
+            .filter_map(|(&k, s)| match s {
                 State::Up(up) if lock(&up.waiting).tiles.values().any(|p| p.at.elapsed() > ACK_TIMEOUT) => {
-                    Some((k.clone(), up.clone()))
+                    Some((k, up.clone()))
                 }
                 _ => None,
             })
             .collect();
         for (key, up) in stalled {
-            lock(&self.links).insert(key.clone(), State::Down(Instant::now()));
+            lock(&self.links).insert(key, State::Down(Instant::now()));
             let n = up.give_up(&self.master);
-            tracing::warn!(
-                "the viewer at {} left {n} tiles unacknowledged; they go through the master",
-                key.0
-            );
+            tracing::warn!("viewer #{key} left {n} tiles unacknowledged; they go through the master");
         }
     }
 

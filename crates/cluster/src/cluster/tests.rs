@@ -567,3 +567,69 @@ fn a_slave_joining_mid_job_is_used_at_once() {
         net.assert_exact(job, r);
     }
 }
+
+#[test]
+fn a_direct_viewers_tiles_come_straight_but_a_sample_and_each_slave_hears_the_offer_once() {
+    let mut net = Net::new(sim::config());
+    let a = net.slave(SlaveSpec::default());
+    let b = net.slave(SlaveSpec::default());
+    let v = net.direct_viewer();
+    net.run_until(|n| n.core.status().slaves.len() == 2);
+    let (mut tiles, mut direct) = (0, 0);
+    for seed in 1..=3 {
+        let req = net.request(v, settings(256, 192, seed), false);
+        net.run_until(|n| n.viewer_done(v, req));
+        net.assert_exact(v, req);
+        let last = net.core.status().last_frame.expect("a frame done");
+        (tiles, direct) = (tiles + last.tiles, direct + last.direct);
+    }
+    assert_eq!(net.direct_tiles(v), direct, "the master counts what the viewer took straight");
+    assert!(direct < tiles && direct * 10 >= tiles * 8, "{direct} of {tiles} tiles straight");
+    for s in [a, b] {
+        let routes: Vec<&protocol::DirectRoute> = net
+            .received(s)
+            .iter()
+            .filter_map(|m| match m {
+                Message::TileAssignment(t) => t.direct.as_deref(),
+                _ => None,
+            })
+            .collect();
+        assert!(routes.len() > 1, "slave {s} was routed {} assignments", routes.len());
+        assert!(routes[0].offer.is_some(), "the first route names the viewer's offer");
+        assert!(routes[1..].iter().all(|r| r.offer.is_none()), "the offer is sent once");
+    }
+    assert_eq!(net.core.status().refused, 0);
+}
+
+#[test]
+fn a_slave_that_claims_the_masters_sample_delivered_is_dropped_and_the_frame_stays_exact() {
+    let mut net = Net::new(sim::config());
+    net.slave(SlaveSpec::default());
+    let cheat = net.slave(SlaveSpec { behaviour: Behaviour::SkipsSample, ..SlaveSpec::default() });
+    let v = net.direct_viewer();
+    net.run_until(|n| n.core.status().slaves.len() == 2);
+    let req = net.request(v, settings(256, 192, 4), false);
+    net.run_until(|n| n.viewer_done(v, req));
+    net.assert_exact(v, req);
+    assert!(net.is_closed(cheat));
+    let why = net.rejection(cheat).unwrap();
+    assert!(why.contains("through the master"), "{why}");
+}
+
+#[test]
+fn a_delivery_claimed_for_a_frame_that_is_not_direct_drops_the_slave() {
+    let mut net = Net::new(sim::config());
+    net.slave(SlaveSpec::default());
+    let s = net.slave(SlaveSpec { threads: 1, ..SlaveSpec::default() });
+    let v = net.viewer();
+    net.run_until(|n| n.core.status().slaves.len() == 2);
+    let req = net.request(v, settings(256, 192, 2), false);
+    net.run_until(|n| n.assigned(s).is_some());
+    let (frame, job) = net.assigned(s).expect("a tile");
+    let d = protocol::TileDelivered { frame, id: job.id, tile: job.tile, render_micros: 1, bytes: 0 };
+    net.say(s, &Message::TileDelivered(d));
+    net.run_until(|n| n.is_closed(s));
+    assert!(net.rejection(s).unwrap().contains("through the master"), "{:?}", net.rejection(s));
+    net.run_until(|n| n.viewer_done(v, req));
+    net.assert_exact(v, req);
+}

@@ -4,7 +4,8 @@
 //! A viewer that listens for slaves sends a [`DirectOffer`] in its
 //! [`Hello`](super::Hello): where it listens, the fingerprint of the
 //! certificate it presents there, and a fresh random key. The master passes
-//! them on in a [`DirectRoute`] with every assignment of that viewer's frames,
+//! them on in a [`DirectRoute`] with every assignment of that viewer's frames
+//! (the offer itself only in the first route to that viewer a slave gets),
 //! with the tiles it wants to see itself ([`DirectRoute::via_master`]: a
 //! sample it checks, chosen with a secret the slaves do not know). A slave
 //! dials the viewer (pinning the fingerprint), proves it was sent by the
@@ -56,8 +57,10 @@ pub struct DirectRoute {
     pub viewer: u64,
     /// The viewer's request number for the frame.
     pub request: u64,
-    /// Where and how to reach it, and the key to show.
-    pub offer: DirectOffer,
+    /// Where and how to reach it, and the key to show: in the first route
+    /// to this viewer a slave is sent (assignments are ordered), `None` in
+    /// the others (the slave keeps it by [`DirectRoute::viewer`]).
+    pub offer: Option<DirectOffer>,
     /// Tiles of the assignment to send to the master instead, in full.
     pub via_master: Vec<TileId>,
 }

@@ -4,12 +4,16 @@
 //! slaves answer the challenge, load the scene, render their tiles in
 //! `threads` lanes at a chosen speed (pixels from [`shade`], so any slave
 //! renders any pixel to the same bytes) and heartbeat; viewers request
-//! frames and assemble the tiles they get. Hostile [`Behaviour`]s speak the
-//! same protocol and lie in it.
+//! frames and assemble the tiles they get — through the master, or straight
+//! from the slaves for a direct viewer ([`Net::direct_viewer`]: its link to
+//! each slave delivers and acknowledges at once). Hostile [`Behaviour`]s
+//! speak the same protocol and lie in it.
 
 use super::super::*;
 use super::MS;
-use crate::protocol::{JobSpec, SceneHash, Status, TileId, TileJob, TileResult};
+use crate::protocol::{
+    DirectOffer, FrameTile, JobSpec, SceneHash, Status, TileDelivered, TileId, TileJob, TileResult,
+};
 use isin_tracer::Tile;
 use serde_bytes::ByteBuf;
 
@@ -88,6 +92,9 @@ pub enum Behaviour {
     FailsScenes,
     /// Takes a scene's chunks but never acknowledges them (heartbeats on).
     NeverAcks,
+    /// Claims every tile of a direct frame delivered, the master's sample
+    /// too (which it then never sends).
+    SkipsSample,
 }
 
 /// A simulated slave.
@@ -111,7 +118,10 @@ impl Default for SlaveSpec {
     }
 }
 
-type Job = (FrameId, TileJob, u64);
+/// A tile to render: its frame, itself, the render's seed, and the direct
+/// viewer and request to deliver it to (unless the master wants it), with
+/// whether the master wants it.
+type Job = (FrameId, TileJob, u64, Option<(PeerId, u64, bool)>);
 
 #[derive(Debug, Default)]
 struct SlaveSim {
@@ -191,7 +201,16 @@ impl SlaveSim {
             }
             _ => {}
         }
-        s.queue.extend(a.tiles.into_iter().map(|t| (a.frame, t, seed)));
+        let route = a.direct.as_deref().map(|r| (r.viewer, r.request, r.via_master.clone()));
+        let to = |id: TileId| match &route {
+            Some((viewer, request, via_master))
+                if behaviour == Behaviour::SkipsSample || !via_master.contains(&id) =>
+            {
+                Some((*viewer, *request, via_master.contains(&id)))
+            }
+            _ => None,
+        };
+        s.queue.extend(a.tiles.into_iter().map(|t| (a.frame, t, seed, to(t.id))));
     }
 }
 
@@ -217,6 +236,30 @@ struct ViewerSim {
     stored: BTreeSet<SceneHash>,
     statuses: Vec<Status>,
     accepted: Option<Vec<u32>>,
+    /// Offers to take tiles straight from the slaves.
+    direct: bool,
+    direct_tiles: u32,
+}
+
+impl ViewerSim {
+    /// Writes a tile into its frame, counting each pixel's writes.
+    fn paste(&mut self, t: &FrameTile) {
+        let f = self
+            .frames
+            .get_mut(&t.request)
+            .unwrap_or_else(|| panic!("tile for unknown request {}", t.request));
+        assert!(!f.done, "tile after FrameDone");
+        let rgb = t.decoded_pixels().expect("tiles decode");
+        let w = f.settings.width;
+        for (row, y) in (t.tile.y..t.tile.y + t.tile.h).enumerate() {
+            for (col, x) in (t.tile.x..t.tile.x + t.tile.w).enumerate() {
+                let i = (y * w + x) as usize;
+                let s = (row * t.tile.w as usize + col) * 3;
+                f.image[i * 3..i * 3 + 3].copy_from_slice(&rgb[s..s + 3]);
+                f.writes[i] += 1;
+            }
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -328,6 +371,13 @@ impl Net {
     /// Connects an honest viewer whose frames are `work`.
     pub fn viewer_of(&mut self, work: Work) -> PeerId {
         self.add(Kind::Viewer(ViewerSim::default()), Behaviour::Honest, TOKEN.into(), work)
+    }
+
+    /// Connects an honest interactive viewer that takes its tiles straight
+    /// from the slaves.
+    pub fn direct_viewer(&mut self) -> PeerId {
+        let sim = ViewerSim { direct: true, ..ViewerSim::default() };
+        self.add(Kind::Viewer(sim), Behaviour::Honest, TOKEN.into(), Work::Interactive)
     }
 
     /// Connects a peer that says nothing unless told to.
@@ -550,6 +600,14 @@ impl Net {
                     }
                     _ => (Role::Viewer, 0, Vec::new(), codec::offer()),
                 };
+                let direct = match &p.kind {
+                    Kind::Viewer(v) if v.direct => Some(Box::new(DirectOffer {
+                        addr: format!("sim:{id}"),
+                        fingerprint: None,
+                        key: [id as u8; 32],
+                    })),
+                    _ => None,
+                };
                 let client_nonce = [id as u8; 32];
                 let proof = auth::client_proof(&p.token, role, &nonce, &client_nonce);
                 let name = format!("sim{id}");
@@ -562,7 +620,7 @@ impl Net {
                     cached_scenes: cached,
                     codecs,
                     work: p.work,
-                    direct: None,
+                    direct,
                 }));
             }
             (Kind::Slave(s), Message::Welcome(w)) => {
@@ -624,25 +682,9 @@ impl Net {
             }
             (Kind::Slave(s), Message::Cancel { frame, tiles }) => {
                 s.cancels += 1;
-                s.queue.retain(|(f, job, _)| !(*f == frame && tiles.contains(&job.id)));
+                s.queue.retain(|(f, job, ..)| !(*f == frame && tiles.contains(&job.id)));
             }
-            (Kind::Viewer(v), Message::FrameTile(t)) => {
-                let f = v
-                    .frames
-                    .get_mut(&t.request)
-                    .unwrap_or_else(|| panic!("tile for unknown request {}", t.request));
-                assert!(!f.done, "tile after FrameDone");
-                let rgb = t.decoded_pixels().expect("forwarded tiles decode");
-                let w = f.settings.width;
-                for (row, y) in (t.tile.y..t.tile.y + t.tile.h).enumerate() {
-                    for (col, x) in (t.tile.x..t.tile.x + t.tile.w).enumerate() {
-                        let i = (y * w + x) as usize;
-                        let s = (row * t.tile.w as usize + col) * 3;
-                        f.image[i * 3..i * 3 + 3].copy_from_slice(&rgb[s..s + 3]);
-                        f.writes[i] += 1;
-                    }
-                }
-            }
+            (Kind::Viewer(v), Message::FrameTile(t)) => v.paste(&t),
             (Kind::Viewer(v), Message::FrameDone { request, .. }) => {
                 let f = v.frames.get_mut(&request).expect("done for a known request");
                 f.done = true;
@@ -675,7 +717,9 @@ impl Net {
     pub fn step(&mut self) {
         self.now += MS;
         let now = self.now;
-        for p in self.peers.values_mut().filter(|p| !p.gone && p.closed.is_none()) {
+        // Tiles slaves deliver straight: (viewer, request, tile).
+        let mut straight: Vec<(PeerId, FrameTile)> = Vec::new();
+        for (&slave, p) in self.peers.iter_mut().filter(|(_, p)| !p.gone && p.closed.is_none()) {
             let speaks = !matches!(p.behaviour, Behaviour::Silent | Behaviour::StallBeforeReady);
             if p.logged_in && speaks && now >= p.next_heartbeat {
                 p.next_heartbeat = now + HEARTBEAT;
@@ -688,7 +732,35 @@ impl Net {
             self.lane_ms += s.lanes.len() as u64;
             self.busy_lane_ms += s.lanes.iter().filter(|l| l.is_some()).count() as u64;
             for lane in 0..s.lanes.len() {
-                if let Some(((frame, job, seed), at)) = s.lanes[lane]
+                if let Some(((frame, job, seed, to), at)) = s.lanes[lane]
+                    && at <= now
+                {
+                    let pixels = codec::encode(s.codec, job.tile.w, &render(seed, job.tile));
+                    if let Some((viewer, request, sample)) = to {
+                        // (A sample claimed delivered is never sent.)
+                        if !sample {
+                            let tile = FrameTile {
+                                request,
+                                slave,
+                                slave_name: String::new(),
+                                tile: job.tile,
+                                codec: s.codec,
+                                pixels: ByteBuf::from(pixels.clone()),
+                            };
+                            straight.push((viewer, tile));
+                        }
+                        let d = TileDelivered {
+                            frame,
+                            id: job.id,
+                            tile: job.tile,
+                            render_micros: job.tile.pixel_count() as u64 * s.us_per_pixel,
+                            bytes: pixels.len() as u64,
+                        };
+                        p.outbox.push(protocol::encode(&Message::TileDelivered(d)).expect("encodes"));
+                        s.lanes[lane] = None;
+                    }
+                }
+                if let Some(((frame, job, seed, None), at)) = s.lanes[lane]
                     && at <= now
                 {
                     let pixels = codec::encode(s.codec, job.tile.w, &render(seed, job.tile));
@@ -711,9 +783,30 @@ impl Net {
                 }
             }
         }
+        // The link delivers at once, and the viewer acknowledges before the
+        // slave tells the master: a tile is in before its frame's FrameDone.
+        for (viewer, tile) in straight {
+            if let Some(Kind::Viewer(v)) = self.peers.get_mut(&viewer).map(|p| &mut p.kind) {
+                v.paste(&tile);
+                v.direct_tiles += 1;
+            }
+        }
         self.pump();
         self.core.handle_timeout(now);
         self.pump();
+    }
+
+    /// The first tile assigned to slave `s`, if any, with its frame.
+    pub fn assigned(&self, s: PeerId) -> Option<(FrameId, TileJob)> {
+        self.peers[&s].received.iter().find_map(|m| match m {
+            Message::TileAssignment(a) => a.tiles.first().map(|t| (a.frame, *t)),
+            _ => None,
+        })
+    }
+
+    /// Tiles viewer `v` took straight from slaves.
+    pub fn direct_tiles(&self, v: PeerId) -> u32 {
+        self.viewer_sim(v).direct_tiles
     }
 
     /// Steps until `done` holds (at most ten virtual minutes).
