@@ -9,7 +9,7 @@ pub use direct::DirectListener;
 use crate::client::{self, JoinError};
 use actix::prelude::*;
 use isin_cluster::protocol::{
-    self, DirectTile, FrameId, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, TileId,
+    self, DirectTile, FrameStats, JobSpec, Message, SceneHash, SceneInfo, SlaveEntry, Status, TileReceived,
 };
 use isin_cluster::scene_stream;
 use isin_cluster::scheduler::Work;
@@ -65,8 +65,9 @@ pub struct ViewerActor {
     /// The scene every request names (`None`: the master's default).
     scene: Option<SceneHash>,
     status: Option<Status>,
-    /// Recent requests: their image sizes, and the direct tiles of each
-    /// passed on so far (a tile two slaves rendered comes twice).
+    /// Recent requests: their image sizes, and the tiles of each passed on
+    /// so far (a tile two slaves rendered can come twice, straight or
+    /// straight and through the master).
     requests: BTreeMap<u64, Sent>,
 }
 
@@ -76,7 +77,7 @@ struct Sent {
     width: u32,
     height: u32,
     done: bool,
-    seen: HashSet<(FrameId, TileId)>,
+    seen: HashSet<Tile>,
 }
 
 /// A tile straight from a slave; answers whether it is one of this viewer's
@@ -285,20 +286,30 @@ impl Handler<DirectIn> for ViewerActor {
         if !inside {
             return false;
         }
-        if sent.done || !sent.seen.insert((d.frame, d.id)) {
+        if sent.done || sent.seen.contains(&r) {
             return true;
         }
-        let event = match t.decoded_pixels() {
-            Ok(pixels) => ViewerEvent::Tile {
-                request: t.request,
-                slave: t.slave,
-                slave_name: t.slave_name,
-                tile: r,
-                pixels,
-            },
-            Err(_) => return false,
+        let Ok(pixels) = t.decoded_pixels() else { return false };
+        sent.seen.insert(r);
+        let event = ViewerEvent::Tile {
+            request: t.request,
+            slave: t.slave,
+            slave_name: t.slave_name,
+            tile: r,
+            pixels,
         };
         let _ = self.sink.send(event);
+        // Shown first, then the master told: its FrameDone comes after.
+        let received = TileReceived {
+            frame: d.frame,
+            id: d.id,
+            slave: t.slave,
+            tile: r,
+            render_micros: d.render_micros,
+        };
+        if let Ok(bytes) = protocol::encode(&Message::TileReceived(received)) {
+            let _ = self.sender.send(bytes);
+        }
         true
     }
 }
@@ -312,6 +323,12 @@ impl Handler<Inbound> for ViewerActor {
                 .map_err(|e| format!("bad frame from the master: {e}"))
         });
         let event = match msg {
+            // A tile shown already (it came straight too) is not shown again.
+            Ok(Message::FrameTile(t))
+                if self.requests.get_mut(&t.request).is_some_and(|s| !s.seen.insert(t.tile)) =>
+            {
+                None
+            }
             Ok(Message::FrameTile(t)) => match t.decoded_pixels() {
                 Err(e) => Some(ViewerEvent::Error(format!("tile {:?}: {e}", t.tile))),
                 Ok(pixels) => Some(ViewerEvent::Tile {

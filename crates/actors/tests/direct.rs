@@ -1,6 +1,6 @@
 //! Tiles that skip the master, end to end in one process over the in-memory
 //! transport: slaves deliver a direct viewer's tiles to it, the master sees
-//! a sample and the small `TileDelivered`s, and the frames are exact; a slave
+//! a sample and the viewer's small `TileReceived`s, and the frames are exact; a slave
 //! that cannot reach the viewer, and a peer without the key, change nothing
 //! the viewer shows.
 
@@ -146,6 +146,7 @@ async fn the_viewer_lets_in_only_the_key_and_only_tiles_of_its_own_frames() {
                 codec: isin_cluster::codec::Codec::Raw,
                 pixels: ByteBuf::from(vec![255u8; 6]),
             },
+            render_micros: 1,
         })
     };
     // The wrong key: closed before any tile is read.

@@ -113,7 +113,7 @@ use crate::limits::{self, Budgets, VIEWER_MAX_FRAME};
 use crate::protocol::{
     self, ClientStatus, DirectOffer, DirectRoute, FrameId, FrameStats, HANDSHAKE_MAX_FRAME, Hello, JobSpec,
     MAX_DIRECT_ADDR, MAX_DIRECT_FINGERPRINT, MAX_JOB_FRAMES, Message, ProtocolError, Role, SceneHash,
-    SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment, TileDelivered, TileResultRef, Welcome,
+    SceneHeader, SceneInfo, SlaveStatus, Status, TileAssignment, TileReceived, TileResultRef, Welcome,
 };
 use crate::scene_stream::{Packed, ProgressLog, Receiver};
 use crate::scheduler::{
@@ -701,7 +701,7 @@ impl Cluster {
                 self.drain(now);
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r.borrowed()),
-            (PeerState::Slave, Message::TileDelivered(d)) => self.on_delivered(now, peer, d),
+            (PeerState::Viewer(_), Message::TileReceived(r)) => self.on_received(now, peer, r),
             (PeerState::Slave, Message::NeedScene { hash }) => self.send_scene(now, peer, hash),
             (PeerState::Slave | PeerState::Syncing { .. }, Message::SceneAck { hash, chunks_received }) => {
                 self.on_scene_ack(now, peer, hash, chunks_received)
@@ -1143,41 +1143,43 @@ impl Cluster {
         self.drain(now);
     }
 
-    /// A slave says a tile of a direct frame reached its viewer: counted
-    /// done like a result, nothing forwarded. A tile the master wanted to
-    /// see itself ([`protocol::via_master`]) or of a frame that is not
-    /// direct cannot have been delivered so: the slave goes.
-    fn on_delivered(&mut self, now: Duration, id: PeerId, d: TileDelivered) {
-        let rect = match self.sched.check_result(id, d.frame, d.id) {
+    /// A viewer says a tile of one of its direct frames came straight from
+    /// `r.slave`: counted done for that slave, nothing forwarded (the
+    /// master takes its viewers' word on their own frames, never a slave's
+    /// on anyone's). A frame that is not the viewer's own direct frame gets
+    /// the viewer refused; a frame closed since, a slave gone or a tile the
+    /// slave no longer holds (another copy won) is only the race it looks
+    /// like. A tile the master wanted to see itself, or of another rectangle
+    /// than assigned, its slave should not have sent so: the slave goes, and
+    /// its tiles are handed out again.
+    fn on_received(&mut self, now: Duration, viewer: PeerId, r: TileReceived) {
+        let Some(spec) = self.frames.get(&r.frame) else { return };
+        if spec.viewer != viewer || spec.direct.is_none() {
+            let why = format!("reported a tile of frame {}, which is not its own direct frame", r.frame);
+            return self.refuse(now, viewer, why);
+        }
+        let slave = r.slave;
+        if !self.peers.get(&slave).is_some_and(|p| matches!(p.state, PeerState::Slave)) {
+            return;
+        }
+        let rect = match self.sched.check_result(slave, r.frame, r.id) {
             ResultCheck::Held { tile } => tile,
             ResultCheck::Finished => {
-                self.sched.handle_result(now, id, d.frame, d.id);
+                self.sched.handle_result(now, slave, r.frame, r.id);
                 return;
             }
-            ResultCheck::Stale => return,
-            ResultCheck::Foreign => {
-                let r = TileResultRef {
-                    frame: d.frame,
-                    id: d.id,
-                    tile: d.tile,
-                    render_micros: d.render_micros,
-                    codec: Codec::Raw,
-                    pixels: &[],
-                };
-                return self.on_foreign(now, id, &r);
-            }
+            ResultCheck::Stale | ResultCheck::Foreign => return,
         };
-        let direct = self.frames.get(&d.frame).is_some_and(|s| s.direct.is_some());
-        if !direct || protocol::via_master(&self.verify_secret, d.frame, d.id) {
-            return self.refuse(now, id, format!("tile {} was to come through the master", d.id));
+        if protocol::via_master(&self.verify_secret, r.frame, r.id) {
+            return self.refuse(now, slave, format!("tile {} was to come through the master", r.id));
         }
-        if d.tile != rect {
-            let got = d.tile;
-            return self.refuse(now, id, format!("tile {} is {got:?}, but {rect:?} was assigned", d.id));
+        if r.tile != rect {
+            let got = r.tile;
+            return self.refuse(now, slave, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
         }
-        self.sched.record_render_time(d.frame, d.id, d.render_micros);
-        if let ResultOutcome::Accepted { .. } = self.sched.handle_result(now, id, d.frame, d.id)
-            && let Some(spec) = self.frames.get_mut(&d.frame)
+        self.sched.record_render_time(r.frame, r.id, r.render_micros);
+        if let ResultOutcome::Accepted { .. } = self.sched.handle_result(now, slave, r.frame, r.id)
+            && let Some(spec) = self.frames.get_mut(&r.frame)
         {
             spec.delivered += 1;
         }

@@ -20,7 +20,7 @@ mod direct;
 mod in_place;
 
 pub use direct::{
-    DirectOffer, DirectRoute, DirectTile, MAX_DIRECT_ADDR, MAX_DIRECT_FINGERPRINT, TileDelivered,
+    DirectOffer, DirectRoute, DirectTile, MAX_DIRECT_ADDR, MAX_DIRECT_FINGERPRINT, TileReceived,
     VERIFY_ONE_IN, via_master,
 };
 pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
@@ -39,7 +39,7 @@ pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
 /// `SceneSync`; clients upload theirs the same way: [`Message::SceneUpload`]
 /// with the header, then the chunks. 8: viewers may take tiles straight from
 /// slaves ([`Hello::direct`], [`TileAssignment::direct`], [`Message::DirectHello`],
-/// [`Message::DirectTile`], [`Message::DirectAck`], [`Message::TileDelivered`]).)
+/// [`Message::DirectTile`], [`Message::DirectAck`], [`Message::TileReceived`]).)
 pub const PROTOCOL_VERSION: u16 = 8;
 
 /// Most scene hashes a slave may list as cached in its [`Hello`].
@@ -334,7 +334,7 @@ pub struct FrameStats {
     /// Tiles accepted per slave name.
     pub per_slave: BTreeMap<String, u32>,
     /// Tiles that went straight from their slave to the viewer
-    /// ([`Message::TileDelivered`]); the rest came through the master.
+    /// ([`Message::TileReceived`]); the rest came through the master.
     #[serde(default)]
     pub direct: u32,
     /// Bytes of the messages the master received from all peers while the
@@ -535,8 +535,8 @@ pub enum Message {
         /// Its id.
         id: TileId,
     },
-    /// Slave → master: a tile of a direct frame reached its viewer.
-    TileDelivered(TileDelivered),
+    /// Viewer → master: a tile of one of its direct frames came straight.
+    TileReceived(TileReceived),
 }
 
 /// A batch job as its client describes it ([`Message::SubmitJob`]).
@@ -656,7 +656,7 @@ impl Message {
             Message::DirectHello { .. } => "DirectHello",
             Message::DirectTile(_) => "DirectTile",
             Message::DirectAck { .. } => "DirectAck",
-            Message::TileDelivered(_) => "TileDelivered",
+            Message::TileReceived(_) => "TileReceived",
         }
     }
 }
@@ -920,12 +920,12 @@ mod tests {
             }),
             Message::DirectHello { key: [9; 32], slave: 3 },
             Message::DirectAck { frame: 2, id: 1 },
-            Message::TileDelivered(TileDelivered {
+            Message::TileReceived(TileReceived {
                 frame: 2,
                 id: 1,
+                slave: 3,
                 tile: Tile { x: 0, y: 32, w: 32, h: 16 },
                 render_micros: 70,
-                bytes: 3072,
             }),
             Message::Cancel { frame: 2, tiles: vec![1, 5] },
             Message::TileResult(TileResult {

@@ -6,7 +6,7 @@
 use isin_cluster::codec::{self, Codec};
 use isin_cluster::protocol::{
     self, DirectOffer, DirectRoute, DirectTile, FrameTile, Hello, Message, Role, SceneInfo, TileAssignment,
-    TileDelivered, TileJob, TileResult, Welcome,
+    TileJob, TileReceived, TileResult, Welcome,
 };
 use isin_cluster::scheduler::Work;
 use isin_fuzzing::files::{MTL, fixtures, quad_obj, triangle_buffer, triangle_gltf};
@@ -218,9 +218,10 @@ fn messages() -> Vec<Message> {
                 codec: Codec::Raw,
                 pixels: ByteBuf::from(rgb.clone()),
             },
+            render_micros: 10,
         }),
         Message::DirectAck { frame: 5, id: 0 },
-        Message::TileDelivered(TileDelivered { frame: 5, id: 0, tile, render_micros: 10, bytes: 24 }),
+        Message::TileReceived(TileReceived { frame: 5, id: 0, slave: 9, tile, render_micros: 10 }),
         Message::Heartbeat,
         Message::Error { message: "no".into() },
         Message::Notice { message: "wait".into() },

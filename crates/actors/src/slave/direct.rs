@@ -2,19 +2,19 @@
 //! ([`isin_cluster::protocol::DirectRoute`]).
 //!
 //! One link per viewer, dialled when the first assignment routed to it
-//! comes (the master sends its offer once; it is kept by viewer id). A render job delivers a tile over the link if it is up, else
-//! through the master as usual; a delivered tile waits in the link's
-//! `pending` until the viewer acknowledges it, and only then does the
-//! master hear of it ([`Message::TileDelivered`]). When a link breaks, or
-//! a viewer leaves a tile unacknowledged for [`ACK_TIMEOUT`], what waits goes
-//! to the master in full: no tile is lost to a viewer that went away or
-//! stalled. Pending entries are taken out under the lock by whoever sends
-//! them on, so each tile goes to the master exactly once.
+//! comes (the master sends its offer once; it is kept by viewer id). A
+//! render job delivers a tile over the link if it is up, else through the
+//! master as usual; a delivered tile waits on the link until the viewer
+//! acknowledges it (the viewer tells the master itself). When a link
+//! breaks, or a viewer leaves a tile unacknowledged for [`ACK_TIMEOUT`],
+//! what waits goes to the master in full: no tile is lost to a viewer that
+//! went away or stalled (one that did arrive is then a second copy, which
+//! the master drops). Waiting tiles are taken out under the lock by whoever
+//! sends them on, so each goes on once.
 
 use isin_cluster::codec::Codec;
 use isin_cluster::protocol::{
-    self, DirectOffer, DirectRoute, DirectTile, FrameId, FrameTile, Message, TileDelivered, TileId,
-    TileResult,
+    self, DirectOffer, DirectRoute, DirectTile, FrameId, FrameTile, Message, TileId, TileResult,
 };
 use isin_tracer::Tile;
 use isin_transport::{Delivery, FrameSender, Transport};
@@ -223,8 +223,8 @@ impl Links {
         Ok(conn)
     }
 
-    /// Serves an established link: acknowledgements become
-    /// [`Message::TileDelivered`]s; when it ends, what waits goes to the master.
+    /// Serves an established link: acknowledged tiles stop waiting; when it
+    /// ends, what waits goes to the master.
     async fn run(self: Arc<Self>, key: Key, conn: isin_transport::Connection) {
         let isin_transport::Connection { sender, mut receiver, .. } = conn;
         let up = Arc::new(Up { sender, waiting: Mutex::default() });
@@ -255,18 +255,7 @@ impl Links {
     }
 
     fn acknowledged(&self, up: &Up, frame: FrameId, id: TileId) {
-        let Some(p) = lock(&up.waiting).tiles.remove(&(frame, id)) else { return };
-        let t = p.tile;
-        let d = TileDelivered {
-            frame,
-            id,
-            tile: t.tile,
-            render_micros: t.render_micros,
-            bytes: t.pixels.len() as u64,
-        };
-        if let Ok(bytes) = protocol::encode(&Message::TileDelivered(d)) {
-            let _ = self.master.send_as(bytes, Delivery::Independent);
-        }
+        lock(&up.waiting).tiles.remove(&(frame, id));
     }
 
     /// Delivers a tile of `route`'s frame to its viewer if the link is up;
@@ -291,6 +280,7 @@ impl Links {
                 codec: t.codec,
                 pixels: ByteBuf::from(t.pixels.clone()),
             },
+            render_micros: t.render_micros,
         });
         let Ok(bytes) = protocol::encode(&msg) else {
             send_result(&self.master, t.into_result());

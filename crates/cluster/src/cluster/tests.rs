@@ -602,7 +602,7 @@ fn a_direct_viewers_tiles_come_straight_but_a_sample_and_each_slave_hears_the_of
 }
 
 #[test]
-fn a_slave_that_claims_the_masters_sample_delivered_is_dropped_and_the_frame_stays_exact() {
+fn a_slave_that_sends_the_masters_sample_straight_is_dropped_and_the_frame_stays_exact() {
     let mut net = Net::new(sim::config());
     net.slave(SlaveSpec::default());
     let cheat = net.slave(SlaveSpec { behaviour: Behaviour::SkipsSample, ..SlaveSpec::default() });
@@ -617,19 +617,20 @@ fn a_slave_that_claims_the_masters_sample_delivered_is_dropped_and_the_frame_sta
 }
 
 #[test]
-fn a_delivery_claimed_for_a_frame_that_is_not_direct_drops_the_slave() {
+fn a_viewer_reporting_a_tile_of_a_frame_not_its_own_direct_one_is_refused() {
     let mut net = Net::new(sim::config());
-    net.slave(SlaveSpec::default());
     let s = net.slave(SlaveSpec { threads: 1, ..SlaveSpec::default() });
-    let v = net.viewer();
-    net.run_until(|n| n.core.status().slaves.len() == 2);
-    let req = net.request(v, settings(256, 192, 2), false);
+    let owner = net.viewer();
+    let liar = net.direct_viewer();
+    net.run_until(|n| n.core.status().slaves.len() == 1);
+    let req = net.request(owner, settings(256, 192, 2), false);
     net.run_until(|n| n.assigned(s).is_some());
     let (frame, job) = net.assigned(s).expect("a tile");
-    let d = protocol::TileDelivered { frame, id: job.id, tile: job.tile, render_micros: 1, bytes: 0 };
-    net.say(s, &Message::TileDelivered(d));
-    net.run_until(|n| n.is_closed(s));
-    assert!(net.rejection(s).unwrap().contains("through the master"), "{:?}", net.rejection(s));
-    net.run_until(|n| n.viewer_done(v, req));
-    net.assert_exact(v, req);
+    let r = protocol::TileReceived { frame, id: job.id, slave: s, tile: job.tile, render_micros: 1 };
+    net.say(liar, &Message::TileReceived(r));
+    net.run_until(|n| n.is_closed(liar));
+    assert!(net.rejection(liar).unwrap().contains("not its own direct frame"), "{:?}", net.rejection(liar));
+    assert!(!net.is_closed(s), "the slave did nothing wrong");
+    net.run_until(|n| n.viewer_done(owner, req));
+    net.assert_exact(owner, req);
 }

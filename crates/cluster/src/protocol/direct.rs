@@ -12,12 +12,14 @@
 //! master with [`Message::DirectHello`](super::Message::DirectHello) (the key,
 //! over the encrypted connection), and sends each other tile there as a
 //! [`DirectTile`]. The viewer checks it like the master would (a request of
-//! its own, a rectangle inside the frame, pixels that decode), shows it, and
-//! acknowledges it; only then does the slave tell the master
-//! ([`TileDelivered`]: the tile without its pixels), so a frame the master
-//! calls done has all its tiles at the viewer, and the viewer hears its
-//! `FrameDone` after them. A tile the slave cannot deliver (no link yet, the
-//! link broke) goes through the master as before.
+//! its own, a rectangle inside the frame, pixels that decode), shows it,
+//! tells the master ([`TileReceived`]: the tile without its pixels) and
+//! acknowledges it to the slave. The master counts a direct tile done on the
+//! viewer's word, not the slave's: a slave cannot claim a tile delivered
+//! that never was, a frame the master calls done has all its tiles at the
+//! viewer, and the viewer hears its `FrameDone` after them. A tile the slave
+//! cannot deliver (no link yet, the link broke, no acknowledgement in time)
+//! goes through the master as before.
 
 use super::{FrameId, FrameTile, TileId};
 use isin_tracer::Tile;
@@ -74,22 +76,25 @@ pub struct DirectTile {
     pub id: TileId,
     /// The tile as the master would have forwarded it.
     pub tile: FrameTile,
+    /// Time spent rendering it, in microseconds (as in
+    /// [`TileResult::render_micros`](super::TileResult::render_micros)).
+    pub render_micros: u64,
 }
 
-/// Slave → master: a tile of a direct frame has reached its viewer.
+/// Viewer → master: a tile of one of its direct frames arrived straight
+/// from its slave.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct TileDelivered {
+pub struct TileReceived {
     /// The frame it belongs to.
     pub frame: FrameId,
     /// The tile's id.
     pub id: TileId,
+    /// The slave that sent it (as its link's [`DirectHello`](super::Message::DirectHello) said).
+    pub slave: u64,
     /// The tile's rectangle (checked against the one assigned).
     pub tile: Tile,
-    /// Time spent rendering it, in microseconds (as in
-    /// [`TileResult::render_micros`](super::TileResult::render_micros)).
+    /// The render time its slave gave, in microseconds.
     pub render_micros: u64,
-    /// Bytes of its encoded pixels (for the master's accounting only).
-    pub bytes: u64,
 }
 
 /// Whether the master wants tile `id` of `frame` itself: a keyed hash of

@@ -12,7 +12,7 @@
 use super::super::*;
 use super::MS;
 use crate::protocol::{
-    DirectOffer, FrameTile, JobSpec, SceneHash, Status, TileDelivered, TileId, TileJob, TileResult,
+    DirectOffer, FrameTile, JobSpec, SceneHash, Status, TileId, TileJob, TileReceived, TileResult,
 };
 use isin_tracer::Tile;
 use serde_bytes::ByteBuf;
@@ -92,8 +92,7 @@ pub enum Behaviour {
     FailsScenes,
     /// Takes a scene's chunks but never acknowledges them (heartbeats on).
     NeverAcks,
-    /// Claims every tile of a direct frame delivered, the master's sample
-    /// too (which it then never sends).
+    /// Sends every tile of a direct frame straight, the master's sample too.
     SkipsSample,
 }
 
@@ -119,9 +118,8 @@ impl Default for SlaveSpec {
 }
 
 /// A tile to render: its frame, itself, the render's seed, and the direct
-/// viewer and request to deliver it to (unless the master wants it), with
-/// whether the master wants it.
-type Job = (FrameId, TileJob, u64, Option<(PeerId, u64, bool)>);
+/// viewer and request to deliver it to (unless the master wants it).
+type Job = (FrameId, TileJob, u64, Option<(PeerId, u64)>);
 
 #[derive(Debug, Default)]
 struct SlaveSim {
@@ -206,7 +204,7 @@ impl SlaveSim {
             Some((viewer, request, via_master))
                 if behaviour == Behaviour::SkipsSample || !via_master.contains(&id) =>
             {
-                Some((*viewer, *request, via_master.contains(&id)))
+                Some((*viewer, *request))
             }
             _ => None,
         };
@@ -223,6 +221,8 @@ struct ViewFrame {
     image: Vec<u8>,
     writes: Vec<u8>,
     done: bool,
+    /// Tiles shown (a direct viewer's).
+    shown: std::collections::HashSet<Tile>,
 }
 
 #[derive(Debug, Default)]
@@ -242,13 +242,18 @@ struct ViewerSim {
 }
 
 impl ViewerSim {
-    /// Writes a tile into its frame, counting each pixel's writes.
+    /// Writes a tile into its frame, counting each pixel's writes. A direct
+    /// viewer shows a tile once: a second copy (straight, or straight and
+    /// through the master, from two slaves) is dropped, as the viewer drops it.
     fn paste(&mut self, t: &FrameTile) {
         let f = self
             .frames
             .get_mut(&t.request)
             .unwrap_or_else(|| panic!("tile for unknown request {}", t.request));
         assert!(!f.done, "tile after FrameDone");
+        if self.direct && !f.shown.insert(t.tile) {
+            return;
+        }
         let rgb = t.decoded_pixels().expect("tiles decode");
         let w = f.settings.width;
         for (row, y) in (t.tile.y..t.tile.y + t.tile.h).enumerate() {
@@ -421,6 +426,7 @@ impl Net {
             image: vec![0; n * 3],
             writes: vec![0; n],
             done: false,
+            shown: Default::default(),
         };
         sim.frames.insert(request, frame);
         let camera = Camera::default();
@@ -717,8 +723,8 @@ impl Net {
     pub fn step(&mut self) {
         self.now += MS;
         let now = self.now;
-        // Tiles slaves deliver straight: (viewer, request, tile).
-        let mut straight: Vec<(PeerId, FrameTile)> = Vec::new();
+        // Tiles slaves deliver straight: to which viewer, of which frame.
+        let mut straight: Vec<(PeerId, FrameId, TileId, FrameTile)> = Vec::new();
         for (&slave, p) in self.peers.iter_mut().filter(|(_, p)| !p.gone && p.closed.is_none()) {
             let speaks = !matches!(p.behaviour, Behaviour::Silent | Behaviour::StallBeforeReady);
             if p.logged_in && speaks && now >= p.next_heartbeat {
@@ -736,27 +742,16 @@ impl Net {
                     && at <= now
                 {
                     let pixels = codec::encode(s.codec, job.tile.w, &render(seed, job.tile));
-                    if let Some((viewer, request, sample)) = to {
-                        // (A sample claimed delivered is never sent.)
-                        if !sample {
-                            let tile = FrameTile {
-                                request,
-                                slave,
-                                slave_name: String::new(),
-                                tile: job.tile,
-                                codec: s.codec,
-                                pixels: ByteBuf::from(pixels.clone()),
-                            };
-                            straight.push((viewer, tile));
-                        }
-                        let d = TileDelivered {
-                            frame,
-                            id: job.id,
+                    if let Some((viewer, request)) = to {
+                        let tile = FrameTile {
+                            request,
+                            slave,
+                            slave_name: String::new(),
                             tile: job.tile,
-                            render_micros: job.tile.pixel_count() as u64 * s.us_per_pixel,
-                            bytes: pixels.len() as u64,
+                            codec: s.codec,
+                            pixels: ByteBuf::from(pixels),
                         };
-                        p.outbox.push(protocol::encode(&Message::TileDelivered(d)).expect("encodes"));
+                        straight.push((viewer, frame, job.id, tile));
                         s.lanes[lane] = None;
                     }
                 }
@@ -783,13 +778,17 @@ impl Net {
                 }
             }
         }
-        // The link delivers at once, and the viewer acknowledges before the
-        // slave tells the master: a tile is in before its frame's FrameDone.
-        for (viewer, tile) in straight {
-            if let Some(Kind::Viewer(v)) = self.peers.get_mut(&viewer).map(|p| &mut p.kind) {
-                v.paste(&tile);
-                v.direct_tiles += 1;
-            }
+        // The link delivers at once, and the viewer tells the master once
+        // the tile is in: before its frame's FrameDone.
+        for (viewer, frame, id, tile) in straight {
+            let Some(p) = self.peers.get_mut(&viewer).filter(|p| !p.gone && p.closed.is_none()) else {
+                continue;
+            };
+            let Kind::Viewer(v) = &mut p.kind else { continue };
+            v.paste(&tile);
+            v.direct_tiles += 1;
+            let r = TileReceived { frame, id, slave: tile.slave, tile: tile.tile, render_micros: 1 };
+            p.outbox.push(protocol::encode(&Message::TileReceived(r)).expect("encodes"));
         }
         self.pump();
         self.core.handle_timeout(now);
