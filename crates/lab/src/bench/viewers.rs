@@ -346,7 +346,8 @@ fn markdown(r: &ViewersReport) -> String {
             if v == 1 { "" } else { "s" }
         ),
         None => {
-            "\nNo crossover at these numbers of viewers: the master's cable is not what limits them.\n".into()
+            "\nNo crossover: straight from the slaves never served 5 % more frames in all at these numbers of viewers.\n"
+                .into()
         }
     });
     out
