@@ -22,7 +22,8 @@
 //!   `max_peers` and `max_handshaking`; its slaves are exactly the open ready
 //!   ones; it counts no more foreign results than were forged, and refuses an
 //!   honest peer only for silence or a full house, a forger only past its
-//!   budget.
+//!   budget, and never a slave for what a viewer claims of it (a receipt of
+//!   a tile straight from a slave, for a frame that is not direct).
 //!
 //! At the end every slave turns honest (and one joins if none is left): each
 //! request still live must then complete — no tile is lost for good.
@@ -32,7 +33,7 @@ use isin_cluster::auth;
 use isin_cluster::codec::{self, Codec};
 use isin_cluster::limits::Budgets;
 use isin_cluster::protocol::{
-    self, FrameId, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, TileId, TileResult,
+    self, FrameId, HANDSHAKE_MAX_FRAME, Hello, Message, Role, SceneHash, TileId, TileReceived, TileResult,
 };
 use isin_cluster::scheduler::{SchedulerConfig, Work};
 use isin_cluster::{Cluster, ClusterConfig, DefaultScene, PeerId, Transmit};
@@ -221,6 +222,9 @@ enum Step {
     Disconnect { peer: u8 },
     /// Time passes, in tenths of a second.
     Advance { tenths: u8 },
+    /// A viewer claims a tile of a frame came to it straight from a slave
+    /// (its frames are never direct: it is lying, and no slave may pay for it).
+    Receipt { viewer: u8, frame: u8, tile: u16, slave: u8 },
 }
 
 /// A tile a slave holds.
@@ -755,6 +759,7 @@ impl Net {
                 self.peers.get_mut(&id).expect("known").silent = true;
             }
             Step::Garbage { peer, frame } => self.garbage(peer, frame),
+            Step::Receipt { viewer, frame, tile, slave } => self.receipt(viewer, frame, tile, slave),
             Step::Disconnect { peer } => {
                 let Some(id) = self.pick(peer) else { return };
                 self.wire.gone(id);
@@ -784,6 +789,18 @@ impl Net {
         self.slave_mut(id).forged += 1;
         self.forged += 1;
         self.send(id, &Message::TileResult(r));
+        self.pump();
+    }
+
+    fn receipt(&mut self, viewer: u8, frame: u8, tile: u16, slave: u8) {
+        let (Some(v), Some(s)) = (self.pick_viewer(viewer), self.pick_slave(slave)) else { return };
+        let frames: Vec<FrameId> = self.frames.keys().copied().collect();
+        let Some(&frame) = frames.get(usize::from(frame) % frames.len().max(1)) else { return };
+        let id = TileId::from(tile);
+        let rect = self.frames[&frame].get(&id).copied().unwrap_or(Tile { x: 0, y: 0, w: 8, h: 8 });
+        self.peers.get_mut(&v).expect("known").misbehaved = true;
+        let r = TileReceived { frame, id, slave: s, tile: rect, render_micros: 1 };
+        self.send(v, &Message::TileReceived(r));
         self.pump();
     }
 
