@@ -118,15 +118,10 @@ pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
         detect_ms: whole.detect.map(|d| d.as_secs_f64() * 1e3),
         cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
         loadavg: loadavg(),
-        unix_time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        unix_time: report::unix_time(),
     };
     let md = markdown(&report);
-    print!("\n{md}");
-    report::write(&args.out_dir.join("master.json"), &serde_json::to_string_pretty(&report)?)?;
-    report::write(&args.out_dir.join("master.md"), &md)?;
-    println!("wrote master.json and master.md in {}", args.out_dir.display());
+    report::write_json_md(&args.out_dir, "master", &report, &md)?;
     Ok(())
 }
 

@@ -243,6 +243,21 @@ pub fn write_outputs(
     Ok(())
 }
 
+/// Writes a bench's outputs without a plot into `dir`: `STEM.json` (the
+/// report) and `STEM.md`, and prints the table.
+pub fn write_json_md(dir: &Path, stem: &str, report: &impl serde::Serialize, md: &str) -> anyhow::Result<()> {
+    write(&dir.join(format!("{stem}.json")), &serde_json::to_string_pretty(report)?)?;
+    write(&dir.join(format!("{stem}.md")), md)?;
+    println!("\n{md}");
+    println!("wrote {stem}.json and {stem}.md in {}", dir.display());
+    Ok(())
+}
+
+/// Seconds since 1970 now, for a report's date.
+pub fn unix_time() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
+}
+
 /// Writes `text` to `path`, creating the directory.
 pub fn write(path: &Path, text: &str) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {

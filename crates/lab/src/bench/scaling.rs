@@ -601,8 +601,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     }
     drop(cgroups);
     drop(master_cgroup);
-    let unix_time =
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let unix_time = report::unix_time();
     let first = cgroups_meta(use_lab, share);
     let report = Report {
         meta: Meta {

@@ -257,15 +257,10 @@ pub fn run(args: SharedArgs) -> anyhow::Result<()> {
         cores,
         loadavg_before,
         loadavg_after: loadavg(),
-        unix_time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        unix_time: report::unix_time(),
     };
     let md = markdown(&report);
-    print!("\n{md}");
-    report::write(&args.out_dir.join("shared.json"), &serde_json::to_string_pretty(&report)?)?;
-    report::write(&args.out_dir.join("shared.md"), &md)?;
-    println!("wrote shared.json and shared.md in {}", args.out_dir.display());
+    report::write_json_md(&args.out_dir, "shared", &report, &md)?;
     Ok(())
 }
 

@@ -151,10 +151,7 @@ pub fn run(args: SyncArgs) -> anyhow::Result<()> {
         rows,
     };
     let md = markdown(&report);
-    report::write(&args.out_dir.join("sync.json"), &serde_json::to_string_pretty(&report)?)?;
-    report::write(&args.out_dir.join("sync.md"), &md)?;
-    println!("\n{md}");
-    println!("wrote sync.json and sync.md in {}", args.out_dir.display());
+    report::write_json_md(&args.out_dir, "sync", &report, &md)?;
     Ok(())
 }
 

@@ -314,9 +314,7 @@ pub fn run(args: TransportsArgs) -> anyhow::Result<()> {
         lab_notes: notes,
         loadavg_before,
         loadavg_after: loadavg(),
-        unix_time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        unix_time: report::unix_time(),
         rows,
     };
     write_outputs(&report, &args.out_dir, true)

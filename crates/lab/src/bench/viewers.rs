@@ -187,15 +187,10 @@ pub fn run(args: ViewersArgs) -> anyhow::Result<()> {
         cores,
         loadavg_before,
         loadavg_after: loadavg(),
-        unix_time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        unix_time: report::unix_time(),
     };
     let md = markdown(&report);
-    print!("\n{md}");
-    report::write(&args.out_dir.join("viewers.json"), &serde_json::to_string_pretty(&report)?)?;
-    report::write(&args.out_dir.join("viewers.md"), &md)?;
-    println!("wrote viewers.json and viewers.md in {}", args.out_dir.display());
+    report::write_json_md(&args.out_dir, "viewers", &report, &md)?;
     Ok(())
 }
 

@@ -257,9 +257,7 @@ pub(super) fn make_report(
         notes,
         loadavg_before,
         loadavg_after: loadavg(),
-        unix_time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        unix_time: crate::bench::report::unix_time(),
     }
 }
 
