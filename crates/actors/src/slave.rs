@@ -19,6 +19,10 @@
 //! tiles do not make an older frame's stale by themselves: the master may
 //! pipeline frames, handing out the next frame's tiles while the older frame's
 //! are still queued here.
+//!
+//! A tile of a viewer that takes its tiles straight
+//! ([`protocol::DirectRoute`]) goes to that viewer over a link of its own
+//! ([`direct`]), and through the master when the link cannot take it.
 
 mod direct;
 mod incoming;

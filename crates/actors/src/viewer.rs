@@ -1,6 +1,9 @@
 //! The viewer: a client that asks the master for frames and receives their
 //! tiles as they finish. A GUI draws each [`ViewerEvent::Tile`] as it arrives;
 //! [`collect_frame`] collects one whole frame (used by `isin render --cluster`).
+//! A viewer connected with [`connect_direct`] also takes tiles straight from
+//! slaves ([`DirectListener`]), shows each tile once however its copies
+//! come, and tells the master of each one it took straight.
 
 mod direct;
 
