@@ -22,7 +22,7 @@
 //!
 //! A tile of a viewer that takes its tiles straight
 //! ([`protocol::DirectRoute`]) goes to that viewer over a link of its own
-//! ([`direct`]), and through the master when the link cannot take it.
+//! (`slave/direct.rs`), and through the master when the link cannot take it.
 
 mod direct;
 mod incoming;
