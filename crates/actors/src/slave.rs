@@ -31,12 +31,13 @@ pub use direct::{ACK_TIMEOUT, Dialer, REDIAL_AFTER};
 
 use crate::client::{self, JoinError};
 use actix::prelude::*;
-use direct::{Links, Rendered};
+use direct::Links;
 use incoming::Incoming;
 use isin_cluster::codec::{self, Codec};
-use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId};
+use isin_cluster::protocol::{self, FrameId, Message, SceneHash, TileAssignment, TileId, TileResult};
 use isin_tracer::{Camera, RenderSettings, Scene, SceneBundle, Tile};
 use isin_transport::{FrameSender, Ticket, Transport, TransportError};
+use serde_bytes::ByteBuf;
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -728,13 +729,13 @@ impl<R: Renderer> SlaveActor<R> {
                     (Some(a), Some(b)) => b.saturating_sub(a),
                     _ => t0.elapsed(),
                 };
-                let rendered = Rendered {
+                let rendered = TileResult {
                     frame,
                     id: job.id,
                     tile: t,
                     render_micros: took.as_micros() as u64,
                     codec: tile_codec,
-                    pixels: codec::encode(tile_codec, t.w, &pixels),
+                    pixels: ByteBuf::from(codec::encode(tile_codec, t.w, &pixels)),
                 };
                 // Tiles may overtake each other (over QUIC a lost packet
                 // then delays only its own tile), never the ordered
@@ -742,7 +743,7 @@ impl<R: Renderer> SlaveActor<R> {
                 match &route {
                     Some(r) => links.deliver(r, rendered),
                     None => {
-                        direct::send_result(&sender, rendered.into_result());
+                        direct::send_result(&sender, rendered);
                     }
                 }
                 counters.tiles.fetch_add(1, Ordering::Relaxed);

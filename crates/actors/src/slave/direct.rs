@@ -12,13 +12,10 @@
 //! the master drops). Waiting tiles are taken out under the lock by whoever
 //! sends them on, so each goes on once.
 
-use isin_cluster::codec::Codec;
 use isin_cluster::protocol::{
     self, DirectOffer, DirectRoute, DirectTile, FrameId, FrameTile, Message, TileId, TileResult,
 };
-use isin_tracer::Tile;
 use isin_transport::{Delivery, FrameSender, Transport};
-use serde_bytes::ByteBuf;
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -63,29 +60,6 @@ impl fmt::Debug for Dialer {
     }
 }
 
-/// A tile of a direct frame, rendered and encoded.
-pub(crate) struct Rendered {
-    pub frame: FrameId,
-    pub id: TileId,
-    pub tile: Tile,
-    pub render_micros: u64,
-    pub codec: Codec,
-    pub pixels: Vec<u8>,
-}
-
-impl Rendered {
-    pub fn into_result(self) -> TileResult {
-        TileResult {
-            frame: self.frame,
-            id: self.id,
-            tile: self.tile,
-            render_micros: self.render_micros,
-            codec: self.codec,
-            pixels: ByteBuf::from(self.pixels),
-        }
-    }
-}
-
 /// Sends a full tile result to the master (tiles may overtake each other).
 pub(crate) fn send_result(master: &FrameSender, r: TileResult) -> bool {
     match protocol::encode(&Message::TileResult(r)) {
@@ -108,7 +82,7 @@ enum State {
 
 struct Pending {
     at: Instant,
-    tile: Rendered,
+    tile: TileResult,
 }
 
 #[derive(Default)]
@@ -138,7 +112,7 @@ impl Up {
         };
         let n = tiles.len();
         for p in tiles {
-            send_result(master, p.tile.into_result());
+            send_result(master, p.tile);
         }
         n
     }
@@ -261,11 +235,11 @@ impl Links {
     /// Delivers a tile of `route`'s frame to its viewer if the link is up;
     /// otherwise (or if it is a tile the master wants itself) sends it to
     /// the master. Runs on render threads.
-    pub fn deliver(&self, route: &DirectRoute, t: Rendered) {
+    pub fn deliver(&self, route: &DirectRoute, t: TileResult) {
         let up = match lock(&self.links).get(&route.viewer) {
             Some(State::Up(up)) if !route.via_master.contains(&t.id) => up.clone(),
             _ => {
-                send_result(&self.master, t.into_result());
+                send_result(&self.master, t);
                 return;
             }
         };
@@ -278,12 +252,12 @@ impl Links {
                 slave_name: self.slave_name.clone(),
                 tile: t.tile,
                 codec: t.codec,
-                pixels: ByteBuf::from(t.pixels.clone()),
+                pixels: t.pixels.clone(),
             },
             render_micros: t.render_micros,
         });
         let Ok(bytes) = protocol::encode(&msg) else {
-            send_result(&self.master, t.into_result());
+            send_result(&self.master, t);
             return;
         };
         let key = (t.frame, t.id);
@@ -291,7 +265,7 @@ impl Links {
             let mut w = lock(&up.waiting);
             if w.closed || w.tiles.len() >= MAX_PENDING {
                 drop(w);
-                send_result(&self.master, t.into_result());
+                send_result(&self.master, t);
                 return;
             }
             w.tiles.insert(key, Pending { at: Instant::now(), tile: t });
@@ -300,7 +274,7 @@ impl Links {
             // Whoever takes it out sends it on: here, or the link's end.
             let back = lock(&up.waiting).tiles.remove(&key);
             if let Some(p) = back {
-                send_result(&self.master, p.tile.into_result());
+                send_result(&self.master, p.tile);
             }
         }
     }
