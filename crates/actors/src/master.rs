@@ -275,17 +275,28 @@ struct Closed {
 #[rtype(result = "MasterStatus")]
 pub struct GetStatus;
 
-/// Asks for the number of slaves declared dead so far: a poll that costs
+/// Asks for the slaves declared dead so far ([`Deaths`]): a poll that costs
 /// the master nothing, where [`GetStatus`] builds the list of every slave.
 #[derive(Message)]
-#[rtype(result = "u64")]
+#[rtype(result = "Deaths")]
 pub struct GetDeaths;
 
-impl Handler<GetDeaths> for Master {
-    type Result = u64;
+/// The answer to [`GetDeaths`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, MessageResponse)]
+pub struct Deaths {
+    /// Slaves declared dead so far.
+    pub count: u64,
+    /// The longest any slave declared dead for its silence had been silent
+    /// when declared, by the master's clock ([`Cluster::longest_silence`]):
+    /// the heartbeat timeout plus how late the master was.
+    pub longest_silence: Duration,
+}
 
-    fn handle(&mut self, _: GetDeaths, _: &mut Self::Context) -> u64 {
-        self.core.deaths()
+impl Handler<GetDeaths> for Master {
+    type Result = Deaths;
+
+    fn handle(&mut self, _: GetDeaths, _: &mut Self::Context) -> Deaths {
+        Deaths { count: self.core.deaths(), longest_silence: self.core.longest_silence() }
     }
 }
 

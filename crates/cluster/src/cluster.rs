@@ -404,6 +404,11 @@ pub struct Cluster {
     frames: BTreeMap<FrameId, FrameSpec>,
     next_frame: FrameId,
     roster: Roster,
+    /// When viewers are next told of joins and deaths (the roster and a
+    /// status), if any are untold.
+    roster_due: Option<Duration>,
+    /// When viewers were last told of them.
+    roster_told: Option<Duration>,
     out: VecDeque<Transmit>,
     last_heartbeat: Duration,
     /// Bytes of the uploads in progress, as their headers declare them.
@@ -427,6 +432,13 @@ pub struct Cluster {
 
 /// How often viewers are sent the [`Status`] while frames are open.
 pub const STATUS_INTERVAL: Duration = Duration::from_secs(1);
+
+/// Joins and deaths are told to viewers (a roster and a status, each the
+/// size of the cluster) at most this often: a hundred slaves dying within a
+/// few milliseconds are one list, not a hundred lists of a thousand slaves
+/// that would hold up the master's work — the declaring of the later deaths
+/// among it.
+pub const ROSTER_INTERVAL: Duration = Duration::from_millis(50);
 
 impl Cluster {
     /// A master for `cfg`; fails only if the scene cannot be encoded.
@@ -466,6 +478,8 @@ impl Cluster {
             frames: BTreeMap::new(),
             next_frame: 1,
             roster: Roster::default(),
+            roster_due: None,
+            roster_told: None,
             out: VecDeque::new(),
             last_heartbeat: Duration::ZERO,
             uploading: 0,
@@ -513,6 +527,12 @@ impl Cluster {
         self.status.deaths
     }
 
+    /// The longest a slave declared dead for its silence had been silent
+    /// when declared ([`Scheduler::longest_silence`]).
+    pub fn longest_silence(&self) -> Duration {
+        self.sched.longest_silence()
+    }
+
     /// The earliest time at which [`Cluster::handle_timeout`] has work to do.
     pub fn poll_timeout(&self) -> Option<Duration> {
         let liveness = self.sched.config().heartbeat_timeout;
@@ -528,6 +548,7 @@ impl Cluster {
         peers
             .chain(heartbeat)
             .chain(status)
+            .chain(self.roster_due)
             .chain(self.sched.poll_timeout())
             .filter(|&t| t != Duration::MAX)
             .min()
@@ -690,14 +711,13 @@ impl Cluster {
                 let (name, addr) = (p.name.clone(), p.addr.clone());
                 tracing::info!(slave = %name, threads, "slave {name} joined with {threads} threads");
                 self.roster.join(peer, &name, &addr, threads);
-                self.send_roster();
+                self.roster_changed(now);
                 for p in self.peers.values_mut() {
                     if let PeerState::Viewer(c) = &mut p.state {
                         c.told_waiting = false;
                     }
                 }
                 self.sched.handle_join(now, peer, name, threads);
-                self.push_status(now);
                 self.drain(now);
             }
             (PeerState::Slave, Message::TileResult(r)) => self.on_result(now, peer, r.borrowed()),
@@ -742,6 +762,24 @@ impl Cluster {
 
     fn send(&mut self, peer: PeerId, message: Message) {
         self.out.push_back(Transmit::Send { peer, message, class: Class::Control });
+    }
+
+    /// Notes a join or a death for viewers: told at the end of this step, or
+    /// [`ROSTER_INTERVAL`] after they were last told, whichever is later.
+    fn roster_changed(&mut self, now: Duration) {
+        if self.roster_due.is_none() {
+            self.roster_due = Some(self.roster_told.map_or(now, |t| now.max(t + ROSTER_INTERVAL)));
+        }
+    }
+
+    /// Tells viewers of the joins and deaths noted, once they are due.
+    fn tell_roster(&mut self, now: Duration) {
+        if self.roster_due.is_some_and(|due| now >= due) {
+            self.roster_due = None;
+            self.roster_told = Some(now);
+            self.send_roster();
+            self.push_status(now);
+        }
     }
 
     fn send_roster(&mut self) {
@@ -1401,8 +1439,7 @@ impl Cluster {
                 Output::SlaveDead { slave, name, cause, requeued } => {
                     self.status.deaths += 1;
                     if self.roster.death(slave) {
-                        self.send_roster();
-                        self.push_status(now);
+                        self.roster_changed(now);
                     }
                     self.tell_if_waiting();
                     tracing::warn!(slave = %name, "slave {name} dead ({cause:?}); {requeued} tiles requeued");
@@ -1456,6 +1493,7 @@ impl Cluster {
                 }
             }
         }
+        self.tell_roster(now);
     }
 }
 

@@ -427,6 +427,8 @@ pub struct Scheduler {
     last_tail_pass: Duration,
     /// Render threads of all slaves together.
     total_threads: usize,
+    /// The longest a slave declared dead for its silence had been silent.
+    longest_silence: Duration,
 }
 
 /// How often, at the end of the work, every idle slave is looked at for a
@@ -454,6 +456,7 @@ impl Scheduler {
             all_dirty: false,
             last_tail_pass: Duration::ZERO,
             total_threads: 0,
+            longest_silence: Duration::ZERO,
         }
     }
 
@@ -462,6 +465,13 @@ impl Scheduler {
     /// The configuration in force.
     pub fn config(&self) -> &SchedulerConfig {
         &self.config
+    }
+
+    /// The longest any slave declared dead for its silence had been silent
+    /// when it was declared: the heartbeat timeout plus how late the
+    /// declaration came (zero before the first such death).
+    pub fn longest_silence(&self) -> Duration {
+        self.longest_silence
     }
 
     /// The oldest open frame, if any (a completed frame is not open).
@@ -564,9 +574,14 @@ impl Scheduler {
     /// Declares dead every slave silent for the heartbeat timeout.
     pub fn handle_timeout(&mut self, now: Duration) {
         let timeout = self.config.heartbeat_timeout;
-        let dead: Vec<SlaveId> =
-            self.slaves.iter().filter(|(_, s)| now >= s.last_seen + timeout).map(|(&id, _)| id).collect();
-        for id in dead {
+        let dead: Vec<(SlaveId, Duration)> = self
+            .slaves
+            .iter()
+            .filter(|(_, s)| now >= s.last_seen + timeout)
+            .map(|(&id, s)| (id, now - s.last_seen))
+            .collect();
+        for (id, silence) in dead {
+            self.longest_silence = self.longest_silence.max(silence);
             self.kill(id, DeathCause::Timeout);
         }
     }

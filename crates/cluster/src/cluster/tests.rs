@@ -634,3 +634,54 @@ fn a_viewer_reporting_a_tile_of_a_frame_not_its_own_direct_one_is_refused() {
     net.run_until(|n| n.viewer_done(owner, req));
     net.assert_exact(owner, req);
 }
+
+/// The rosters viewer `v` was sent, oldest first.
+fn rosters(net: &Net, v: PeerId) -> Vec<&[protocol::SlaveEntry]> {
+    net.received(v)
+        .iter()
+        .filter_map(|m| match m {
+            Message::Slaves { slaves } => Some(slaves.as_slice()),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn joins_and_deaths_one_after_another_reach_viewers_as_a_roster_at_most_every_interval() {
+    let mut net = Net::new(sim::config());
+    let v = net.viewer();
+    // Forty slaves join a millisecond apart, thirty die a millisecond apart:
+    // a roster (and a status) each would be seventy lists of the cluster.
+    let slaves: Vec<PeerId> = (0..40)
+        .map(|_| {
+            net.run_for(MS);
+            net.slave(SlaveSpec::default())
+        })
+        .collect();
+    net.run_until(|n| n.core.status().slaves.len() == 40);
+    net.run_for(ROSTER_INTERVAL);
+    let joined = rosters(&net, v);
+    let last = joined.last().expect("a roster");
+    assert_eq!(last.iter().filter(|e| e.alive).count(), 40, "the last roster lists every slave");
+    // One at connection, then one per interval over the joins' 40 ms.
+    assert!(joined.len() <= 3, "{} rosters for 40 joins", joined.len());
+    let (told, statuses) = (joined.len(), net.statuses(v).len());
+
+    for &s in &slaves[..30] {
+        net.set_behaviour(s, Behaviour::Silent);
+        net.run_for(MS);
+    }
+    let timeout = sim::config().scheduler.heartbeat_timeout;
+    net.run_until(|n| n.core.status().deaths == 30);
+    // Declared dead on time, each.
+    assert!(net.core.longest_silence() <= timeout + MS, "{:?}", net.core.longest_silence());
+    net.run_for(ROSTER_INTERVAL);
+    let all = rosters(&net, v);
+    let last = all.last().expect("a roster");
+    assert_eq!(last.iter().filter(|e| e.alive).count(), 10);
+    assert_eq!(last.iter().filter(|e| !e.alive).count(), DEAD_SLAVES_LISTED);
+    let (rosters_for_deaths, statuses_for_deaths) = (all.len() - told, net.statuses(v).len() - statuses);
+    assert!((1..=2).contains(&rosters_for_deaths), "{rosters_for_deaths} rosters for 30 deaths over 30 ms");
+    // The periodic status aside (a frame open), one a roster.
+    assert!(statuses_for_deaths <= 2, "{statuses_for_deaths} statuses for 30 deaths");
+}
