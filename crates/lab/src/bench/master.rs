@@ -78,6 +78,9 @@ struct MasterReport {
     /// Resident memory added per connected slave (master and the slave's
     /// simulation together), bytes.
     rss_per_slave: f64,
+    /// From the first simulated slave connecting to the master counting
+    /// them all joined, s.
+    join_s: f64,
     vanished: usize,
     heartbeat_timeout_ms: u64,
     /// From the slaves going silent to the master declaring the last of them
@@ -119,6 +122,7 @@ pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
         master_cpu_us_per_tile: whole.master_cpu * 1e6 / whole.tiles.max(1) as f64,
         master_cpu_share: whole.master_cpu / whole.wall,
         rss_per_slave: whole.rss_per_slave,
+        join_s: whole.join.as_secs_f64(),
         vanished: args.vanish,
         heartbeat_timeout_ms: args.heartbeat_timeout_ms,
         detect_ms: whole.detect.map(|(d, _)| d.as_secs_f64() * 1e3),
@@ -144,6 +148,7 @@ struct Whole {
     wall: f64,
     master_cpu: f64,
     rss_per_slave: f64,
+    join: Duration,
     /// Declared dead after, and silent for by the master's clock.
     detect: Option<(Duration, Duration)>,
 }
@@ -261,6 +266,7 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
         rx.recv().unwrap_or(0.0)
     };
     let rss0 = rss();
+    let joining = Instant::now();
     // The slaves on a thread of their own.
     let vanish: Vec<Arc<AtomicBool>> = (0..args.slaves).map(|_| Arc::new(AtomicBool::new(false))).collect();
     let st = t.clone();
@@ -291,8 +297,14 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
         anyhow::ensure!(Instant::now() < deadline, "the simulated slaves did not all join within 2 minutes");
         std::thread::sleep(Duration::from_millis(20));
     }
+    let join = joining.elapsed();
     let rss_per_slave = (rss() - rss0) / args.slaves as f64;
-    println!("{} simulated slaves joined ({:.1} kB each)", args.slaves, rss_per_slave / 1e3);
+    println!(
+        "{} simulated slaves joined in {:.2} s ({:.1} kB each)",
+        args.slaves,
+        join.as_secs_f64(),
+        rss_per_slave / 1e3
+    );
     // The viewer: frames queued three ahead, for the timed span.
     let routed = Arc::new(AtomicU64::new(0));
     let stop = Arc::new(AtomicBool::new(false));
@@ -348,7 +360,7 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
     }
     stop.store(true, Ordering::Relaxed);
     let _ = viewer_thread.join();
-    Ok(Whole { tiles, wall, master_cpu: cpu, rss_per_slave, detect })
+    Ok(Whole { tiles, wall, master_cpu: cpu, rss_per_slave, join, detect })
 }
 
 fn markdown(r: &MasterReport) -> String {
@@ -364,6 +376,7 @@ fn markdown(r: &MasterReport) -> String {
          | master thread CPU per tile | {:.2} µs |\n\
          | master thread busy | {:.0} % |\n\
          | memory per slave (master + its simulation) | {:.1} kB |\n\
+         | all slaves joined in | {:.2} s |\n\
          | {} slaves vanish: declared dead after (timeout {} ms) | {detect} |\n",
         r.slaves,
         r.threads,
@@ -374,6 +387,7 @@ fn markdown(r: &MasterReport) -> String {
         r.master_cpu_us_per_tile,
         r.master_cpu_share * 100.0,
         r.rss_per_slave / 1e3,
+        r.join_s,
         r.vanished,
         r.heartbeat_timeout_ms,
     )
