@@ -32,6 +32,7 @@ pub(crate) fn load(
     placement: &Placement,
 ) -> Result<(), SceneError> {
     let bytes = b.read_asset(path, origin)?;
+    vertex_references(&bytes).map_err(|e| origin.bad_asset(path, format!("OBJ: {e}")))?;
     // tobj's material loader is a `Fn`: route reads through a RefCell and
     // remember which library each material came from and why a read failed.
     let assets = RefCell::new(&mut *b.assets);
@@ -270,6 +271,59 @@ fn convert(
     Ok(Material::Phong { albedo, specular: ks, shininess: ns.max(1.0), reflectivity })
 }
 
+/// The element kinds a face's `v/vt/vn` reference counts, as OBJ names them.
+const ELEMENTS: [&str; 3] = ["v", "vt", "vn"];
+
+/// Refuses face, line and point references (`f 1/2/3`, `f -1 -2 -3`) to an
+/// element that does not exist: 0, a relative index reaching before the
+/// first element, an absolute one past the file's last. tobj 4.0 turns such
+/// an index into an offset with arithmetic that overflows (a panic where
+/// overflow checks are on, a wrapped offset where not). A kind the file has
+/// none of is left to tobj, which ignores references to it.
+fn vertex_references(obj: &[u8]) -> Result<(), String> {
+    let lines = || obj.split(|&c| c == b'\n').map(|raw| std::str::from_utf8(raw).unwrap_or(""));
+    let kind = |word: Option<&str>| word.and_then(|w| ELEMENTS.iter().position(|&e| e == w));
+    let mut total = [0usize; 3];
+    for line in lines() {
+        if let Some(k) = kind(line.split_whitespace().next()) {
+            total[k] += 1;
+        }
+    }
+    let mut seen = [0usize; 3];
+    for (i, line) in lines().enumerate() {
+        let mut words = line.split_whitespace();
+        let statement = words.next();
+        if let Some(k) = kind(statement) {
+            seen[k] += 1;
+            continue;
+        }
+        if !matches!(statement, Some("f" | "l" | "p")) {
+            continue;
+        }
+        for word in words {
+            for (k, part) in word.split('/').enumerate().take(3) {
+                // Malformed numbers are tobj's to refuse.
+                let Ok(x) = part.parse::<i64>() else { continue };
+                let exists = if x < 0 {
+                    x.unsigned_abs() <= seen[k] as u64
+                } else {
+                    x >= 1 && x.unsigned_abs() <= total[k] as u64
+                };
+                if !exists && total[k] > 0 {
+                    let (name, word) = (ELEMENTS[k], super::errors::excerpt(word));
+                    let (n, place) = if x < 0 { (seen[k], " before it") } else { (total[k], "") };
+                    let plural = if n == 1 { "" } else { "s" };
+                    return Err(format!(
+                        "line {}: `{word}` refers to {name} {x}, but the file has {n} `{name}` line{plural}{place}",
+                        i + 1,
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The colour keys tobj reads as exactly three numbers.
 const COLOUR_KEYS: [&str; 4] = ["Ka", "Kd", "Ks", "Ke"];
 
@@ -327,6 +381,25 @@ mod tests {
         let (materials, _) =
             tobj::load_mtl_buf(&mut &grey_colours(b"newmtl g\nKd 0.25\n").unwrap()[..]).unwrap();
         assert_eq!(materials[0].diffuse, Some([0.25; 3]));
+    }
+
+    #[test]
+    fn faces_referring_to_elements_that_do_not_exist_are_refused_by_line() {
+        let head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n";
+        let ok = |face: &str| vertex_references(format!("{head}{face}\n").as_bytes());
+        assert_eq!(ok("f 1 2 3"), Ok(()));
+        assert_eq!(ok("f -3/-1/-1 -2/1/1 -1//1"), Ok(()));
+        // A kind the file has none of is tobj's to ignore.
+        assert_eq!(vertex_references(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/5 2/5 3/5\n"), Ok(()));
+        let e = ok("f 1/1/1 2/1/1 3/-3/0").unwrap_err();
+        assert_eq!(e, "line 6: `3/-3/0` refers to vt -3, but the file has 1 `vt` line before it");
+        assert!(ok("f 1 2 0").unwrap_err().contains("refers to v 0"));
+        assert!(ok("f 1 2 4").unwrap_err().contains("refers to v 4, but the file has 3 `v` lines"), "{e}");
+        assert!(ok("f 1//9223372036854775807 2 3").unwrap_err().contains("vn 9223372036854775807"));
+        assert!(ok("l 1 -4").unwrap_err().starts_with("line 6:"));
+        // Relative indices count what came before the face, not the file's total.
+        let later = vertex_references(b"v 0 0 0\nf -1 -2 -3\nv 1 0 0\nv 0 1 0\n").unwrap_err();
+        assert!(later.contains("refers to v -2, but the file has 1 `v` line before it"), "{later}");
     }
 
     #[test]
