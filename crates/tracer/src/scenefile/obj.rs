@@ -279,49 +279,64 @@ const ELEMENTS: [&str; 3] = ["v", "vt", "vn"];
 /// first element, an absolute one past the file's last. tobj 4.0 turns such
 /// an index into an offset with arithmetic that overflows (a panic where
 /// overflow checks are on, a wrapped offset where not). A kind the file has
-/// none of is left to tobj, which ignores references to it.
+/// none of is left to tobj, which ignores references to it. One pass over
+/// the bytes: the earliest bad reference is named, with its line.
 fn vertex_references(obj: &[u8]) -> Result<(), String> {
-    let lines = || obj.split(|&c| c == b'\n').map(|raw| std::str::from_utf8(raw).unwrap_or(""));
-    let kind = |word: Option<&str>| word.and_then(|w| ELEMENTS.iter().position(|&e| e == w));
-    let mut total = [0usize; 3];
-    for line in lines() {
-        if let Some(k) = kind(line.split_whitespace().next()) {
-            total[k] += 1;
-        }
+    /// A reference to element `x` of a kind, on `line`, where `n` of the
+    /// kind came before it.
+    struct Bad<'a> {
+        line: usize,
+        word: &'a [u8],
+        x: i64,
+        n: u64,
     }
-    let mut seen = [0usize; 3];
-    for (i, line) in lines().enumerate() {
-        let mut words = line.split_whitespace();
-        let statement = words.next();
-        if let Some(k) = kind(statement) {
-            seen[k] += 1;
-            continue;
-        }
-        if !matches!(statement, Some("f" | "l" | "p")) {
-            continue;
-        }
-        for word in words {
-            for (k, part) in word.split('/').enumerate().take(3) {
-                // Malformed numbers are tobj's to refuse.
-                let Ok(x) = part.parse::<i64>() else { continue };
-                let exists = if x < 0 {
-                    x.unsigned_abs() <= seen[k] as u64
-                } else {
-                    x >= 1 && x.unsigned_abs() <= total[k] as u64
-                };
-                if !exists && total[k] > 0 {
-                    let (name, word) = (ELEMENTS[k], super::errors::excerpt(word));
-                    let (n, place) = if x < 0 { (seen[k], " before it") } else { (total[k], "") };
-                    let plural = if n == 1 { "" } else { "s" };
-                    return Err(format!(
-                        "line {}: `{word}` refers to {name} {x}, but the file has {n} `{name}` line{plural}{place}",
-                        i + 1,
-                    ));
+    let mut seen = [0u64; 3];
+    // Per kind: the first reference that is bad whatever the file's count
+    // (0, or before the first element), and the largest absolute one.
+    let mut bad: [Option<Bad>; 3] = [None, None, None];
+    let mut largest: [Option<Bad>; 3] = [None, None, None];
+    for (line, raw) in obj.split(|&c| c == b'\n').enumerate() {
+        let mut words = raw.split(u8::is_ascii_whitespace).filter(|w| !w.is_empty());
+        match words.next() {
+            Some(b"v") => seen[0] += 1,
+            Some(b"vt") => seen[1] += 1,
+            Some(b"vn") => seen[2] += 1,
+            Some(b"f" | b"l" | b"p") => {
+                for word in words {
+                    for (k, part) in word.split(|&c| c == b'/').enumerate().take(3) {
+                        // Malformed numbers are tobj's to refuse.
+                        let Some(x) = std::str::from_utf8(part).ok().and_then(|p| p.parse::<i64>().ok())
+                        else {
+                            continue;
+                        };
+                        let here = Bad { line, word, x, n: seen[k] };
+                        if x == 0 || (x < 0 && x.unsigned_abs() > seen[k]) {
+                            bad[k].get_or_insert(here);
+                        } else if x > 0 && largest[k].as_ref().is_none_or(|l| x > l.x) {
+                            largest[k] = Some(here);
+                        }
+                    }
                 }
             }
+            _ => {}
         }
     }
-    Ok(())
+    let total = seen;
+    let past_the_last = largest.into_iter().zip(total).map(|(l, n)| l.filter(|l| l.x.unsigned_abs() > n));
+    let earliest = (0..3)
+        .zip(bad.into_iter().zip(past_the_last))
+        .filter(|&(k, _)| total[k] > 0)
+        .flat_map(|(k, (b, p))| [b, p].into_iter().flatten().map(move |b| (k, b)))
+        .min_by_key(|(_, b)| b.line);
+    let Some((k, b)) = earliest else { return Ok(()) };
+    let (name, word) = (ELEMENTS[k], super::errors::excerpt(&String::from_utf8_lossy(b.word)));
+    let (n, place) = if b.x < 0 { (b.n, " before it") } else { (total[k], "") };
+    let plural = if n == 1 { "" } else { "s" };
+    Err(format!(
+        "line {}: `{word}` refers to {name} {}, but the file has {n} `{name}` line{plural}{place}",
+        b.line + 1,
+        b.x
+    ))
 }
 
 /// The colour keys tobj reads as exactly three numbers.
