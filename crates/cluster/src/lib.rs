@@ -30,6 +30,6 @@ pub mod scheduler;
 mod testing;
 
 pub use cluster::{
-    Class, Cluster, ClusterConfig, ClusterStatus, DefaultScene, JobRecord, PeerId, STATUS_INTERVAL, Stored,
-    Transmit,
+    Class, Cluster, ClusterConfig, ClusterStatus, DefaultScene, JobRecord, PeerId, ROSTER_INTERVAL,
+    STATUS_INTERVAL, Stored, Transmit,
 };

@@ -427,8 +427,8 @@ pub enum Message {
         stats: FrameStats,
     },
     /// Master → viewer: every slave it knows of — the live ones and the
-    /// latest dead ones. Sent when the viewer joins and whenever a slave joins
-    /// or dies.
+    /// latest dead ones. Sent when the viewer joins and after slaves join or
+    /// die (those within [`crate::ROSTER_INTERVAL`] of each other in one list).
     Slaves {
         /// The slaves, by id (at most [`MAX_SLAVES_LISTED`]).
         #[serde(deserialize_with = "bounded_vec::<_, _, MAX_SLAVES_LISTED>")]
@@ -515,8 +515,8 @@ pub enum Message {
     /// Client → master: send the cluster's status.
     StatusRequest,
     /// Master → client: slaves, clients and jobs. Answers
-    /// [`Message::StatusRequest`], and is pushed to every viewer when a slave
-    /// joins or dies and every second while frames are open.
+    /// [`Message::StatusRequest`], and is pushed to every viewer with each
+    /// [`Message::Slaves`] and every second while frames are open.
     Status(Status),
     /// Slave → viewer, first on a direct link: the key of the viewer's
     /// [`DirectOffer`], as the master passed it on.
