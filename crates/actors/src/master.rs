@@ -214,7 +214,8 @@ impl Master {
     /// Deadlines only move later between wakes (a heartbeat pushes a slave's
     /// back) or appear at least a tick ahead (a new peer's handshake, the
     /// status interval), so a dead slave is declared dead at its deadline, not
-    /// up to a tick after it.
+    /// up to a tick after it. A roster held back by
+    /// [`isin_cluster::ROSTER_INTERVAL`] may wait up to a tick more.
     fn wake_at_deadline(&mut self, ctx: &mut Context<Self>) {
         let now = self.now();
         let next = self.core.poll_timeout().map_or(now + self.tick, |d| d.min(now + self.tick));
