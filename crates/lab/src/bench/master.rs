@@ -78,8 +78,8 @@ struct MasterReport {
     /// Resident memory added per connected slave (master and the slave's
     /// simulation together), bytes.
     rss_per_slave: f64,
-    /// From the first simulated slave connecting to the master counting
-    /// them all joined, s.
+    /// From starting the simulated slaves to the master counting them all
+    /// joined, s.
     join_s: f64,
     vanished: usize,
     heartbeat_timeout_ms: u64,
