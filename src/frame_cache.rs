@@ -106,8 +106,8 @@ fn hex(bytes: &[u8]) -> String {
 impl<R: Renderer> Renderer for FrameCache<R> {
     type Scene = (SceneHash, R::Scene);
 
-    fn load(&self, bundle: SceneBundle) -> Result<Self::Scene, String> {
-        let hash = scene_hash(&bundle);
+    fn load(&self, bundle: &SceneBundle) -> Result<Self::Scene, String> {
+        let hash = scene_hash(bundle);
         Ok((hash, self.inner.load(bundle)?))
     }
 
@@ -141,7 +141,7 @@ mod tests {
     #[test]
     fn tiles_match_the_renderer_and_the_frame_is_rendered_once() {
         let cache = FrameCache::new(Pattern::default(), None).unwrap();
-        let scene = cache.load(bundle()).unwrap();
+        let scene = cache.load(&bundle()).unwrap();
         let camera = Camera::default();
         let settings = RenderSettings { width: 40, height: 30, ..Default::default() };
         let reference = Pattern::default();
@@ -166,10 +166,10 @@ mod tests {
         let settings = RenderSettings { width: 16, height: 16, ..Default::default() };
         let tile = Tile { x: 8, y: 0, w: 8, h: 16 };
         let first = FrameCache::new(Pattern::default(), Some(dir.path().to_path_buf())).unwrap();
-        let s1 = first.load(bundle()).unwrap();
+        let s1 = first.load(&bundle()).unwrap();
         let a = first.render(&s1, &Camera::default(), &settings, tile);
         let second = FrameCache::new(Pattern::default(), Some(dir.path().to_path_buf())).unwrap();
-        let s2 = second.load(bundle()).unwrap();
+        let s2 = second.load(&bundle()).unwrap();
         let b = second.render(&s2, &Camera::default(), &settings, tile);
         assert_eq!(a, b);
         assert_eq!(second.inner.tiles.load(Ordering::Relaxed), 0, "read from disk, not rendered");
@@ -180,7 +180,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let settings = RenderSettings { width: 8, height: 8, ..Default::default() };
         let cache = FrameCache::new(Pattern::default(), Some(dir.path().to_path_buf())).unwrap();
-        let scene = cache.load(bundle()).unwrap();
+        let scene = cache.load(&bundle()).unwrap();
         let key = FrameCache::<Pattern>::key(&scene.0, &Camera::default(), &settings);
         std::fs::write(dir.path().join(format!("{}.rgb", hex(&key))), [1u8; 5]).unwrap();
         let t = Tile { x: 0, y: 0, w: 8, h: 8 };

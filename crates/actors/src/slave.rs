@@ -100,8 +100,9 @@ const CANCEL_MEMORY: u64 = 256;
 pub trait Renderer: Send + Sync + 'static {
     /// A loaded, renderable scene.
     type Scene: Send + Sync + 'static;
-    /// Builds the scene from its bundle (runs on a blocking thread).
-    fn load(&self, bundle: SceneBundle) -> Result<Self::Scene, String>;
+    /// Builds the scene from its bundle (runs on a blocking thread, while
+    /// the bundle's hash is checked beside it).
+    fn load(&self, bundle: &SceneBundle) -> Result<Self::Scene, String>;
     /// `tile.w * tile.h * 3` bytes of RGB8.
     fn render(&self, scene: &Self::Scene, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8>;
 
@@ -162,9 +163,9 @@ impl Pattern {
 impl Renderer for Pattern {
     type Scene = String;
 
-    fn load(&self, bundle: SceneBundle) -> Result<String, String> {
+    fn load(&self, bundle: &SceneBundle) -> Result<String, String> {
         self.loads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        Ok(bundle.source)
+        Ok(bundle.source.clone())
     }
 
     fn render(&self, _: &String, camera: &Camera, _: &RenderSettings, t: Tile) -> Vec<u8> {
@@ -182,7 +183,7 @@ impl Renderer for Pattern {
 impl Renderer for Tracer {
     type Scene = Scene;
 
-    fn load(&self, bundle: SceneBundle) -> Result<Scene, String> {
+    fn load(&self, bundle: &SceneBundle) -> Result<Scene, String> {
         let t0 = Instant::now();
         let scene = bundle.load().map_err(|e| e.to_string())?;
         let loaded = t0.elapsed();
@@ -310,21 +311,28 @@ impl<S> SceneCache<S> {
 /// A shared [`SceneCache`]: the session's actor and the reconnection loop use it.
 pub type SharedScenes<S> = Arc<Mutex<SceneCache<S>>>;
 
-/// Loads `bundle` on a thread of its own (it builds a BVH: never on the
-/// async thread), a panicking loader reported as an error.
+/// Decodes and loads a scene that came in whole on a thread of its own (it
+/// builds a BVH: never on the async thread), its hash checked beside the
+/// load; a panicking loader is reported as an error.
 fn load_in_background<R: Renderer>(
     renderer: Arc<R>,
-    bundle: SceneBundle,
+    incoming: Incoming,
 ) -> oneshot::Receiver<Result<(R::Scene, usize), String>> {
     let (tx, rx) = oneshot::channel();
     std::thread::spawn(move || {
-        let bytes = bundle.source.len() + bundle.assets.values().map(Vec::len).sum::<usize>();
-        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| renderer.load(bundle)));
-        let out = out.unwrap_or_else(|_| Err("scene loader panicked".into()));
-        let _ = tx.send(out.map(|scene| {
-            let footprint = renderer.footprint(&scene, bytes);
-            (scene, footprint)
-        }));
+        let load = |bundle: &SceneBundle| {
+            let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| renderer.load(bundle)));
+            out.unwrap_or_else(|_| Err("scene loader panicked".into()))
+        };
+        let out = match incoming.finish_with(load) {
+            Ok((bundle, loaded)) => loaded.map(|scene| {
+                let bytes = bundle.source.len() + bundle.assets.values().map(Vec::len).sum::<usize>();
+                let footprint = renderer.footprint(&scene, bytes);
+                (scene, footprint)
+            }),
+            Err(e) => Err(format!("bad scene from the master: {e}")),
+        };
+        let _ = tx.send(out);
     });
     rx
 }
@@ -444,8 +452,8 @@ pub async fn join<R: Renderer>(
     let _stop_heartbeats = AbortOnDrop(heartbeats);
     let default = welcome.scene.as_ref().map(|s| s.hash);
     if let Some(hash) = default.filter(|h| lock(cache).get(h).is_none()) {
-        let bundle = receive_scene(&mut conn, hash).await?;
-        let (scene, bytes) = load_in_background(renderer.clone(), bundle)
+        let incoming = receive_chunks(&mut conn, hash).await?;
+        let (scene, bytes) = load_in_background(renderer.clone(), incoming)
             .await
             .map_err(|_| JoinError::Scene("scene loader vanished".into()))?
             .map_err(JoinError::Scene)?;
@@ -470,6 +478,15 @@ pub async fn receive_scene(
     conn: &mut isin_transport::Connection,
     hash: SceneHash,
 ) -> Result<SceneBundle, JoinError> {
+    let incoming = receive_chunks(conn, hash).await?;
+    incoming.finish().map_err(|e| JoinError::Scene(format!("bad scene: {e}")))
+}
+
+/// [`receive_scene`] up to its last chunk: the scene whole, not yet decoded.
+async fn receive_chunks(
+    conn: &mut isin_transport::Connection,
+    hash: SceneHash,
+) -> Result<Incoming, JoinError> {
     let bad = |e: isin_cluster::scene_stream::StreamError| JoinError::Scene(format!("bad scene: {e}"));
     let mut incoming: Option<Incoming> = None;
     loop {
@@ -484,7 +501,7 @@ pub async fn receive_scene(
                 if p.complete
                     && let Some(rx) = incoming.take()
                 {
-                    return rx.finish().map_err(bad);
+                    return Ok(rx);
                 }
             }
             Message::Heartbeat => continue,
@@ -610,15 +627,14 @@ impl<R: Renderer> SlaveActor<R> {
         waiting.push(a);
     }
 
-    /// A scene arrived: loaded off the actor, then its parked tiles go.
-    fn scene_arrived(&mut self, hash: SceneHash, bundle: SceneBundle, ctx: &mut Context<Self>) {
+    /// A scene came in whole: decoded, checked and loaded off the actor,
+    /// then its parked tiles go.
+    fn scene_arrived(&mut self, incoming: Incoming, ctx: &mut Context<Self>) {
+        let hash = incoming.hash();
         if !self.parked.contains_key(&hash) {
             return tracing::warn!("the master sent a scene no assignment waits for; ignored");
         }
-        if protocol::scene_hash(&bundle) != hash {
-            return self.scene_failed(hash, "scene bundle does not match its hash".into());
-        }
-        let rx = load_in_background(self.renderer.clone(), bundle);
+        let rx = load_in_background(self.renderer.clone(), incoming);
         let me = ctx.address();
         tokio::spawn(async move {
             let result = rx.await.unwrap_or_else(|_| Err("scene loader vanished".into()));
@@ -643,11 +659,8 @@ impl<R: Renderer> SlaveActor<R> {
         if !progress.complete {
             return;
         }
-        let Some(rx) = self.incoming.take() else { return };
-        let hash = rx.hash();
-        match rx.finish() {
-            Ok(bundle) => self.scene_arrived(hash, bundle, ctx),
-            Err(e) => self.finish(format!("bad scene from the master: {e}"), ctx),
+        if let Some(rx) = self.incoming.take() {
+            self.scene_arrived(rx, ctx);
         }
     }
 

@@ -35,8 +35,8 @@ struct Stuck {
 impl Renderer for Stuck {
     type Scene = String;
 
-    fn load(&self, bundle: SceneBundle) -> Result<String, String> {
-        Ok(bundle.source)
+    fn load(&self, bundle: &SceneBundle) -> Result<String, String> {
+        Ok(bundle.source.clone())
     }
 
     fn render(&self, scene: &String, camera: &Camera, settings: &RenderSettings, tile: Tile) -> Vec<u8> {

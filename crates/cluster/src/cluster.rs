@@ -419,7 +419,8 @@ pub struct Cluster {
     /// the bytes from there (or from its request, if later).
     bytes_at_last_done: u64,
     status: ClusterStatus,
-    /// Where tiles are decoded to be checked (reused: no allocation per tile).
+    /// Where tiles are decoded for a viewer that cannot decode their codec
+    /// (reused: no allocation per tile).
     scratch: Vec<u8>,
     /// Picks the tiles of direct frames the master checks itself
     /// ([`protocol::via_master`]); slaves never learn it.
@@ -1167,10 +1168,10 @@ impl Cluster {
             let got = r.tile;
             return self.refuse(now, id, format!("tile {} is {got:?}, but {rect:?} was assigned", r.id));
         }
-        // Untrusted: checked (raw by its length, the others decoded, size
-        // checked before allocating) before it counts, even when it is
+        // Untrusted: checked (raw by its length, the others by a walk over
+        // their ops, nothing decoded) before it counts, even when it is
         // forwarded still encoded.
-        if let Err(e) = codec::check(r.codec, r.tile.w, r.tile.h, r.pixels, &mut self.scratch) {
+        if let Err(e) = codec::check(r.codec, r.tile.w, r.tile.h, r.pixels) {
             return self.refuse(now, id, format!("tile {}: {e}", r.id));
         }
         self.sched.record_render_time(r.frame, r.id, r.render_micros);
@@ -1238,8 +1239,8 @@ impl Cluster {
     }
 
     /// Sends an accepted tile to the viewer of its frame, in a codec it
-    /// decodes (the slave's, else raw: the pixels `on_result` decoded into
-    /// the scratch buffer), written straight into its outgoing frame.
+    /// decodes (the slave's, else raw: decoded into the scratch buffer),
+    /// written straight into its outgoing frame.
     fn forward(&mut self, slave: PeerId, r: TileResultRef<'_>, tile: isin_tracer::Tile) {
         let Some(spec) = self.frames.get(&r.frame) else { return };
         let Some(viewer) = self.peers.get(&spec.viewer) else { return };
@@ -1247,6 +1248,10 @@ impl Cluster {
         let (codec, pixels) = if viewer.decodes.contains(&r.codec) || r.codec == Codec::Raw {
             (r.codec, r.pixels)
         } else {
+            if let Err(e) = codec::decode_into(r.codec, tile.w, tile.h, r.pixels, &mut self.scratch) {
+                // `on_result` checked it: a walk that passes decodes.
+                return tracing::error!("a checked tile does not decode: {e}");
+            }
             (Codec::Raw, &self.scratch[..])
         };
         match protocol::encode_frame_tile(spec.request, slave, slave_name, tile, codec, pixels) {

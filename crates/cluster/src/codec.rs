@@ -23,6 +23,8 @@
 
 use serde::{Deserialize, Serialize};
 
+mod walk;
+
 /// Largest decoded tile accepted, in bytes (a 1024 × 1024 tile).
 pub const MAX_TILE_BYTES: usize = 1024 * 1024 * 3;
 
@@ -187,13 +189,7 @@ pub fn decode_into(codec: Codec, w: u32, h: u32, data: &[u8], out: &mut Vec<u8>)
         }
         Codec::Qoi => {
             // The header must name this tile before anything is allocated.
-            let header = qoi::decode_header(data).map_err(|e| corrupt(e.to_string()))?;
-            if (header.width, header.height) != (w, h) || header.channels != qoi::Channels::Rgb {
-                return Err(corrupt(format!(
-                    "a {}x{} image with {:?} channels, for a {w}x{h} RGB tile",
-                    header.width, header.height, header.channels
-                )));
-            }
+            qoi_header(w, h, data)?;
             out.resize(len, 0);
             qoi::decode_to_buf(&mut out[..], data).map_err(|e| corrupt(e.to_string()))?;
         }
@@ -202,21 +198,39 @@ pub fn decode_into(codec: Codec, w: u32, h: u32, data: &[u8], out: &mut Vec<u8>)
 }
 
 /// Checks that `data` is a valid `w × h` tile in `codec` the way the
-/// master must before counting it: raw tiles by their length alone (every
-/// byte string of the right length is an image), the others by decoding
-/// into `scratch`, which then holds the pixels. Never panics.
-pub fn check(codec: Codec, w: u32, h: u32, data: &[u8], scratch: &mut Vec<u8>) -> Result<(), CodecError> {
-    match codec {
-        Codec::Raw => {
-            let len = tile_bytes(w, h)?;
-            if data.len() == len {
-                Ok(())
-            } else {
-                Err(CodecError::Corrupt { codec, reason: format!("{} bytes, {len} expected", data.len()) })
-            }
-        }
-        Codec::Lz4 | Codec::Qoi => decode_into(codec, w, h, data, scratch),
+/// master must before counting it, without decoding it: raw tiles by their
+/// length alone (every byte string of the right length is an image), QOI by
+/// its header and a walk over its ops, LZ4 by a walk over its sequences
+/// (see `codec/walk.rs`). A tile that passes decodes with
+/// [`decode_into`]. Allocates nothing, never panics.
+pub fn check(codec: Codec, w: u32, h: u32, data: &[u8]) -> Result<(), CodecError> {
+    let len = tile_bytes(w, h)?;
+    let corrupt = |reason: String| CodecError::Corrupt { codec, reason };
+    if len == 0 {
+        return if data.is_empty() { Ok(()) } else { Err(corrupt("data for an empty tile".into())) };
     }
+    match codec {
+        Codec::Raw if data.len() == len => Ok(()),
+        Codec::Raw => Err(corrupt(format!("{} bytes, {len} expected", data.len()))),
+        Codec::Lz4 => walk::lz4(data, len).map_err(corrupt),
+        Codec::Qoi => {
+            qoi_header(w, h, data)?;
+            walk::qoi(data, len / 3).map_err(corrupt)
+        }
+    }
+}
+
+/// Checks that a QOI stream's header names a `w × h` RGB image.
+fn qoi_header(w: u32, h: u32, data: &[u8]) -> Result<(), CodecError> {
+    let corrupt = |reason: String| CodecError::Corrupt { codec: Codec::Qoi, reason };
+    let header = qoi::decode_header(data).map_err(|e| corrupt(e.to_string()))?;
+    if (header.width, header.height) != (w, h) || header.channels != qoi::Channels::Rgb {
+        return Err(corrupt(format!(
+            "a {}x{} image with {:?} channels, for a {w}x{h} RGB tile",
+            header.width, header.height, header.channels
+        )));
+    }
+    Ok(())
 }
 
 /// `w * h * 3`, if that is within [`MAX_TILE_BYTES`].
@@ -233,20 +247,46 @@ mod tests {
     fn check_agrees_with_decode() {
         let (w, h) = (5u32, 3u32);
         let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 13 % 256) as u8).collect();
-        let mut scratch = Vec::new();
         for codec in [Codec::Raw, Codec::Lz4, Codec::Qoi] {
             let data = encode(codec, w, &rgb);
             let mut bad = data.clone();
             bad.pop();
             for (bytes, tw, th) in [(&data, w, h), (&bad, w, h), (&data, w + 1, h), (&data, 1 << 20, 1 << 20)]
             {
-                let checked = check(codec, tw, th, bytes, &mut scratch);
+                let checked = check(codec, tw, th, bytes);
                 assert_eq!(checked.is_ok(), decode(codec, tw, th, bytes).is_ok(), "{codec:?} {tw}x{th}");
-                if checked.is_ok() && codec != Codec::Raw {
-                    assert_eq!(scratch, rgb);
-                }
             }
         }
+    }
+
+    /// Streams the decoders take leniently, which no encoder writes: the
+    /// check refuses them.
+    #[test]
+    fn the_check_is_stricter_than_the_decoders_where_they_are_lenient() {
+        let rgb = tile(4, 2, 9);
+        let qoi = encode(Codec::Qoi, 4, &rgb);
+        let (body, end) = qoi.split_at(qoi.len() - 8);
+        // A run one past the last pixel; an RGBA op; a byte after the end.
+        let mut long_run = body[..14].to_vec();
+        long_run.push(0xc0 | 8);
+        long_run.extend_from_slice(end);
+        let mut rgba = body.to_vec();
+        rgba.extend([0xff, 1, 2, 3, 4]);
+        rgba.extend_from_slice(end);
+        let trailing = [&qoi[..], &[0]].concat();
+        for bad in [&long_run, &rgba, &trailing] {
+            assert!(check(Codec::Qoi, 4, 2, bad).is_err());
+        }
+        assert!(decode(Codec::Qoi, 4, 2, &long_run).is_ok(), "the decoder cuts the run short");
+        assert!(decode(Codec::Qoi, 4, 2, &trailing).is_ok(), "the decoder ignores what follows the end");
+        // LZ4: a match 0 bytes back; a block ending on a match.
+        let zero = [0x10, 7, 0, 0, 0x00];
+        assert!(check(Codec::Lz4, 3, 1, &zero).is_err());
+        assert!(check(Codec::Lz4, 3, 1, &[0x50, 1, 2, 3, 4, 5, 5, 0]).is_err());
+        // Five literals, 18 bytes from 5 back, four literals: 27 bytes.
+        let good = [0x5e, 1, 2, 3, 4, 5, 5, 0, 0x40, 9, 8, 7, 6];
+        assert_eq!(check(Codec::Lz4, 3, 3, &good), Ok(()));
+        assert_eq!(decode(Codec::Lz4, 3, 3, &good).unwrap().len(), 27);
     }
 
     #[test]
@@ -390,6 +430,41 @@ mod tests {
                 }
                 if let Ok(out) = decode(codec, w, h, &enc) {
                     prop_assert_eq!(out.len(), rgb.len());
+                }
+            }
+        }
+
+        /// The master's check without decoding: every encoding passes it, and
+        /// whatever passes it (valid or with bytes flipped, cut or added)
+        /// decodes to the tile's size.
+        #[test]
+        fn what_the_check_passes_decodes(w in 1u32..40, h in 1u32..40, seed in any::<u32>(),
+                                          flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 0..6),
+                                          cut in 0usize..3, extra in proptest::collection::vec(any::<u8>(), 0..3)) {
+            let rgb = tile(w, h, seed);
+            for codec in Codec::ALL {
+                let mut enc = encode(codec, w, &rgb);
+                prop_assert_eq!(check(codec, w, h, &enc), Ok(()), "{}", codec);
+                for &(at, v) in &flips {
+                    let i = at % enc.len();
+                    enc[i] = v;
+                }
+                enc.truncate(enc.len().saturating_sub(cut));
+                enc.extend_from_slice(&extra);
+                if check(codec, w, h, &enc).is_ok() {
+                    let out = decode(codec, w, h, &enc);
+                    prop_assert!(out.is_ok(), "{} passed the check, then {:?}", codec, out);
+                }
+            }
+        }
+
+        /// Random bytes pass the check only if they decode.
+        #[test]
+        fn checked_garbage_decodes(data in proptest::collection::vec(any::<u8>(), 0..600),
+                                   w in 0u32..12, h in 0u32..12) {
+            for codec in Codec::ALL {
+                if check(codec, w, h, &data).is_ok() {
+                    prop_assert!(decode(codec, w, h, &data).is_ok(), "{}", codec);
                 }
             }
         }

@@ -382,6 +382,33 @@ impl Receiver {
 
     /// The bundle, once every chunk is in: decoded and its hash checked.
     pub fn finish(self) -> Result<SceneBundle, StreamError> {
+        self.finish_with(|_| ()).map(|(bundle, ())| bundle)
+    }
+
+    /// [`Receiver::finish`] that also hands the decoded bundle to `work`
+    /// (e.g. building its BVH) while its hash is checked on another thread,
+    /// so that the check adds nothing to the time until the scene is ready.
+    /// `work`'s output is returned only if the hash matched.
+    pub fn finish_with<T: Send>(
+        self,
+        work: impl FnOnce(&SceneBundle) -> T,
+    ) -> Result<(SceneBundle, T), StreamError> {
+        let bundle = self.decode()?;
+        let want = self.header.hash;
+        let (matches, out) = std::thread::scope(|s| {
+            let check = s.spawn(|| protocol::scene_hash(&bundle) == want);
+            let out = work(&bundle);
+            // The hash cannot panic; if its thread could not run, it is no match.
+            (check.join().unwrap_or(false), out)
+        });
+        if !matches {
+            return Err(StreamError::HashMismatch);
+        }
+        Ok((bundle, out))
+    }
+
+    /// The bundle, once every chunk is in, decoded (its hash unchecked).
+    fn decode(&self) -> Result<SceneBundle, StreamError> {
         if self.next != self.header.chunks {
             return Err(StreamError::Incomplete { got: self.next, want: self.header.chunks });
         }
@@ -392,11 +419,7 @@ impl Receiver {
                 self.header.raw_bytes
             )));
         }
-        let bundle = decode_bundle(&self.raw)?;
-        if protocol::scene_hash(&bundle) != self.header.hash {
-            return Err(StreamError::HashMismatch);
-        }
-        Ok(bundle)
+        decode_bundle(&self.raw)
     }
 }
 
@@ -543,6 +566,25 @@ mod tests {
             rx.push(&[9; 32], *idx, bytes).unwrap();
         }
         assert_eq!(rx.finish(), Err(StreamError::HashMismatch));
+    }
+
+    #[test]
+    fn work_on_a_bundle_is_returned_only_when_its_hash_matches() {
+        let b = bundle(200 << 10);
+        let p = pack(&b).unwrap();
+        let receive = |hash: SceneHash| {
+            let mut rx = Receiver::new(SceneHeader { hash, ..p.header.clone() }).unwrap();
+            for (_, idx, bytes) in chunks(&p) {
+                rx.push(&hash, idx, &bytes).unwrap();
+            }
+            rx
+        };
+        let (back, len) = receive(p.header.hash).finish_with(|b| b.source.len()).unwrap();
+        assert_eq!((&back, len), (&b, b.source.len()));
+        let ran = std::sync::atomic::AtomicBool::new(false);
+        let other = receive([7; 32]).finish_with(|_| ran.store(true, std::sync::atomic::Ordering::Relaxed));
+        assert_eq!(other, Err(StreamError::HashMismatch));
+        assert!(ran.into_inner(), "the work runs beside the check");
     }
 
     #[test]

@@ -238,17 +238,23 @@ pub fn handshake(data: &[u8]) {
     }
 }
 
-/// Tile decoding (`codec::decode`, what the master runs on every slave's
-/// tile and the viewer on every tile it is sent): `[codec: u8, high bit
-/// scales the size by 16][w: u8][h: u8][bytes…]`. Decoded pixels are exactly
-/// `w × h × 3` bytes, re-encode within the codec's worst case and decode
-/// back to themselves; decoding into a used buffer gives the same result.
+/// Tile checking and decoding (`codec::check`, what the master runs on
+/// every slave's tile, and `codec::decode`, what the viewer runs on every
+/// tile it is sent): `[codec: u8, high bit scales the size by 16][w: u8][h:
+/// u8][bytes…]`. A tile that passes the check decodes; decoded pixels are
+/// exactly `w × h × 3` bytes, re-encode within the codec's worst case, pass
+/// the check and decode back to themselves; decoding into a used buffer
+/// gives the same result.
 pub fn tile_codec(data: &[u8]) {
     let [c, w, h, bytes @ ..] = data else { return };
     let codec = Codec::ALL[usize::from(*c & 0x7f) % Codec::ALL.len()];
     let scale = if *c & 0x80 != 0 { 16 } else { 1 };
     let (w, h) = (u32::from(*w) * scale, u32::from(*h) * scale);
+    let checked = codec::check(codec, w, h, bytes);
     let decoded = codec::decode(codec, w, h, bytes);
+    if checked.is_ok() {
+        assert!(decoded.is_ok(), "{codec} passed the check but does not decode: {decoded:?}");
+    }
     let mut reused = vec![0xa5; 77];
     let again = codec::decode_into(codec, w, h, bytes, &mut reused);
     assert_eq!(decoded.as_ref().err(), again.as_ref().err(), "decode and decode_into disagree");
@@ -257,6 +263,7 @@ pub fn tile_codec(data: &[u8]) {
     assert_eq!(pixels.len(), w as usize * h as usize * 3);
     let encoded = codec::encode(codec, w, &pixels);
     assert!(encoded.len() <= codec::max_encoded_len(w, h), "{codec} exceeds its worst case");
+    assert_eq!(codec::check(codec, w, h, &encoded), Ok(()), "{codec}: its own encoding fails the check");
     assert_eq!(codec::decode(codec, w, h, &encoded).as_ref(), Ok(&pixels), "{codec} round trip");
 }
 

@@ -42,18 +42,28 @@ impl Incoming {
 
     /// The bundle, once every chunk is in (decoded, its hash checked).
     pub(super) fn finish(self) -> Result<SceneBundle, StreamError> {
+        self.finish_with(|_| ()).map(|(bundle, ())| bundle)
+    }
+
+    /// The bundle, once every chunk is in, decoded and handed to `work`
+    /// (loading it) while its hash is checked beside it; `work`'s output
+    /// only if the hash matched.
+    pub(super) fn finish_with<T: Send>(
+        self,
+        work: impl FnOnce(&SceneBundle) -> T,
+    ) -> Result<(SceneBundle, T), StreamError> {
         let h = self.rx.header().clone();
         let received = self.since.elapsed();
         let t0 = Instant::now();
-        let bundle = self.rx.finish()?;
+        let out = self.rx.finish_with(work)?;
         tracing::info!(
-            "scene {} received: {} bytes compressed, {} unpacked, in {:.3} s (decoded and checked in {:.3} s)",
+            "scene {} received: {} bytes compressed, {} unpacked, in {:.3} s (decoded, checked and loaded in {:.3} s)",
             h.name,
             h.compressed_bytes,
             h.raw_bytes,
             received.as_secs_f64(),
             t0.elapsed().as_secs_f64()
         );
-        Ok(bundle)
+        Ok(out)
     }
 }
