@@ -291,13 +291,20 @@ pub struct Deaths {
     /// when declared, by the master's clock ([`Cluster::longest_silence`]):
     /// the heartbeat timeout plus how late the master was.
     pub longest_silence: Duration,
+    /// When the latest slave was declared dead for its silence, its tiles
+    /// handed back in the same step ([`Cluster::last_timeout_death`]).
+    pub last_timeout_death: Option<Instant>,
 }
 
 impl Handler<GetDeaths> for Master {
     type Result = Deaths;
 
     fn handle(&mut self, _: GetDeaths, _: &mut Self::Context) -> Deaths {
-        Deaths { count: self.core.deaths(), longest_silence: self.core.longest_silence() }
+        Deaths {
+            count: self.core.deaths(),
+            longest_silence: self.core.longest_silence(),
+            last_timeout_death: self.core.last_timeout_death().map(|d| self.epoch + d),
+        }
     }
 }
 

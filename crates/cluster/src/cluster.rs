@@ -534,6 +534,12 @@ impl Cluster {
         self.sched.longest_silence()
     }
 
+    /// When the latest slave was declared dead for its silence
+    /// ([`Scheduler::last_timeout_death`]).
+    pub fn last_timeout_death(&self) -> Option<Duration> {
+        self.sched.last_timeout_death()
+    }
+
     /// The earliest time at which [`Cluster::handle_timeout`] has work to do.
     pub fn poll_timeout(&self) -> Option<Duration> {
         let liveness = self.sched.config().heartbeat_timeout;

@@ -429,6 +429,8 @@ pub struct Scheduler {
     total_threads: usize,
     /// The longest a slave declared dead for its silence had been silent.
     longest_silence: Duration,
+    /// When the latest slave was declared dead for its silence.
+    last_timeout_death: Option<Duration>,
 }
 
 /// How often, at the end of the work, every idle slave is looked at for a
@@ -457,6 +459,7 @@ impl Scheduler {
             last_tail_pass: Duration::ZERO,
             total_threads: 0,
             longest_silence: Duration::ZERO,
+            last_timeout_death: None,
         }
     }
 
@@ -472,6 +475,12 @@ impl Scheduler {
     /// declaration came (zero before the first such death).
     pub fn longest_silence(&self) -> Duration {
         self.longest_silence
+    }
+
+    /// When the latest slave declared dead for its silence was declared
+    /// (its tiles went back to the queue in that same step).
+    pub fn last_timeout_death(&self) -> Option<Duration> {
+        self.last_timeout_death
     }
 
     /// The oldest open frame, if any (a completed frame is not open).
@@ -582,6 +591,7 @@ impl Scheduler {
             .collect();
         for (id, silence) in dead {
             self.longest_silence = self.longest_silence.max(silence);
+            self.last_timeout_death = Some(now);
             self.kill(id, DeathCause::Timeout);
         }
     }

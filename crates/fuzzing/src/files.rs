@@ -213,7 +213,8 @@ fn load_image(kind: u8, bytes: &[u8]) -> Result<(), SceneError> {
 
 /// A scene bundle as a slave (or the master, from a client) unpacks it: the
 /// decompressed bytes of a scene stream, at most [`DEFAULT_MAX_FRAME`]
-/// (`isin_cluster::scene_stream::decode_bundle`), whose bundle is loaded,
+/// (`isin_cluster::scene_stream::decode_bundle`, which
+/// `decode_bundle_owned` agrees with), whose bundle is loaded,
 /// built and a few pixels rendered. The slave's check of the bundle against
 /// its hash is left out (a master with the token can send any bundle with its right
 /// hash), so that mutated bundles reach the loader.
@@ -222,7 +223,13 @@ pub fn scene_bundle(data: &[u8]) {
         return;
     }
     one_thread();
-    let Ok(bundle) = isin_cluster::scene_stream::decode_bundle(data) else { return };
+    let decoded = isin_cluster::scene_stream::decode_bundle(data);
+    assert_eq!(
+        decoded,
+        isin_cluster::scene_stream::decode_bundle_owned(data.to_vec()),
+        "the decoders disagree"
+    );
+    let Ok(bundle) = decoded else { return };
     let mut assets = bundle.clone();
     let Ok(parts) = parse_scene(&bundle.name, &bundle.source, &mut assets) else { return };
     if parts.triangles.len() <= BUILD_TRIANGLES {

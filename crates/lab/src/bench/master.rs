@@ -84,7 +84,8 @@ struct MasterReport {
     vanished: usize,
     heartbeat_timeout_ms: u64,
     /// From the slaves going silent to the master declaring the last of them
-    /// dead (their tiles handed to others in the same step), ms.
+    /// dead (their tiles handed to others in the same step), by the master's
+    /// stamp of that step, ms.
     detect_ms: Option<f64>,
     /// The longest a vanished slave had been silent by the master's clock
     /// (since the last message the master had taken in from it) when it
@@ -353,7 +354,10 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
     while Instant::now() < limit {
         let d = deaths(&master)?;
         if d.count >= deaths0 + args.vanish as u64 {
-            detect = Some((gone.elapsed(), d.longest_silence));
+            // When the master declared the last of them (and handed back its
+            // tiles), by the master's own stamp: this poll answers later.
+            let declared = d.last_timeout_death.map_or_else(|| gone.elapsed(), |at| at.duration_since(gone));
+            detect = Some((declared, d.longest_silence));
             break;
         }
         std::thread::sleep(Duration::from_millis(1));

@@ -4,9 +4,11 @@
 //! Every slave is an emulated PC ([`crate::netlab`]): its own network
 //! namespace on a switch, its cable rate-limited with tbf, its CPU limited by a
 //! cgroup quota of `cpu_total / N_max` of a core, so that the N slaves together
-//! never have more CPU than the machine. The master sits in a namespace of its
-//! own behind one such cable; the viewer (this process) talks to it inside the
-//! master's namespace, like the paper's master showing frames on its screen.
+//! never have more CPU than the machine; by default `N_max + 1` PCs share it,
+//! the master having one of its own ([`default_cpu_total`]). The master sits
+//! in a namespace of its own behind one such cable; the viewer (this process)
+//! talks to it inside the master's namespace, like the paper's master showing
+//! frames on its screen.
 //! Frames are the cameras of a recorded path, requested one after another —
 //! by default with the next frame queued at the master while one renders
 //! (`--pipeline 2`: slaves roll from one frame straight into the next, as a
@@ -69,7 +71,10 @@ pub struct ScalingArgs {
     /// Link rates in Mbit/s, comma-separated (100: the paper's LAN; 1000 optional).
     #[arg(long, default_value = "100")]
     rates: String,
-    /// Cores shared by the slaves: each gets CPU_TOTAL / N_max of a core (default: all cores).
+    /// Cores shared by the slaves: each gets CPU_TOTAL / N_max of a core
+    /// (default: N_max / (N_max + 1) of the machine, so that the master is a
+    /// PC of its own, as in the paper; the machine's core count gives the
+    /// slaves all of it, and the master's work comes out of their share).
     #[arg(long)]
     cpu_total: Option<f64>,
     /// CFS weight (`cpu.shares`) of each emulated PC's cgroup and of the master's
@@ -468,7 +473,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             println!("removed {gone}, left over from an earlier run");
         }
     }
-    let cpu_total = args.cpu_total.unwrap_or(cores as f64);
+    let cpu_total = args.cpu_total.unwrap_or_else(|| default_cpu_total(cores, n_max));
     let share = cpu_total / n_max as f64;
     let cgroups: Vec<CpuCgroup> = if use_lab {
         (1..=n_max).map(|i| CpuCgroup::create(&format!("s{i}"), share)).collect::<anyhow::Result<_>>()?
@@ -481,7 +486,7 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
     }
     if let Some(cg) = cgroups.first() {
         println!(
-            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {} in total; \
+            "lab: {n_max} slave PCs with {:.3} of a core each (CFS quota {} µs per {} µs), {:.3} in total; \
              CPU weight {} (a plain process: {})",
             cg.share(),
             cg.quota_us,
@@ -627,6 +632,15 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
         rows,
     };
     write_outputs(&report, &args.out_dir, true)
+}
+
+/// The slaves' cores in all by default: `N_max + 1` equal PCs share the
+/// machine, the slaves' and the master's (with the viewer at its screen and
+/// the emulated switch's kernel work beside it). The master's cgroup has no
+/// quota: it takes its PC's share and whatever the slaves leave idle, at every
+/// N alike, so that N = 1 and N = N_max compare the slaves, not the lab.
+pub fn default_cpu_total(cores: usize, n_max: usize) -> f64 {
+    cores as f64 * n_max as f64 / (n_max as f64 + 1.0)
 }
 
 fn write_outputs(report: &Report, dir: &Path, json: bool) -> anyhow::Result<()> {

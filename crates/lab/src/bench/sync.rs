@@ -255,7 +255,7 @@ fn run_once(lab: &Lab, args: &SyncArgs, scene: &str, rate: u32, threads: usize) 
         let raw_bytes = number_after(&received, "compressed, ")?;
         let compressed_bytes = number_after(&received, "received: ")?;
         let received_s = number_after_f(&received, "unpacked, in ")?;
-        let decoded_s = number_after_f(&received, "checked in ")?;
+        let decoded_s = number_after_f(&received, "decoded in ")?;
         let triangles = number_after(loaded, "(")?;
         let load_s = number_after_f(loaded, "triangles) in ")? / 1e3;
         let shadow_cells_s =
@@ -388,11 +388,11 @@ mod tests {
     #[test]
     fn the_slaves_log_lines_give_their_numbers() {
         let received = "2026-12-03T06:00:00Z INFO isin_actors::slave::incoming: scene dragon.toml received: \
-                        1234 bytes compressed, 5678 unpacked, in 0.250 s (decoded and checked in 0.010 s)";
+                        1234 bytes compressed, 5678 unpacked, in 0.250 s (decoded in 0.010 s; hash checked beside the load)";
         assert_eq!(number_after(received, "received: ").unwrap(), 1234);
         assert_eq!(number_after(received, "compressed, ").unwrap(), 5678);
         assert_eq!(number_after_f(received, "unpacked, in ").unwrap(), 0.25);
-        assert_eq!(number_after_f(received, "checked in ").unwrap(), 0.01);
+        assert_eq!(number_after_f(received, "decoded in ").unwrap(), 0.01);
         let loaded = "loaded scene dragon.toml (1600000 triangles) in 2345 ms, shadow cells (12) in 67 ms";
         assert_eq!(number_after(loaded, "(").unwrap(), 1_600_000);
         assert_eq!(number_after_f(loaded, "triangles) in ").unwrap(), 2345.0);
