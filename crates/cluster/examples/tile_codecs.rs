@@ -11,7 +11,8 @@
 //! scene's shadow rays) — cuts the frame into 32×32 and 64×64 tiles, and runs
 //! every candidate over every tile (single-threaded, best of 3 runs). Prints a
 //! Markdown table: compression ratio against raw RGB8, mean bytes per tile,
-//! encode and decode microseconds per tile.
+//! encode and decode microseconds per tile, and for isin's own codecs the
+//! master's check ([`codec::check`], which walks a tile without decoding it).
 
 use isin_cluster::codec::{self, Codec};
 use isin_tracer::{AssetSource, RenderSettings, Tile};
@@ -184,8 +185,10 @@ fn main() {
         args
     };
     let cands = candidates();
-    println!("| scene | pass | tile | codec | ratio | bytes/tile | encode µs/tile | decode µs/tile |");
-    println!("| --- | --- | --- | --- | ---: | ---: | ---: | ---: |");
+    println!(
+        "| scene | pass | tile | codec | ratio | bytes/tile | encode µs/tile | decode µs/tile | check µs/tile |"
+    );
+    println!("| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: |");
     for path in &scenes {
         let source = std::fs::read_to_string(path).expect("scene file");
         let name = path.file_name().unwrap().to_string_lossy().to_string();
@@ -221,6 +224,8 @@ fn main() {
                 for (cname, enc, dec) in &cands {
                     let mut best_enc = f64::MAX;
                     let mut best_dec = f64::MAX;
+                    let mut best_check = f64::MAX;
+                    let ours = Codec::from_name(cname);
                     let mut bytes = 0;
                     for _ in 0..3 {
                         let t0 = Instant::now();
@@ -230,13 +235,21 @@ fn main() {
                             assert_eq!(&dec(*t, e), p, "{cname} does not round-trip");
                         }
                         let t2 = Instant::now();
+                        if let Some(c) = ours {
+                            for (t, e) in ts.iter().zip(&encoded) {
+                                assert_eq!(codec::check(c, t.w, t.h, e), Ok(()), "{cname} fails its check");
+                            }
+                        }
+                        let t3 = Instant::now();
                         best_enc = best_enc.min((t1 - t0).as_secs_f64());
                         best_dec = best_dec.min((t2 - t1).as_secs_f64());
+                        best_check = best_check.min((t3 - t2).as_secs_f64());
                         bytes = encoded.iter().map(Vec::len).sum();
                     }
                     let n = ts.len() as f64;
+                    let check = ours.map_or("—".to_string(), |_| format!("{:.2}", best_check * 1e6 / n));
                     println!(
-                        "| {name} | {pass} | {edge} | {cname} | {:.2} | {:.0} | {:.1} | {:.1} |",
+                        "| {name} | {pass} | {edge} | {cname} | {:.2} | {:.0} | {:.1} | {:.1} | {check} |",
                         raw as f64 / bytes as f64,
                         bytes as f64 / n,
                         best_enc * 1e6 / n,

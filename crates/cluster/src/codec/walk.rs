@@ -23,9 +23,27 @@ const QOI_HEADER: usize = 14;
 /// Why a walk stopped.
 pub(super) type WalkError = String;
 
+/// Bytes each QOI op byte starts (0 for an RGBA op, which an RGB image
+/// does not hold), and the pixels it yields.
+const QOI_OPS: ([u8; 256], [u8; 256]) = {
+    let (mut len, mut px) = ([0u8; 256], [0u8; 256]);
+    let mut op = 0;
+    while op < 256 {
+        (len[op], px[op]) = match op {
+            0xfe => (4, 1),
+            0xff => (0, 0),
+            0xc0..=0xfd => (1, (op & 0x3f) as u8 + 1),
+            0x80..=0xbf => (2, 1),
+            _ => (1, 1),
+        };
+        op += 1;
+    }
+    (len, px)
+};
+
 /// Walks the ops of a QOI stream (header already checked to name a
 /// `pixels`-pixel RGB image): every op whole, exactly `pixels` pixels, then
-/// the end marker and nothing after it.
+/// the end marker and nothing after it. Table-driven, one step an op.
 pub(super) fn qoi(data: &[u8], pixels: usize) -> Result<(), WalkError> {
     let ops = data.get(QOI_HEADER..).ok_or("shorter than its header")?;
     let body = ops.len().checked_sub(QOI_END.len()).ok_or("no end marker")?;
@@ -33,24 +51,19 @@ pub(super) fn qoi(data: &[u8], pixels: usize) -> Result<(), WalkError> {
         return Err("does not end with the end marker".into());
     }
     let ops = &ops[..body];
+    let (len, px) = (&QOI_OPS.0, &QOI_OPS.1);
+    // At most 62 pixels a byte: no overflow, and the count is judged once.
     let (mut at, mut count) = (0usize, 0usize);
-    while at < ops.len() {
-        let op = ops[at];
-        let (len, px) = match op {
-            0xfe => (4, 1),
-            0xff => return Err(format!("an RGBA op at byte {} of an RGB image", QOI_HEADER + at)),
-            0xc0..=0xfd => (1, usize::from(op & 0x3f) + 1),
-            0x80..=0xbf => (2, 1),
-            _ => (1, 1),
-        };
-        at += len;
-        count += px;
-        if at > ops.len() {
-            return Err("an op cut short by the end marker".into());
+    while let Some(&op) = ops.get(at) {
+        let step = usize::from(len[usize::from(op)]);
+        if step == 0 {
+            return Err(format!("an RGBA op at byte {} of an RGB image", QOI_HEADER + at));
         }
-        if count > pixels {
-            return Err(format!("more than the {pixels} pixels of the tile"));
-        }
+        at += step;
+        count += usize::from(px[usize::from(op)]);
+    }
+    if at != ops.len() {
+        return Err("an op cut short by the end marker".into());
     }
     if count != pixels {
         return Err(format!("{count} pixels, {pixels} expected"));
