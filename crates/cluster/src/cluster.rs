@@ -1180,6 +1180,13 @@ impl Cluster {
         if let Err(e) = codec::check(r.codec, r.tile.w, r.tile.h, r.pixels) {
             return self.refuse(now, id, format!("tile {}: {e}", r.id));
         }
+        // A viewer that cannot decode the slave's codec is sent raw pixels:
+        // decoded here, before the tile counts.
+        if !self.viewer_decodes(r.frame, r.codec)
+            && let Err(e) = codec::decode_into(r.codec, r.tile.w, r.tile.h, r.pixels, &mut self.scratch)
+        {
+            return self.refuse(now, id, format!("tile {}: {e}", r.id));
+        }
         self.sched.record_render_time(r.frame, r.id, r.render_micros);
         match self.sched.handle_result(now, id, r.frame, r.id) {
             ResultOutcome::Accepted { tile } => self.forward(id, r, tile),
@@ -1244,22 +1251,24 @@ impl Cluster {
         }
     }
 
+    /// Whether the viewer of `frame` decodes tiles in `codec` (raw, every
+    /// viewer does); true for a frame or viewer gone (nothing to send).
+    fn viewer_decodes(&self, frame: FrameId, codec: Codec) -> bool {
+        let viewer = self.frames.get(&frame).and_then(|spec| self.peers.get(&spec.viewer));
+        codec == Codec::Raw || viewer.is_none_or(|v| v.decodes.contains(&codec))
+    }
+
     /// Sends an accepted tile to the viewer of its frame, in a codec it
-    /// decodes (the slave's, else raw: decoded into the scratch buffer),
-    /// written straight into its outgoing frame.
+    /// decodes (the slave's, else raw: the pixels `on_result` decoded into
+    /// the scratch buffer), written straight into its outgoing frame.
     fn forward(&mut self, slave: PeerId, r: TileResultRef<'_>, tile: isin_tracer::Tile) {
+        let decodes = self.viewer_decodes(r.frame, r.codec);
         let Some(spec) = self.frames.get(&r.frame) else { return };
-        let Some(viewer) = self.peers.get(&spec.viewer) else { return };
+        if !self.peers.contains_key(&spec.viewer) {
+            return;
+        }
         let slave_name = self.peers.get(&slave).map_or("", |p| p.name.as_str());
-        let (codec, pixels) = if viewer.decodes.contains(&r.codec) || r.codec == Codec::Raw {
-            (r.codec, r.pixels)
-        } else {
-            if let Err(e) = codec::decode_into(r.codec, tile.w, tile.h, r.pixels, &mut self.scratch) {
-                // `on_result` checked it: a walk that passes decodes.
-                return tracing::error!("a checked tile does not decode: {e}");
-            }
-            (Codec::Raw, &self.scratch[..])
-        };
+        let (codec, pixels) = if decodes { (r.codec, r.pixels) } else { (Codec::Raw, &self.scratch[..]) };
         match protocol::encode_frame_tile(spec.request, slave, slave_name, tile, codec, pixels) {
             Ok(frame) => {
                 self.out.push_back(Transmit::SendFrame { peer: spec.viewer, frame, class: Class::Tile })

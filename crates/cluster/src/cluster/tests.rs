@@ -37,6 +37,27 @@ fn frames_through_two_slaves_are_exact_and_the_scene_is_sent_once_each() {
 }
 
 #[test]
+fn a_viewer_that_decodes_no_codec_is_sent_the_compressed_tiles_decoded() {
+    let mut net = Net::new(sim::config());
+    net.slave(SlaveSpec::default());
+    net.slave(SlaveSpec::default());
+    let old = net.raw_only_viewer();
+    let new = net.viewer();
+    net.run_until(|n| n.core.status().slaves.len() == 2);
+    for v in [old, new] {
+        let req = net.request(v, settings(96, 64, 5), false);
+        net.run_until(|n| n.viewer_done(v, req));
+        net.assert_exact(v, req);
+    }
+    // The slaves send QOI (the master's default picks it); the master checks
+    // it without decoding, and decodes it only for the viewer that needs raw.
+    let tiles = |v| net.codecs_seen(v).into_iter().collect::<Vec<_>>();
+    assert!(matches!(tiles(old)[..], [("raw", n)] if n > 0), "{:?}", tiles(old));
+    assert!(matches!(tiles(new)[..], [("qoi", n)] if n > 0), "{:?}", tiles(new));
+    assert_eq!(net.core.status().refused, 0);
+}
+
+#[test]
 fn a_wrong_token_is_refused_with_a_clear_message_and_no_scene() {
     let mut net = Net::new(sim::config());
     let s = net.slave(SlaveSpec { token: "wrong".into(), ..SlaveSpec::default() });

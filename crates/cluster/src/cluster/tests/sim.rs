@@ -239,6 +239,10 @@ struct ViewerSim {
     /// Offers to take tiles straight from the slaves.
     direct: bool,
     direct_tiles: u32,
+    /// Decodes raw tiles only (offers no codec), as an old viewer.
+    raw_only: bool,
+    /// The codecs of the tiles it was sent, and how many of each.
+    codecs_seen: BTreeMap<&'static str, u32>,
 }
 
 impl ViewerSim {
@@ -254,6 +258,7 @@ impl ViewerSim {
         if self.direct && !f.shown.insert(t.tile) {
             return;
         }
+        *self.codecs_seen.entry(t.codec.name()).or_default() += 1;
         let rgb = t.decoded_pixels().expect("tiles decode");
         let w = f.settings.width;
         for (row, y) in (t.tile.y..t.tile.y + t.tile.h).enumerate() {
@@ -376,6 +381,17 @@ impl Net {
     /// Connects an honest viewer whose frames are `work`.
     pub fn viewer_of(&mut self, work: Work) -> PeerId {
         self.add(Kind::Viewer(ViewerSim::default()), Behaviour::Honest, TOKEN.into(), work)
+    }
+
+    /// Connects an honest interactive viewer that decodes raw tiles only.
+    pub fn raw_only_viewer(&mut self) -> PeerId {
+        let sim = ViewerSim { raw_only: true, ..ViewerSim::default() };
+        self.add(Kind::Viewer(sim), Behaviour::Honest, TOKEN.into(), Work::Interactive)
+    }
+
+    /// The codecs of the tiles viewer `v` was sent, with their counts.
+    pub fn codecs_seen(&self, v: PeerId) -> BTreeMap<&'static str, u32> {
+        self.viewer_sim(v).codecs_seen.clone()
     }
 
     /// Connects an honest interactive viewer that takes its tiles straight
@@ -604,6 +620,7 @@ impl Net {
                     Kind::Slave(s) => {
                         (Role::Slave, s.threads, s.held.iter().copied().collect(), codec::offer())
                     }
+                    Kind::Viewer(v) if v.raw_only => (Role::Viewer, 0, Vec::new(), Vec::new()),
                     _ => (Role::Viewer, 0, Vec::new(), codec::offer()),
                 };
                 let direct = match &p.kind {
