@@ -275,10 +275,16 @@ pub fn decode_bundle(raw: &[u8]) -> Result<SceneBundle, StreamError> {
 pub fn decode_bundle_owned(mut raw: Vec<u8>) -> Result<SceneBundle, StreamError> {
     let (mut bundle, largest) = {
         let view = decode_view(&raw)?;
-        let largest = view.assets.iter().max_by_key(|(_, v)| v.len()).map(|(k, v)| {
-            // Borrowed from `raw`: its offset there.
-            (k.to_string(), v.as_ptr() as usize - raw.as_ptr() as usize, v.len())
-        });
+        // Borrowed from `raw`: its place there (checked all the same).
+        let within = |v: &[u8]| {
+            let at = (v.as_ptr() as usize).checked_sub(raw.as_ptr() as usize)?;
+            (at.checked_add(v.len())? <= raw.len()).then_some(at)
+        };
+        let largest = view
+            .assets
+            .iter()
+            .max_by_key(|(_, v)| v.len())
+            .and_then(|(k, v)| Some((k.to_string(), within(v)?, v.len())));
         let others = view.assets.iter().filter(|(k, _)| largest.as_ref().is_none_or(|l| l.0 != **k));
         let bundle = SceneBundle {
             name: view.name.to_string(),
