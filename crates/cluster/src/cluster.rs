@@ -155,8 +155,8 @@ pub enum Transmit {
         /// How it travels.
         class: Class,
     },
-    /// Send a frame the core encoded itself (a forwarded tile, written in
-    /// place).
+    /// Send a frame the core encoded itself (a forwarded tile written in
+    /// place, or an assignment from its frame's encoded head).
     SendFrame {
         /// The connection.
         peer: PeerId,
@@ -380,6 +380,9 @@ struct FrameSpec {
     direct: Option<DirectOffer>,
     /// Tiles that went straight to the viewer.
     delivered: u32,
+    /// What every assignment of the frame starts with, encoded once (`None`
+    /// if it could not be: each assignment is then encoded whole).
+    head: Option<protocol::AssignmentHead>,
 }
 
 /// The master's state machine. See the [module docs](self).
@@ -1348,6 +1351,11 @@ impl Cluster {
             bytes_at_start: self.bytes_received,
             direct,
             delivered: 0,
+            head: protocol::AssignmentHead::new(frame, scene, camera, settings)
+                .inspect_err(|e| {
+                    tracing::error!("cannot encode the head of frame {frame}'s assignments: {e}")
+                })
+                .ok(),
         };
         self.frames.insert(frame, spec);
         tracing::debug!(frame, request, queue, "frame requested {w}x{h}");
@@ -1445,15 +1453,28 @@ impl Cluster {
                                 .collect(),
                         })
                     });
-                    let message = Message::TileAssignment(TileAssignment {
-                        frame,
-                        scene: spec.scene,
-                        camera: spec.camera,
-                        settings: spec.settings,
-                        tiles,
-                        direct,
-                    });
-                    self.send(slave, message);
+                    let encoded = spec
+                        .head
+                        .as_ref()
+                        .map(|head| protocol::encode_assignment(head, &tiles, direct.as_deref()));
+                    match encoded {
+                        Some(Ok(frame)) => self.out.push_back(Transmit::SendFrame {
+                            peer: slave,
+                            frame,
+                            class: Class::Control,
+                        }),
+                        _ => {
+                            let message = Message::TileAssignment(TileAssignment {
+                                frame,
+                                scene: spec.scene,
+                                camera: spec.camera,
+                                settings: spec.settings,
+                                tiles,
+                                direct,
+                            });
+                            self.send(slave, message);
+                        }
+                    }
                 }
                 Output::Cancel { slave, frame, tiles } => self.send(slave, Message::Cancel { frame, tiles }),
                 Output::SlaveDead { slave, name, cause, requeued } => {

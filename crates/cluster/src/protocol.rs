@@ -23,7 +23,7 @@ pub use direct::{
     DirectOffer, DirectRoute, DirectTile, MAX_DIRECT_ADDR, MAX_DIRECT_FINGERPRINT, TileReceived,
     VERIFY_ONE_IN, via_master,
 };
-pub use in_place::{TileResultRef, decode_tile_result, encode_frame_tile};
+pub use in_place::{AssignmentHead, TileResultRef, decode_tile_result, encode_assignment, encode_frame_tile};
 
 /// Version of the protocol spoken by this build; peers must match exactly.
 /// (2: tile codecs negotiated at join; tiles name their codec. 3: viewers may

@@ -1,6 +1,8 @@
-//! The two tile messages read and written in place: a [`TileResult`] whose
-//! pixels stay in the frame they arrived in, and a [`FrameTile`] written
-//! straight into its outgoing frame.
+//! The tile messages read and written in place: a [`TileResult`] whose
+//! pixels stay in the frame they arrived in, a [`FrameTile`] written
+//! straight into its outgoing frame, and a [`TileAssignment`] whose frame,
+//! scene, camera and settings are encoded once per frame
+//! ([`AssignmentHead`]), not once per assignment.
 //!
 //! A tile's pixels are most of the master's traffic. Read through
 //! [`decode`](super::decode) they are copied into a `ByteBuf`, and the
@@ -13,12 +15,16 @@
 //!
 //! [`TileResult`]: super::TileResult
 //! [`FrameTile`]: super::FrameTile
+//! [`TileAssignment`]: super::TileAssignment
 //! [`Message::TileResult`]: super::Message::TileResult
 //! [`Message::FrameTile`]: super::Message::FrameTile
 
-use super::{FrameId, PROTOCOL_VERSION, ProtocolError, TileId, TileResult};
+use super::{
+    DirectRoute, FrameId, Message, PROTOCOL_VERSION, ProtocolError, SceneHash, TileAssignment, TileId,
+    TileJob, TileResult,
+};
 use crate::codec::Codec;
-use isin_tracer::Tile;
+use isin_tracer::{Camera, RenderSettings, Tile};
 use serde::{Deserialize, Serialize};
 
 /// A [`TileResult`] whose pixels are borrowed from the frame it was read from.
@@ -141,9 +147,49 @@ pub fn encode_frame_tile(
     Ok(buf)
 }
 
+/// The wire bytes every [`TileAssignment`] of one frame starts with: the
+/// version, the variant, and the frame, scene, camera and settings fields
+/// (the master hands out a frame's tiles in hundreds of assignments).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AssignmentHead(Vec<u8>);
+
+impl AssignmentHead {
+    /// The head of `frame`'s assignments.
+    pub fn new(
+        frame: FrameId,
+        scene: SceneHash,
+        camera: Camera,
+        settings: RenderSettings,
+    ) -> Result<Self, ProtocolError> {
+        let empty = TileAssignment { frame, scene, camera, settings, tiles: Vec::new(), direct: None };
+        let whole = super::encode(&Message::TileAssignment(empty))?;
+        // The last two fields, an empty list and no route, end it.
+        match whole.strip_suffix(&[0x90, 0xc0]) {
+            Some(head) => Ok(Self(head.to_vec())),
+            None => Err(ProtocolError::Encode("a TileAssignment that does not end in its tiles".into())),
+        }
+    }
+}
+
+/// The wire frame of the [`Message::TileAssignment`] of `head`'s frame with
+/// these tiles and route: the head's bytes, then the two fields.
+pub fn encode_assignment(
+    head: &AssignmentHead,
+    tiles: &[TileJob],
+    direct: Option<&DirectRoute>,
+) -> Result<Vec<u8>, ProtocolError> {
+    let route = direct.map_or(1, |d| 64 + d.via_master.len() * 5);
+    let mut buf = Vec::with_capacity(head.0.len() + 4 + tiles.len() * 24 + route);
+    buf.extend_from_slice(&head.0);
+    let encode = |e: rmp_serde::encode::Error| ProtocolError::Encode(e.to_string());
+    rmp_serde::encode::write(&mut buf, tiles).map_err(encode)?;
+    rmp_serde::encode::write(&mut buf, &direct).map_err(encode)?;
+    Ok(buf)
+}
+
 #[cfg(test)]
 mod tests {
-    use super::super::{FrameTile, Message, decode, encode};
+    use super::super::{DirectOffer, FrameTile, decode, encode};
     use super::*;
     use serde_bytes::ByteBuf;
 
@@ -212,6 +258,37 @@ mod tests {
         let mut lying = frame.clone();
         lying[at] = 200;
         assert!(matches!(decode_tile_result(&lying, lying.len()), Some(Err(ProtocolError::Decode(_)))));
+    }
+
+    #[test]
+    fn an_assignment_from_its_frames_head_is_the_bytes_the_message_is() {
+        let camera = Camera::default();
+        let settings =
+            RenderSettings { width: 640, height: 480, seed: u64::MAX - 5, ..RenderSettings::default() };
+        let frame = 1 << 40;
+        let head = AssignmentHead::new(frame, [7; 32], camera, settings).unwrap();
+        let job = |id: u32| TileJob { id, tile: Tile { x: id * 32, y: 64, w: 32, h: 16 } };
+        let offer = DirectOffer { addr: "10.0.0.1:7000".into(), fingerprint: None, key: [3; 32] };
+        let routes = [
+            None,
+            Some(DirectRoute { viewer: 9, request: 300, offer: Some(offer), via_master: vec![1, 70_000] }),
+            Some(DirectRoute { viewer: 9, request: 301, offer: None, via_master: vec![] }),
+        ];
+        for tiles in [vec![], vec![job(0)], (0..40).map(job).collect()] {
+            for route in &routes {
+                let whole = Message::TileAssignment(TileAssignment {
+                    frame,
+                    scene: [7; 32],
+                    camera,
+                    settings,
+                    tiles: tiles.clone(),
+                    direct: route.clone().map(Box::new),
+                });
+                let ours = encode_assignment(&head, &tiles, route.as_ref()).unwrap();
+                assert_eq!(ours, encode(&whole).unwrap(), "{} tiles, route {route:?}", tiles.len());
+                assert_eq!(decode(&ours, ours.len()).unwrap(), whole);
+            }
+        }
     }
 
     #[test]
