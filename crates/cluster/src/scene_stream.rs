@@ -1,6 +1,6 @@
-//! A scene as it travels: packed once by the master — its [`WireBundle`] in
-//! MessagePack, compressed with zstd and cut into
-//! [`SCENE_CHUNK_BYTES`] chunks, each chunk's [`Message::SceneChunk`] encoded
+//! A scene as it travels: packed once by the master — its
+//! [`WireBundle`](protocol::WireBundle) in MessagePack, compressed with zstd
+//! and cut into [`SCENE_CHUNK_BYTES`] chunks, each chunk's [`Message::SceneChunk`] encoded
 //! once and shared by every slave it goes to — and unpacked by a
 //! [`Receiver`] as the chunks arrive.
 //!
@@ -109,7 +109,7 @@ pub struct Packed {
     chunks: Vec<Arc<Vec<u8>>>,
 }
 
-/// [`WireBundle`] by reference: encodes to the same bytes without copying
+/// [`protocol::WireBundle`] by reference: encodes to the same bytes without copying
 /// the assets, and decodes borrowing them from the bytes.
 #[derive(Serialize, Deserialize)]
 struct WireBundleRef<'a> {
@@ -245,7 +245,7 @@ impl Packed {
 }
 
 /// The bundle as a scene stream holds it before compression: its
-/// [`WireBundle`] in MessagePack.
+/// [`WireBundle`](protocol::WireBundle) in MessagePack.
 pub fn encode_bundle(bundle: &SceneBundle) -> Result<Vec<u8>, StreamError> {
     let view = WireBundleRef {
         name: &bundle.name,
@@ -486,11 +486,16 @@ impl Unchecked {
         work: impl FnOnce(&SceneBundle) -> T,
     ) -> Result<(SceneBundle, T), StreamError> {
         let Unchecked { bundle, hash } = self;
+        let matches = || protocol::scene_hash(&bundle) == hash;
         let (matches, out) = std::thread::scope(|s| {
-            let check = s.spawn(|| protocol::scene_hash(&bundle) == hash);
+            let check = std::thread::Builder::new().name("isin-scene-hash".into()).spawn_scoped(s, matches);
             let out = work(&bundle);
-            // The hash cannot panic; if its thread could not run, it is no match.
-            (check.join().unwrap_or(false), out)
+            // Without a thread of its own, the check runs after the work.
+            let matches = match check {
+                Ok(check) => check.join().unwrap_or(false),
+                Err(_) => matches(),
+            };
+            (matches, out)
         });
         if !matches {
             return Err(StreamError::HashMismatch);

@@ -4,8 +4,8 @@
 //!
 //! The master checks every tile a slave sends before it counts it, and for
 //! a viewer that decodes the slave's codec it forwards the bytes as they
-//! came, so decoding them only to throw the pixels away cost it a fifth of
-//! its CPU. Both formats make validity a matter of structure alone: a QOI
+//! came, so decoding them only to throw the pixels away cost it about a
+//! sixth of its CPU (12 slaves at 320×240). Both formats make validity a matter of structure alone: a QOI
 //! op always yields a pixel (its index cache and differences need no
 //! checking) and an LZ4 sequence is valid when its literals are in the
 //! input and its match reaches back into what was already produced. A walk
