@@ -1185,14 +1185,15 @@ impl Cluster {
         }
         // A viewer that cannot decode the slave's codec is sent raw pixels:
         // decoded here, before the tile counts.
-        if !self.viewer_decodes(r.frame, r.codec)
+        let as_sent = self.viewer_decodes(r.frame, r.codec);
+        if !as_sent
             && let Err(e) = codec::decode_into(r.codec, r.tile.w, r.tile.h, r.pixels, &mut self.scratch)
         {
             return self.refuse(now, id, format!("tile {}: {e}", r.id));
         }
         self.sched.record_render_time(r.frame, r.id, r.render_micros);
         match self.sched.handle_result(now, id, r.frame, r.id) {
-            ResultOutcome::Accepted { tile } => self.forward(id, r, tile),
+            ResultOutcome::Accepted { tile } => self.forward(id, r, tile, as_sent),
             outcome => tracing::trace!(?outcome, "tile result dropped"),
         }
         self.drain(now);
@@ -1261,17 +1262,16 @@ impl Cluster {
         codec == Codec::Raw || viewer.is_none_or(|v| v.decodes.contains(&codec))
     }
 
-    /// Sends an accepted tile to the viewer of its frame, in a codec it
-    /// decodes (the slave's, else raw: the pixels `on_result` decoded into
-    /// the scratch buffer), written straight into its outgoing frame.
-    fn forward(&mut self, slave: PeerId, r: TileResultRef<'_>, tile: isin_tracer::Tile) {
-        let decodes = self.viewer_decodes(r.frame, r.codec);
+    /// Sends an accepted tile to the viewer of its frame, written straight
+    /// into its outgoing frame: `as_sent` in the slave's codec, else raw (the
+    /// pixels `on_result` decoded into the scratch buffer).
+    fn forward(&mut self, slave: PeerId, r: TileResultRef<'_>, tile: isin_tracer::Tile, as_sent: bool) {
         let Some(spec) = self.frames.get(&r.frame) else { return };
         if !self.peers.contains_key(&spec.viewer) {
             return;
         }
         let slave_name = self.peers.get(&slave).map_or("", |p| p.name.as_str());
-        let (codec, pixels) = if decodes { (r.codec, r.pixels) } else { (Codec::Raw, &self.scratch[..]) };
+        let (codec, pixels) = if as_sent { (r.codec, r.pixels) } else { (Codec::Raw, &self.scratch[..]) };
         match protocol::encode_frame_tile(spec.request, slave, slave_name, tile, codec, pixels) {
             Ok(frame) => {
                 self.out.push_back(Transmit::SendFrame { peer: spec.viewer, frame, class: Class::Tile })

@@ -449,7 +449,7 @@ impl Receiver {
 
     /// The bundle, once every chunk is in: decoded and its hash checked.
     pub fn finish(self) -> Result<SceneBundle, StreamError> {
-        self.decode()?.check_with(|_| ()).map(|(bundle, ())| bundle)
+        self.decode()?.check()
     }
 
     /// The bundle, once every chunk is in, decoded; its hash is checked by
@@ -477,6 +477,14 @@ pub struct Unchecked {
 }
 
 impl Unchecked {
+    /// The bundle, if its hash matches.
+    pub fn check(self) -> Result<SceneBundle, StreamError> {
+        if protocol::scene_hash(&self.bundle) != self.hash {
+            return Err(StreamError::HashMismatch);
+        }
+        Ok(self.bundle)
+    }
+
     /// Hands the bundle to `work` (e.g. building its BVH) while its hash is
     /// checked on another thread, so that the check adds nothing to the time
     /// until the scene is ready: the bundle and `work`'s output, only if the

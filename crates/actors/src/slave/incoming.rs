@@ -3,7 +3,7 @@
 //! progress logged, and how long it took.
 
 use isin_cluster::protocol::{SceneHash, SceneHeader, short_hash};
-use isin_cluster::scene_stream::{Progress, ProgressLog, Receiver, StreamError};
+use isin_cluster::scene_stream::{Progress, ProgressLog, Receiver, StreamError, Unchecked};
 use isin_tracer::SceneBundle;
 use std::time::Instant;
 
@@ -42,7 +42,7 @@ impl Incoming {
 
     /// The bundle, once every chunk is in (decoded, its hash checked).
     pub(super) fn finish(self) -> Result<SceneBundle, StreamError> {
-        self.finish_with(|_| ()).map(|(bundle, ())| bundle)
+        self.decode()?.check()
     }
 
     /// The bundle, once every chunk is in, decoded and handed to `work`
@@ -52,18 +52,23 @@ impl Incoming {
         self,
         work: impl FnOnce(&SceneBundle) -> T,
     ) -> Result<(SceneBundle, T), StreamError> {
+        self.decode()?.check_with(work)
+    }
+
+    /// The bundle decoded, its hash not checked yet; the transfer logged.
+    fn decode(self) -> Result<Unchecked, StreamError> {
         let h = self.rx.header().clone();
         let received = self.since.elapsed();
         let t0 = Instant::now();
         let unchecked = self.rx.decode()?;
         tracing::info!(
-            "scene {} received: {} bytes compressed, {} unpacked, in {:.3} s (decoded in {:.3} s; hash checked beside the load)",
+            "scene {} received: {} bytes compressed, {} unpacked, in {:.3} s (decoded in {:.3} s)",
             h.name,
             h.compressed_bytes,
             h.raw_bytes,
             received.as_secs_f64(),
             t0.elapsed().as_secs_f64()
         );
-        unchecked.check_with(work)
+        Ok(unchecked)
     }
 }

@@ -142,12 +142,11 @@ pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
 /// allocator and the caches; on a shared machine wall time counts others'
 /// work too).
 fn scheduler_alone(slaves: usize, threads: u32, w: u32, h: u32, frames: usize) -> (u64, f64) {
-    let cpu = thread_cpu_time;
     (0..3)
         .map(|_| {
-            let (t0, c0) = (Instant::now(), cpu());
+            let (t0, c0) = (Instant::now(), thread_cpu_time());
             let tiles = workload::run(slaves, threads, w, h, frames);
-            let secs = match (c0, cpu()) {
+            let secs = match (c0, thread_cpu_time()) {
                 (Some(a), Some(b)) => b.saturating_sub(a),
                 _ => t0.elapsed(),
             };
