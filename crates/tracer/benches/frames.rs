@@ -107,7 +107,7 @@ fn moving(s: &RenderSettings, width: u32, height: u32) -> RenderSettings {
 
 /// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
 #[global_allocator]
-static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages;
+static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages::SYSTEM;
 
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");

@@ -40,7 +40,7 @@ use std::time::{Duration, Instant};
 
 /// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
 #[global_allocator]
-static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages;
+static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages::SYSTEM;
 
 #[path = "common/embree_mesh.rs"]
 mod embree_mesh;

@@ -21,7 +21,7 @@ use std::time::Instant;
 
 /// Large blocks (the BVH, the triangle blocks) in huge pages, as Embree's own allocator does.
 #[global_allocator]
-static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages;
+static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages::SYSTEM;
 
 struct Dir(PathBuf);
 

@@ -10,7 +10,10 @@
 //! Embree does for its BVH. [`HugePages`] asks for it: on Linux, blocks of at
 //! least [`HugePages::MIN_BYTES`] are mapped directly, 2 MiB aligned, and
 //! advised with `madvise(MADV_HUGEPAGE)` before they are first touched.
-//! Everything else goes straight to the system allocator.
+//! Everything else goes to the allocator it wraps: the system's
+//! ([`HugePages::SYSTEM`]) or another ([`HugePages::over`]; the `isin` binary
+//! wraps mimalloc, whose per-thread heaps take the cluster's buffers freed on
+//! another thread than the one that made them without a lock).
 //!
 //! Large blocks grow with `mremap`, which moves their pages instead of
 //! copying them: a vector that doubles its way up to 100 MB is not written
@@ -31,19 +34,32 @@
 //!
 //! ```ignore
 //! #[global_allocator]
-//! static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages;
+//! static ALLOC: isin_tracer::memory::HugePages = isin_tracer::memory::HugePages::SYSTEM;
 //! ```
 
 use std::alloc::{GlobalAlloc, Layout, System};
 
-/// The system allocator, with huge pages for large blocks (see the module docs).
+/// An allocator for small blocks (`A`, the system's by default), with huge
+/// pages for large ones (see the module docs).
 #[derive(Clone, Copy, Debug, Default)]
-pub struct HugePages;
+pub struct HugePages<A = System> {
+    small: A,
+}
 
 impl HugePages {
     /// Smallest block that is mapped on its own and advised. Below this the
     /// alignment's slack (up to 2 MiB of address space) is not worth it.
     pub const MIN_BYTES: usize = 4 << 20;
+
+    /// Small blocks from the system allocator.
+    pub const SYSTEM: Self = Self::over(System);
+}
+
+impl<A> HugePages<A> {
+    /// Small blocks from `small`.
+    pub const fn over(small: A) -> Self {
+        Self { small }
+    }
 }
 
 /// Whether `layout` is served by [`large`] rather than the system allocator.
@@ -215,8 +231,8 @@ mod large {
 // pure function of the layout `GlobalAlloc` hands back with the block), and
 // then it is a mapping of `mapped_len(size)` bytes aligned to at least its
 // layout's alignment; every other block comes from and goes back to
-// `System` with its own layout. Mappings are zeroed by the kernel.
-unsafe impl GlobalAlloc for HugePages {
+// `self.small` with its own layout. Mappings are zeroed by the kernel.
+unsafe impl<A: GlobalAlloc> GlobalAlloc for HugePages<A> {
     #[inline]
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         if is_large(&layout) {
@@ -224,7 +240,7 @@ unsafe impl GlobalAlloc for HugePages {
             return unsafe { large::map(large::mapped_len(layout.size())) };
         }
         // SAFETY: forwarded contract (`layout` has a non-zero size).
-        unsafe { System.alloc(layout) }
+        unsafe { self.small.alloc(layout) }
     }
 
     #[inline]
@@ -234,7 +250,7 @@ unsafe impl GlobalAlloc for HugePages {
             return unsafe { large::map(large::mapped_len(layout.size())) };
         }
         // SAFETY: forwarded contract.
-        unsafe { System.alloc_zeroed(layout) }
+        unsafe { self.small.alloc_zeroed(layout) }
     }
 
     #[inline]
@@ -245,7 +261,7 @@ unsafe impl GlobalAlloc for HugePages {
             if is_large(&layout) {
                 large::unmap(ptr, large::mapped_len(layout.size()));
             } else {
-                System.dealloc(ptr, layout);
+                self.small.dealloc(ptr, layout);
             }
         }
     }
@@ -258,7 +274,7 @@ unsafe impl GlobalAlloc for HugePages {
         unsafe {
             let new_layout = Layout::from_size_align_unchecked(new_size, layout.align());
             match (is_large(&layout), is_large(&new_layout)) {
-                (false, false) => System.realloc(ptr, layout, new_size),
+                (false, false) => self.small.realloc(ptr, layout, new_size),
                 (true, true) => {
                     large::remap(ptr, large::mapped_len(layout.size()), large::mapped_len(new_size))
                 }
@@ -306,7 +322,7 @@ mod tests {
 
     #[test]
     fn blocks_keep_their_contents_through_every_kind_of_resize() {
-        let a = HugePages;
+        let a = HugePages::SYSTEM;
         let min = HugePages::MIN_BYTES;
         // SAFETY: non-zero sizes; every block is resized and freed with the
         // layout it has at that moment.
