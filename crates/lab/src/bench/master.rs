@@ -11,7 +11,11 @@
 //!   the most tiles per second the master routes, its own thread's CPU time
 //!   per tile, memory per slave, and how long it takes to find out that 100
 //!   slaves vanished (silent, connections open) and to hand their tiles to
-//!   the others.
+//!   the others — twice: with the master saturated (its inbound queues full
+//!   of answers, which the vanished slaves' last ones wait behind), then with
+//!   every simulated slave taking `--render-ms` a tile on each of its
+//!   threads, as real slaves do, so that the cluster asks for a fraction of
+//!   what the master can route.
 
 use super::loadavg;
 use super::report;
@@ -29,7 +33,7 @@ use isin_transport::mem::MemTransport;
 use isin_transport::{Delivery, Ticket, Transport, TransportKind};
 use serde::Serialize;
 use serde_bytes::ByteBuf;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -56,6 +60,11 @@ pub struct MasterBenchArgs {
     /// The master's heartbeat timeout in milliseconds.
     #[arg(long, default_value_t = 2000)]
     heartbeat_timeout_ms: u64,
+    /// For the second vanishing: milliseconds each simulated slave's thread
+    /// takes a tile (1,000 slaves of 2 threads at 20 ms ask for 100,000
+    /// tiles a second).
+    #[arg(long, default_value_t = 20)]
+    render_ms: u64,
     /// Directory for master.json and master.md.
     #[arg(long, value_name = "DIR", default_value = "target/bench")]
     out_dir: PathBuf,
@@ -83,9 +92,9 @@ struct MasterReport {
     join_s: f64,
     vanished: usize,
     heartbeat_timeout_ms: u64,
-    /// From the slaves going silent to the master declaring the last of them
-    /// dead (their tiles handed to others in the same step), by the master's
-    /// stamp of that step, ms.
+    /// With the master saturated: from the slaves going silent to the master
+    /// declaring the last of them dead (their tiles handed to others in the
+    /// same step), by the master's stamp of that step, ms.
     detect_ms: Option<f64>,
     /// The longest a vanished slave had been silent by the master's clock
     /// (since the last message the master had taken in from it) when it
@@ -93,6 +102,15 @@ struct MasterReport {
     /// `detect_ms` adds the time the slaves' last messages waited to be
     /// taken in.
     silence_at_death_ms: Option<f64>,
+    /// Milliseconds a simulated slave's thread took a tile for the second
+    /// vanishing.
+    render_ms: u64,
+    /// `detect_ms` with the slaves rendering (`render_ms` a tile).
+    rendering_detect_ms: Option<f64>,
+    /// `silence_at_death_ms` with the slaves rendering.
+    rendering_silence_at_death_ms: Option<f64>,
+    /// Tiles routed a second while the slaves rendered.
+    rendering_per_second: f64,
     cores: usize,
     loadavg: String,
     unix_time: u64,
@@ -101,7 +119,10 @@ struct MasterReport {
 /// Runs `isin bench master`.
 pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
     let (w, h) = *super::parse_sizes(&args.size)?.first().context("no size")?;
-    anyhow::ensure!(args.slaves >= 1 && args.vanish < args.slaves, "--vanish must be below --slaves");
+    anyhow::ensure!(
+        args.slaves >= 1 && args.vanish * 2 < args.slaves,
+        "--vanish must be below half of --slaves (it happens twice)"
+    );
     let (scheduler_tiles, secs) = scheduler_alone(args.slaves, args.threads, w, h, 6);
     println!(
         "scheduler alone, {} slaves × {} threads: {scheduler_tiles} tiles in {:.3} s, {:.0} ns a tile",
@@ -128,6 +149,10 @@ pub fn run(args: MasterBenchArgs) -> anyhow::Result<()> {
         heartbeat_timeout_ms: args.heartbeat_timeout_ms,
         detect_ms: whole.detect.map(|(d, _)| d.as_secs_f64() * 1e3),
         silence_at_death_ms: whole.detect.map(|(_, s)| s.as_secs_f64() * 1e3),
+        render_ms: args.render_ms,
+        rendering_detect_ms: whole.rendering_detect.map(|(d, _)| d.as_secs_f64() * 1e3),
+        rendering_silence_at_death_ms: whole.rendering_detect.map(|(_, s)| s.as_secs_f64() * 1e3),
+        rendering_per_second: whole.rendering_per_second,
         cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
         loadavg: loadavg(),
         unix_time: report::unix_time(),
@@ -164,6 +189,9 @@ struct Whole {
     join: Duration,
     /// Declared dead after, and silent for by the master's clock.
     detect: Option<(Duration, Duration)>,
+    /// The same with the slaves rendering.
+    rendering_detect: Option<(Duration, Duration)>,
+    rendering_per_second: f64,
 }
 
 /// Resident set size of this process, bytes.
@@ -184,15 +212,19 @@ fn fake_scene() -> SceneBundle {
     }
 }
 
-/// A slave that answers every tile at once with blank pixels; after `vanish`
-/// is set it says nothing more, its connection left open.
+/// A slave that answers every tile with blank pixels: at once while `render`
+/// is zero, otherwise each of its `threads` taking `render` µs a tile, in the
+/// order they came. After `vanish` is set it says nothing more, its
+/// connection left open.
 async fn sim_slave(
     t: MemTransport,
     ticket: Ticket,
     name: String,
     threads: u32,
     vanish: Arc<AtomicBool>,
+    render: Arc<AtomicU64>,
 ) -> anyhow::Result<()> {
+    use tokio::time::Instant;
     let (mut conn, welcome) =
         client::handshake(&t, &ticket, Join::slave(&name, threads, &[], &[Codec::Raw])).await?;
     if let Some(scene) = &welcome.scene {
@@ -201,7 +233,12 @@ async fn sim_slave(
     client::send_message(&conn, &Message::Ready { hash: welcome.scene.map(|s| s.hash) })?;
     let heartbeat = protocol::encode(&Message::Heartbeat)?;
     let mut beat = tokio::time::interval(Duration::from_millis(500));
+    // Answers waiting for their render time to pass, soonest first, and when
+    // each thread is next free.
+    let mut due: VecDeque<(Instant, Vec<u8>)> = VecDeque::new();
+    let mut free_at = vec![Instant::now(); threads.max(1) as usize];
     loop {
+        let next_due = due.front().map(|&(at, _)| at);
         let frame = tokio::select! {
             f = conn.receiver.recv() => f,
             _ = beat.tick() => {
@@ -212,27 +249,78 @@ async fn sim_slave(
                 let _ = conn.sender.send(heartbeat.clone());
                 continue;
             }
+            _ = tokio::time::sleep_until(next_due.unwrap_or_else(Instant::now)), if next_due.is_some() => {
+                if vanish.load(Ordering::Relaxed) {
+                    std::future::pending::<()>().await;
+                }
+                let now = Instant::now();
+                while due.front().is_some_and(|&(at, _)| at <= now) {
+                    if let Some((_, answer)) = due.pop_front() {
+                        let _ = conn.sender.send_as(answer, Delivery::Independent);
+                    }
+                }
+                continue;
+            }
         };
         let Some(Ok(frame)) = frame else { return Ok(()) };
         if vanish.load(Ordering::Relaxed) {
             std::future::pending::<()>().await;
         }
         if let Ok(Message::TileAssignment(a)) = protocol::decode(&frame, protocol::DEFAULT_MAX_FRAME) {
+            let render = Duration::from_micros(render.load(Ordering::Relaxed));
             for job in a.tiles {
                 let pixels = ByteBuf::from(vec![0u8; job.tile.pixel_count() * 3]);
                 let r = TileResult {
                     frame: a.frame,
                     id: job.id,
                     tile: job.tile,
-                    render_micros: 100,
+                    render_micros: render.as_micros() as u64,
                     codec: Codec::Raw,
                     pixels,
                 };
-                let _ =
-                    conn.sender.send_as(protocol::encode(&Message::TileResult(r))?, Delivery::Independent);
+                let answer = protocol::encode(&Message::TileResult(r))?;
+                let Some(thread) = free_at.iter_mut().min().filter(|_| !render.is_zero()) else {
+                    let _ = conn.sender.send_as(answer, Delivery::Independent);
+                    continue;
+                };
+                let at = (*thread).max(Instant::now()) + render;
+                *thread = at;
+                let i = due.partition_point(|&(t, _)| t <= at);
+                due.insert(i, (at, answer));
             }
         }
     }
+}
+
+/// Silences the slaves of `vanish` and waits (three timeouts at most) for
+/// the master to declare them all dead: when it did, by its own stamp, and
+/// the longest silence by its clock ([`GetDeaths`]; polled with that cheap
+/// query: a full status a millisecond, with its list of 1,000 slaves, would
+/// itself keep the master from its work).
+fn vanish_and_detect(
+    sys: &actix::SystemRunner,
+    master: &actix::Addr<Master>,
+    vanish: &[Arc<AtomicBool>],
+    timeout: Duration,
+) -> anyhow::Result<Option<(Duration, Duration)>> {
+    let deaths = || sys.block_on(master.send(GetDeaths));
+    let deaths0 = deaths()?.count;
+    let gone = Instant::now();
+    for v in vanish {
+        v.store(true, Ordering::Relaxed);
+    }
+    let limit = gone + timeout * 3;
+    while Instant::now() < limit {
+        let d = deaths()?;
+        if d.count >= deaths0 + vanish.len() as u64 {
+            // When the master declared the last of them (and handed back its
+            // tiles), by the master's own stamp: this poll answers later.
+            let declared = d.last_timeout_death.map_or_else(|| gone.elapsed(), |at| at.duration_since(gone));
+            return Ok(Some((declared, d.longest_silence)));
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    Ok(None)
 }
 
 fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole> {
@@ -282,8 +370,9 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
     let joining = Instant::now();
     // The slaves on a thread of their own.
     let vanish: Vec<Arc<AtomicBool>> = (0..args.slaves).map(|_| Arc::new(AtomicBool::new(false))).collect();
+    let render = Arc::new(AtomicU64::new(0));
     let st = t.clone();
-    let (sticket, svanish, threads) = (ticket.clone(), vanish.clone(), args.threads);
+    let (sticket, svanish, srender, threads) = (ticket.clone(), vanish.clone(), render.clone(), args.threads);
     std::thread::Builder::new().name("isin-sim-slaves".into()).spawn(move || {
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a runtime");
         rt.block_on(async move {
@@ -291,9 +380,9 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
             local
                 .run_until(async move {
                     for (i, v) in svanish.into_iter().enumerate() {
-                        let (t, tk) = (st.clone(), sticket.clone());
+                        let (t, tk, r) = (st.clone(), sticket.clone(), srender.clone());
                         tokio::task::spawn_local(async move {
-                            if let Err(e) = sim_slave(t, tk, format!("sim{i}"), threads, v).await {
+                            if let Err(e) = sim_slave(t, tk, format!("sim{i}"), threads, v, r).await {
                                 tracing::warn!("simulated slave {i}: {e}");
                             }
                         });
@@ -352,35 +441,33 @@ fn whole_master(args: &MasterBenchArgs, w: u32, h: u32) -> anyhow::Result<Whole>
         tiles as f64 / wall,
         cpu * 1e6 / tiles.max(1) as f64
     );
-    // 100 slaves vanish at once: how long until the master knows (polled
-    // with the cheap query: a full status a millisecond, with its list of
-    // 1,000 slaves, would itself keep the master from its work).
-    let deaths = |m: &actix::Addr<Master>| sys.block_on(m.send(GetDeaths));
-    let deaths0 = deaths(&master)?.count;
-    let gone = Instant::now();
-    for v in vanish.iter().take(args.vanish) {
-        v.store(true, Ordering::Relaxed);
-    }
-    let mut detect = None;
-    let limit = gone + Duration::from_millis(args.heartbeat_timeout_ms) * 3;
-    while Instant::now() < limit {
-        let d = deaths(&master)?;
-        if d.count >= deaths0 + args.vanish as u64 {
-            // When the master declared the last of them (and handed back its
-            // tiles), by the master's own stamp: this poll answers later.
-            let declared = d.last_timeout_death.map_or_else(|| gone.elapsed(), |at| at.duration_since(gone));
-            detect = Some((declared, d.longest_silence));
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    // 100 slaves vanish at once: how long until the master knows, saturated.
+    let timeout = Duration::from_millis(args.heartbeat_timeout_ms);
+    let (first, second) = vanish.split_at(args.vanish);
+    let detect = vanish_and_detect(&sys, &master, first, timeout)?;
+    // Again with the slaves rendering, once their answers come at that pace.
+    render.store(args.render_ms * 1000, Ordering::Relaxed);
+    std::thread::sleep(Duration::from_secs(1));
+    let (tiles0, t0) = (routed.load(Ordering::Relaxed), Instant::now());
+    std::thread::sleep(Duration::from_secs(2));
+    let rendering_per_second = (routed.load(Ordering::Relaxed) - tiles0) as f64 / t0.elapsed().as_secs_f64();
+    let rendering_detect = vanish_and_detect(&sys, &master, &second[..args.vanish], timeout)?;
     stop.store(true, Ordering::Relaxed);
     let _ = viewer_thread.join();
-    Ok(Whole { tiles, wall, master_cpu: cpu, rss_per_slave, join, detect })
+    Ok(Whole {
+        tiles,
+        wall,
+        master_cpu: cpu,
+        rss_per_slave,
+        join,
+        detect,
+        rendering_detect,
+        rendering_per_second,
+    })
 }
 
 fn markdown(r: &MasterReport) -> String {
-    let detect = match (r.detect_ms, r.silence_at_death_ms) {
+    let detect = |d: Option<f64>, s: Option<f64>| match (d, s) {
         (Some(d), Some(s)) => format!("{d:.0} ms (silent {s:.0} ms by the master's clock)"),
         _ => "not within 3 timeouts".to_string(),
     };
@@ -393,7 +480,9 @@ fn markdown(r: &MasterReport) -> String {
          | master thread busy | {:.0} % |\n\
          | memory per slave (master + its simulation) | {:.1} kB |\n\
          | all slaves joined in | {:.2} s |\n\
-         | {} slaves vanish: declared dead after (timeout {} ms) | {detect} |\n",
+         | {} slaves vanish, master saturated: declared dead after (timeout {} ms) | {} |\n\
+         | tiles routed per second, slaves rendering {} ms a tile | {:.0} |\n\
+         | {} more vanish, slaves rendering: declared dead after | {} |\n",
         r.slaves,
         r.threads,
         r.width,
@@ -406,5 +495,10 @@ fn markdown(r: &MasterReport) -> String {
         r.join_s,
         r.vanished,
         r.heartbeat_timeout_ms,
+        detect(r.detect_ms, r.silence_at_death_ms),
+        r.render_ms,
+        r.rendering_per_second,
+        r.vanished,
+        detect(r.rendering_detect_ms, r.rendering_silence_at_death_ms),
     )
 }
