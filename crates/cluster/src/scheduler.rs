@@ -417,9 +417,10 @@ pub struct Scheduler {
     /// Tiles handed out, for [`BATCH_FLOOR`].
     handed: u64,
     /// Slaves that may have room since work was last handed out (a result,
-    /// a cancel, a join): only they are offered tiles, so handing out a
-    /// tile does not cost a pass over every slave of a large cluster.
-    dirty: BTreeSet<SlaveId>,
+    /// a cancel, a join), possibly more than once: only they are offered
+    /// tiles, so handing out a tile does not cost a pass over every slave of
+    /// a large cluster.
+    dirty: Vec<SlaveId>,
     /// Every slave may have room or there is new work (a frame opened or
     /// closed, tiles requeued): offer tiles to all.
     all_dirty: bool,
@@ -431,6 +432,24 @@ pub struct Scheduler {
     longest_silence: Duration,
     /// When the latest slave was declared dead for its silence.
     last_timeout_death: Option<Duration>,
+    /// Buffers of [`Scheduler::schedule`], kept between calls.
+    scratch: Scratch,
+}
+
+/// The working lists of one pass of [`Scheduler::schedule`], empty between
+/// passes and kept with their capacity: a result at a time, a pass hands out
+/// a tile or two, and its lists would otherwise be most of its allocations.
+#[derive(Debug, Default)]
+struct Scratch {
+    /// The slaves offered tiles, least loaded first, with their load.
+    keyed: Vec<(usize, SlaveId)>,
+    /// The same slaves, in that order.
+    order: Vec<SlaveId>,
+    /// Open frames with tiles queued, in the order they are served.
+    frames: Vec<usize>,
+    /// Tiles handed out in this pass, by slave and frame, in the order
+    /// handed out.
+    batches: Vec<((SlaveId, FrameId), TileJob)>,
 }
 
 /// How often, at the end of the work, every idle slave is looked at for a
@@ -454,8 +473,9 @@ impl Scheduler {
             costs: cost::CostMap::default(),
             served: BTreeMap::new(),
             handed: 0,
-            dirty: BTreeSet::new(),
+            dirty: Vec::new(),
             all_dirty: false,
+            scratch: Scratch::default(),
             last_tail_pass: Duration::ZERO,
             total_threads: 0,
             longest_silence: Duration::ZERO,
@@ -565,7 +585,7 @@ impl Scheduler {
             tracing::debug!(slave, "slave re-joined under the same id");
             self.total_threads -= old.threads as usize;
         }
-        self.dirty.insert(slave);
+        self.dirty.push(slave);
     }
 
     /// Any sign of life from a slave.
@@ -743,7 +763,7 @@ impl Scheduler {
         }
         if let Some(s) = self.slaves.get_mut(&slave) {
             s.in_flight.remove(&(frame, tile));
-            self.dirty.insert(slave);
+            self.dirty.push(slave);
         }
         let Some(rec) = f.tiles.get_mut(tile as usize) else {
             self.waste(slave);
@@ -775,7 +795,7 @@ impl Scheduler {
             if let Some(s) = self.slaves.get_mut(&other)
                 && s.in_flight.remove(&(frame, tile))
             {
-                self.dirty.insert(other);
+                self.dirty.push(other);
                 self.outputs.push_back(Output::Cancel { slave: other, frame, tiles: vec![tile] });
             }
         }
@@ -918,13 +938,14 @@ impl Scheduler {
             f.stats.requeued += n;
             requeued += n;
         }
-        self.dirty.remove(&slave);
         self.all_dirty = true;
         self.outputs.push_back(Output::SlaveDead { slave, name: s.name, cause, requeued });
     }
 
     fn schedule(&mut self, now: Duration) {
         if self.frames.iter().all(|f| f.done) {
+            // A frame that opens offers tiles to every slave.
+            self.dirty.clear();
             return;
         }
         let cfg = &self.config;
@@ -940,23 +961,20 @@ impl Scheduler {
         if tail_pass {
             self.last_tail_pass = now;
         }
-        let dirty = std::mem::take(&mut self.dirty);
-        let ids: Vec<SlaveId> = if std::mem::take(&mut self.all_dirty) || tail_pass {
-            self.slaves.keys().copied().collect()
-        } else {
-            dirty.into_iter().filter(|id| self.slaves.contains_key(id)).collect()
-        };
+        let Scratch { mut keyed, mut order, frames: mut frame_order, mut batches } =
+            std::mem::take(&mut self.scratch);
         // Least-loaded slaves first, then round-robin one tile at a time.
-        let mut keyed: Vec<(usize, SlaveId)> = ids
-            .into_iter()
-            .map(|id| {
-                let s = &self.slaves[&id];
-                (s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize, id)
-            })
-            .collect();
+        let load = |s: &SlaveState| s.in_flight.len() * 1000 / (s.threads + cfg.queue_depth) as usize;
+        if std::mem::take(&mut self.all_dirty) || tail_pass {
+            keyed.extend(self.slaves.iter().map(|(&id, s)| (load(s), id)));
+        } else {
+            self.dirty.sort_unstable();
+            self.dirty.dedup();
+            keyed.extend(self.dirty.iter().filter_map(|id| self.slaves.get(id).map(|s| (load(s), *id))));
+        }
+        self.dirty.clear();
         keyed.sort_unstable();
-        let order: Vec<SlaveId> = keyed.into_iter().map(|(_, id)| id).collect();
-        let mut batches: BTreeMap<(SlaveId, FrameId), Vec<TileJob>> = BTreeMap::new();
+        order.extend(keyed.iter().map(|&(_, id)| id));
         let mut reassigned: BTreeMap<(SlaveId, FrameId), u32> = BTreeMap::new();
         'rounds: loop {
             let mut progressed = false;
@@ -972,8 +990,15 @@ impl Scheduler {
                 // Batch tiles only to idle threads, never queued behind busy
                 // ones: interactive work arriving waits for no batch queue.
                 let batch = s.in_flight.len() < s.threads as usize;
-                let next =
-                    next_open_tile(&mut self.frames, cfg, total_threads, &self.served, self.handed, batch);
+                let next = next_open_tile(
+                    &mut self.frames,
+                    cfg,
+                    total_threads,
+                    &self.served,
+                    self.handed,
+                    batch,
+                    &mut frame_order,
+                );
                 let Some((fi, tile)) = next else {
                     if batch {
                         break 'rounds;
@@ -991,7 +1016,7 @@ impl Scheduler {
                     *reassigned.entry((*id, f.id)).or_default() += 1;
                 }
                 s.in_flight.insert((f.id, tile));
-                batches.entry((*id, f.id)).or_default().push(TileJob { id: tile, tile: rec.tile });
+                batches.push(((*id, f.id), TileJob { id: tile, tile: rec.tile }));
                 progressed = true;
             }
             if !progressed {
@@ -1028,14 +1053,27 @@ impl Scheduler {
                     rec.hand_to(*id);
                     s.in_flight.insert((f.id, tile));
                     f.stats.duplicated += 1;
-                    batches.entry((*id, f.id)).or_default().push(TileJob { id: tile, tile: rec.tile });
+                    batches.push(((*id, f.id), TileJob { id: tile, tile: rec.tile }));
                 }
             }
         }
-        for ((slave, frame), tiles) in batches {
+        // One assignment per slave and frame, in that order, its tiles in
+        // the order they were handed out (the sort is stable).
+        batches.sort_by_key(|&(key, _)| key);
+        let mut rest = batches.as_slice();
+        while let Some(&((slave, frame), _)) = rest.first() {
+            let n = rest.iter().take_while(|&&(key, _)| key == (slave, frame)).count();
+            let (batch, after) = rest.split_at(n);
+            let tiles = batch.iter().map(|&(_, job)| job).collect();
             let reassigned = reassigned.get(&(slave, frame)).copied().unwrap_or(0);
             self.outputs.push_back(Output::Assign { slave, frame, tiles, reassigned });
+            rest = after;
         }
+        keyed.clear();
+        order.clear();
+        frame_order.clear();
+        batches.clear();
+        self.scratch = Scratch { keyed, order, frames: frame_order, batches };
     }
 }
 
@@ -1082,7 +1120,7 @@ fn move_waiting_tiles(
     frames: &mut VecDeque<FrameState>,
     order: &[SlaveId],
     now: Duration,
-    batches: &mut BTreeMap<(SlaveId, FrameId), Vec<TileJob>>,
+    batches: &mut Vec<((SlaveId, FrameId), TileJob)>,
     outputs: &mut VecDeque<Output>,
 ) {
     // Tiles waiting beyond their slave's threads, the most backed-up slave
@@ -1129,7 +1167,7 @@ fn move_waiting_tiles(
             f.stats.moved += 1;
             let s = slaves.get_mut(id).expect("ordered ids are live");
             s.in_flight.insert((frame, tile));
-            batches.entry((*id, frame)).or_default().push(job);
+            batches.push(((*id, frame), job));
         }
     }
 }
@@ -1147,15 +1185,15 @@ fn next_open_tile(
     served: &BTreeMap<ClientId, u64>,
     handed: u64,
     batch: bool,
+    order: &mut Vec<usize>,
 ) -> Option<(usize, TileId)> {
     // Tiles queued in the other frames: with enough of them, the end of a
     // frame is not the end of the work, and its tiles need no splitting.
     let queued: usize = frames.iter().filter(|f| !f.done).map(|f| f.queue.len()).sum();
-    let mut order: Vec<usize> = (0..frames.len())
-        .filter(|&i| {
-            !frames[i].done && !frames[i].queue.is_empty() && (batch || frames[i].work != Work::Batch)
-        })
-        .collect();
+    order.clear();
+    order.extend((0..frames.len()).filter(|&i| {
+        !frames[i].done && !frames[i].queue.is_empty() && (batch || frames[i].work != Work::Batch)
+    }));
     // Interactive first, but one tile in BATCH_FLOOR to batch when both wait.
     let batch_turn = handed % BATCH_FLOOR == BATCH_FLOOR - 1;
     order.sort_by_key(|&i| {
@@ -1163,7 +1201,7 @@ fn next_open_tile(
         let kind = if batch_turn { f.work != Work::Batch } else { f.work != Work::Interactive };
         (kind, served.get(&f.client).copied().unwrap_or(0), i)
     });
-    for i in order {
+    for &i in order.iter() {
         let behind = queued - frames[i].queue.len();
         if let Some(tile) = next_tile(&mut frames[i], cfg, total_threads, behind) {
             return Some((i, tile));
