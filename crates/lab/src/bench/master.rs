@@ -54,7 +54,8 @@ pub struct MasterBenchArgs {
     /// Seconds the whole master routes tiles for.
     #[arg(long, default_value_t = 10)]
     seconds: u64,
-    /// Slaves that vanish at once, after the timed span.
+    /// Slaves that vanish at once after the timed span, and as many more
+    /// with the slaves rendering.
     #[arg(long, default_value_t = 100)]
     vanish: usize,
     /// The master's heartbeat timeout in milliseconds.
