@@ -1060,14 +1060,11 @@ impl Scheduler {
         // One assignment per slave and frame, in that order, its tiles in
         // the order they were handed out (the sort is stable).
         batches.sort_by_key(|&(key, _)| key);
-        let mut rest = batches.as_slice();
-        while let Some(&((slave, frame), _)) = rest.first() {
-            let n = rest.iter().take_while(|&&(key, _)| key == (slave, frame)).count();
-            let (batch, after) = rest.split_at(n);
+        for batch in batches.chunk_by(|a, b| a.0 == b.0) {
+            let (slave, frame) = batch[0].0;
             let tiles = batch.iter().map(|&(_, job)| job).collect();
             let reassigned = reassigned.get(&(slave, frame)).copied().unwrap_or(0);
             self.outputs.push_back(Output::Assign { slave, frame, tiles, reassigned });
-            rest = after;
         }
         keyed.clear();
         order.clear();
