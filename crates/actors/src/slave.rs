@@ -496,7 +496,7 @@ async fn receive_chunks(
             }
             Message::SceneChunk { hash: of, index, bytes } => {
                 let Some(rx) = incoming.as_mut() else { return Err(JoinError::Unexpected("SceneChunk")) };
-                let p = rx.chunk(&of, index, &bytes).map_err(bad)?;
+                let p = rx.chunk(&of, index, bytes.into_vec()).map_err(bad)?;
                 client::send_message(conn, &Message::SceneAck { hash: of, chunks_received: p.chunks })?;
                 if p.complete
                     && let Some(rx) = incoming.take()
@@ -645,7 +645,7 @@ impl<R: Renderer> SlaveActor<R> {
     /// A chunk of the scene coming in: acknowledged, and the scene loaded
     /// once it is whole. A bad one ends the session (the master is lying or
     /// broken).
-    fn scene_chunk(&mut self, hash: SceneHash, index: u32, bytes: &[u8], ctx: &mut Context<Self>) {
+    fn scene_chunk(&mut self, hash: SceneHash, index: u32, bytes: Vec<u8>, ctx: &mut Context<Self>) {
         let Some(rx) = self.incoming.as_mut() else {
             return self.finish("a scene chunk before its SceneBegin".into(), ctx);
         };
@@ -840,7 +840,9 @@ impl<R: Renderer> Handler<Inbound> for SlaveActor<R> {
                     Err(e) => self.finish(format!("bad scene from the master: {e}"), ctx),
                 }
             }
-            Ok(Message::SceneChunk { hash, index, bytes }) => self.scene_chunk(hash, index, &bytes, ctx),
+            Ok(Message::SceneChunk { hash, index, bytes }) => {
+                self.scene_chunk(hash, index, bytes.into_vec(), ctx)
+            }
             Ok(Message::Cancel { frame, tiles }) => {
                 if let Ok(mut c) = self.cancelled.lock() {
                     c.extend(tiles.into_iter().map(|t| (frame, t)));
