@@ -103,7 +103,8 @@ impl Incoming {
             Unpacking::Beside { feed, .. } => {
                 if feed.send((*hash, index, bytes)).is_err() {
                     // The thread stopped: at a chunk it refused.
-                    return Err(self.fail());
+                    let stopped = || StreamError::Corrupt("the scene's unpacking stopped".into());
+                    return Err(self.take_receiver().err().unwrap_or_else(stopped));
                 }
             }
             Unpacking::Failed => return Err(StreamError::Corrupt("the scene failed to unpack".into())),
@@ -118,23 +119,9 @@ impl Incoming {
         Ok(self.taken)
     }
 
-    /// The unpacking thread's error, once it has stopped.
-    fn fail(&mut self) -> StreamError {
-        match std::mem::replace(&mut self.unpacking, Unpacking::Failed) {
-            Unpacking::Beside { feed, thread } => {
-                drop(feed);
-                match thread.join() {
-                    Ok(Err(e)) => e,
-                    Ok(Ok(_)) => StreamError::Corrupt("the scene's unpacking stopped".into()),
-                    Err(_) => StreamError::Corrupt("the scene's unpacking panicked".into()),
-                }
-            }
-            _ => StreamError::Corrupt("the scene failed to unpack".into()),
-        }
-    }
-
-    /// The receiver, every chunk unpacked (waiting for the thread).
-    fn receiver(mut self) -> Result<Receiver, StreamError> {
+    /// The receiver, every chunk fed so far unpacked (waiting for the
+    /// thread), or the error that stopped the unpacking; unpacking is over.
+    fn take_receiver(&mut self) -> Result<Receiver, StreamError> {
         match std::mem::replace(&mut self.unpacking, Unpacking::Failed) {
             Unpacking::Inline(rx) => Ok(rx),
             Unpacking::Beside { feed, thread } => {
@@ -162,11 +149,11 @@ impl Incoming {
 
     /// The bundle decoded, its hash not checked yet; the transfer logged
     /// ("decoded in" counts the wait for the last chunks' unpacking too).
-    fn decode(self) -> Result<Unchecked, StreamError> {
+    fn decode(mut self) -> Result<Unchecked, StreamError> {
         let h = self.header.clone();
         let received = self.received.unwrap_or_else(|| self.since.elapsed());
         let t0 = Instant::now();
-        let unchecked = self.receiver()?.decode()?;
+        let unchecked = self.take_receiver()?.decode()?;
         tracing::info!(
             "scene {} received: {} bytes compressed, {} unpacked, in {:.3} s (decoded in {:.3} s)",
             h.name,
