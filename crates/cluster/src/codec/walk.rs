@@ -5,15 +5,16 @@
 //! The master checks every tile a slave sends before it counts it, and for
 //! a viewer that decodes the slave's codec it forwards the bytes as they
 //! came, so decoding them only to throw the pixels away cost it about a
-//! sixth of its CPU (12 slaves at 320×240). Both formats make validity a matter of structure alone: a QOI
-//! op always yields a pixel (its index cache and differences need no
-//! checking) and an LZ4 sequence is valid when its literals are in the
-//! input and its match reaches back into what was already produced. A walk
-//! is therefore as strict as a decoder, and it is stricter than the ones
-//! this build uses where they are lenient (a QOI run past the last pixel,
-//! an RGBA op in an RGB image, bytes after the end marker, an LZ4 match at
-//! offset 0): the encoders never write those, and a check that passes means
-//! every decoder produces the tile ([`super::decode_into`] included).
+//! sixth of its CPU (12 slaves at 320×240). Both formats make validity a
+//! matter of structure alone: a QOI op always yields a pixel (its index
+//! cache and differences need no checking) and an LZ4 sequence is valid when
+//! its literals are in the input and its match reaches back into what was
+//! already produced. A walk is therefore as strict as a decoder, and it is
+//! stricter than the ones this build uses where they are lenient (a QOI run
+//! past the last pixel, an RGBA op in an RGB image, bytes after the end
+//! marker, an LZ4 match at offset 0): the encoders never write those, and a
+//! check that passes means every decoder produces the tile
+//! ([`super::decode_into`] included).
 
 /// The end marker of a QOI stream.
 const QOI_END: [u8; 8] = [0, 0, 0, 0, 0, 0, 0, 1];
